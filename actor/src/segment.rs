@@ -1,0 +1,224 @@
+//! The segmenter (an "adder" in Acme's words): turns one environment's stream of steps into the segments the
+//! learner stores, exactly as algorithm.md 2:
+//!
+//! * a completed lap flushes the staged steps as a [`Outcome::Lap`] segment (D+);
+//! * a truncation flushes them as [`Outcome::Failure`] (D?);
+//! * a step at which the expert failed goes straight to D? as its own [`Outcome::ExpertFailure`] segment, and after
+//!   `patience` consecutive failures the episode is truncated ([`EndReason::ExpertFailure`]);
+//! * steps still staged when the epoch's budget runs out are flushed as [`Outcome::Incomplete`] (the reference drops
+//!   them; kept here for the dynamics model, never labelled).
+//!
+//! One deliberate difference from the reference: the reference checks its flush *before* appending the current
+//! frame, so the frame whose transition completes a lap lands in the next lap's staging, and the frame that
+//! causes a truncation is dropped with the reset. Here the step belongs to the segment its transition ends: the
+//! lap-completing step is part of the lap (its next state is safe by Definition 1) and the truncating step is part
+//! of the failure.
+
+use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
+
+/// Where a step's episode stands after it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepEnd {
+    /// The episode goes on.
+    Continue,
+    /// A lap was completed on this step; the episode goes on.
+    Lap,
+    /// The episode was truncated on this step.
+    Truncated(EndReason),
+}
+
+/// One environment's staging buffer.
+#[derive(Debug)]
+pub struct Segmenter {
+    actor: String,
+    env: u32,
+    episode: u64,
+    patience: u32,
+    failures_in_a_row: u32,
+    staged: Vec<Step>,
+}
+
+/// Numbers the segments of one actor (its `seq`).
+#[derive(Debug, Default)]
+pub struct SeqCounter(pub u64);
+
+impl SeqCounter {
+    fn next(&mut self) -> u64 {
+        self.0 += 1;
+        self.0 - 1
+    }
+}
+
+impl Segmenter {
+    pub fn new(actor: &str, env: u32, patience: u32) -> Self {
+        Segmenter {
+            actor: actor.to_string(),
+            env,
+            episode: 0,
+            patience: patience.max(1),
+            failures_in_a_row: 0,
+            staged: Vec::new(),
+        }
+    }
+
+    pub fn episode(&self) -> u64 {
+        self.episode
+    }
+
+    pub fn staged(&self) -> usize {
+        self.staged.len()
+    }
+
+    fn cut(&mut self, outcome: Outcome, steps: Vec<Step>, version: u64, seq: &mut SeqCounter) -> Segment {
+        Segment {
+            actor: self.actor.clone(),
+            env: self.env,
+            episode: self.episode,
+            seq: seq.next(),
+            policy_version: version,
+            outcome,
+            steps,
+        }
+    }
+
+    /// Adds one step. Returns the segments it completes and whether the episode must end (reset) now: after a
+    /// truncation by the environment, or when the expert failed `patience` times in a row.
+    pub fn push(
+        &mut self,
+        step: Step,
+        end: StepEnd,
+        version: u64,
+        seq: &mut SeqCounter,
+        out: &mut Vec<Segment>,
+    ) -> Option<EndReason> {
+        let expert_ok = step.expert_ok;
+        if expert_ok {
+            self.failures_in_a_row = 0;
+            self.staged.push(step);
+        } else {
+            self.failures_in_a_row += 1;
+            let seg = self.cut(Outcome::ExpertFailure, vec![step], version, seq);
+            out.push(seg);
+        }
+        let end_reason = match end {
+            StepEnd::Truncated(reason) => Some(reason),
+            _ if self.failures_in_a_row >= self.patience => Some(EndReason::ExpertFailure),
+            _ => None,
+        };
+        match (end, end_reason) {
+            (_, Some(reason)) => {
+                let steps = std::mem::take(&mut self.staged);
+                if !steps.is_empty() {
+                    let seg = self.cut(Outcome::Failure(reason), steps, version, seq);
+                    out.push(seg);
+                }
+                self.new_episode();
+                Some(reason)
+            }
+            (StepEnd::Lap, None) => {
+                let steps = std::mem::take(&mut self.staged);
+                if !steps.is_empty() {
+                    let seg = self.cut(Outcome::Lap, steps, version, seq);
+                    out.push(seg);
+                }
+                None
+            }
+            _ => None,
+        }
+    }
+
+    /// The budget ran out: flush what is staged as incomplete and start a new episode.
+    pub fn finish(&mut self, version: u64, seq: &mut SeqCounter, out: &mut Vec<Segment>) {
+        let steps = std::mem::take(&mut self.staged);
+        if !steps.is_empty() {
+            let seg = self.cut(Outcome::Incomplete, steps, version, seq);
+            out.push(seg);
+        }
+        self.new_episode();
+    }
+
+    fn new_episode(&mut self) {
+        self.episode += 1;
+        self.failures_in_a_row = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(ok: bool, x: f32) -> Step {
+        Step {
+            state: [1.0, 0.0, 0.0, x, 0.0, 0.0],
+            pose: [0.0; 3],
+            image: None,
+            expert_action: [0.0; 2],
+            applied_action: [0.0; 2],
+            next_state: [1.0, 0.0, 0.0, x + 0.1, 0.0, 0.0],
+            expert_ok: ok,
+        }
+    }
+
+    #[test]
+    fn a_lap_flushes_to_d_plus_with_the_lap_step() {
+        let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
+        for i in 0..5 {
+            assert_eq!(s.push(step(true, i as f32), StepEnd::Continue, 1, &mut seq, &mut out), None);
+        }
+        assert_eq!(s.push(step(true, 5.0), StepEnd::Lap, 1, &mut seq, &mut out), None);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].outcome, Outcome::Lap);
+        assert_eq!(out[0].steps.len(), 6);
+        assert_eq!(out[0].episode, 0);
+        assert_eq!(s.staged(), 0);
+    }
+
+    #[test]
+    fn a_truncation_flushes_to_d_uncertain_and_ends_the_episode() {
+        let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
+        s.push(step(true, 0.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        let end = s.push(step(true, 1.0), StepEnd::Truncated(EndReason::OutOfTrack), 1, &mut seq, &mut out);
+        assert_eq!(end, Some(EndReason::OutOfTrack));
+        assert_eq!(out[0].outcome, Outcome::Failure(EndReason::OutOfTrack));
+        assert_eq!(out[0].steps.len(), 2);
+        assert_eq!(s.episode(), 1);
+    }
+
+    #[test]
+    fn expert_failures_go_straight_to_d_uncertain_and_patience_truncates() {
+        let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
+        s.push(step(true, 0.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        assert_eq!(s.push(step(false, 1.0), StepEnd::Continue, 1, &mut seq, &mut out), None);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].outcome, Outcome::ExpertFailure);
+        // A success in between resets the count.
+        s.push(step(true, 2.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(step(false, 3.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        let end = s.push(step(false, 4.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        assert_eq!(end, Some(EndReason::ExpertFailure));
+        let outcomes: Vec<_> = out.iter().map(|s| s.outcome).collect();
+        assert_eq!(
+            outcomes,
+            [
+                Outcome::ExpertFailure,
+                Outcome::ExpertFailure,
+                Outcome::ExpertFailure,
+                Outcome::Failure(EndReason::ExpertFailure)
+            ]
+        );
+        // Every step is in exactly one segment, and sequence numbers are consecutive.
+        assert_eq!(out.iter().map(|s| s.steps.len()).sum::<usize>(), 5);
+        assert_eq!(out.iter().map(|s| s.seq).collect::<Vec<_>>(), [0, 1, 2, 3]);
+    }
+
+    #[test]
+    fn the_budget_end_flushes_incomplete() {
+        let (mut s, mut seq, mut out) = (Segmenter::new("a", 3, 2), SeqCounter::default(), vec![]);
+        s.push(step(true, 0.0), StepEnd::Continue, 4, &mut seq, &mut out);
+        s.finish(4, &mut seq, &mut out);
+        assert_eq!(out[0].outcome, Outcome::Incomplete);
+        assert_eq!((out[0].env, out[0].policy_version), (3, 4));
+        s.finish(4, &mut seq, &mut out);
+        assert_eq!(out.len(), 1, "nothing staged, nothing cut");
+    }
+}

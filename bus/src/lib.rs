@@ -1,0 +1,213 @@
+//! cabc-bus: the zenoh side of cabc, shared by the three binaries.
+//!
+//! * [`open`]: a zenoh session from the run configuration's `[bus]` section (the learner listens, the others
+//!   connect; multicast scouting off unless asked for, so a loopback run never meets strangers);
+//! * [`Bus`]: typed publishing over the codec (every payload carries its zenoh encoding), JSON metrics, a
+//!   liveliness token, and the [`Rejects`] counter of refused messages;
+//! * [`decode_sample`]: decode an incoming payload, counting and logging it when it is foreign or malformed.
+//!
+//! Only binaries open sessions (architecture.md); libraries stay free of zenoh.
+
+use cabc_proto::codec::{self, Message};
+use cabc_proto::config::BusSection;
+use cabc_proto::keys::Keys;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use zenoh::bytes::Encoding;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::qos::{CongestionControl, Reliability};
+use zenoh::Session;
+
+/// How a process joins the bus.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// A zenoh router listening on `bus.listen`: the learner, so that one machine needs no zenohd (the embedded
+    /// default). It routes between the clients.
+    Listen,
+    /// A zenoh client of `bus.connect` (actors, expert servers, tools): it waits for the router to come up and
+    /// reconnects when it restarts (a learner resumed with `--resume`).
+    Connect,
+}
+
+/// Errors of the bus.
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    #[error("bad zenoh configuration {key} = {value}: {why}")]
+    Config {
+        key: &'static str,
+        value: String,
+        why: String,
+    },
+}
+
+fn zerr(e: impl std::fmt::Display) -> BusError {
+    BusError::Zenoh(e.to_string())
+}
+
+/// Builds the zenoh configuration of a process (endpoints from the run configuration).
+pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusError> {
+    let mut config = zenoh::Config::default();
+    let set = |config: &mut zenoh::Config, key: &'static str, value: String| {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| BusError::Config {
+                key,
+                value: value.clone(),
+                why: e.to_string(),
+            })
+    };
+    let endpoints = |list: &[String]| serde_json::to_string(list).expect("strings serialise");
+    match role {
+        Role::Listen => {
+            set(&mut config, "mode", "\"router\"".into())?;
+            set(&mut config, "listen/endpoints", endpoints(&bus.listen))?;
+        }
+        Role::Connect => {
+            set(&mut config, "mode", "\"client\"".into())?;
+            set(&mut config, "connect/endpoints", endpoints(&bus.connect))?;
+            // Wait for the router (it may start later) and never give up on it.
+            set(&mut config, "connect/timeout_ms", "-1".into())?;
+            set(&mut config, "connect/exit_on_failure", "false".into())?;
+        }
+    }
+    set(
+        &mut config,
+        "scouting/multicast/enabled",
+        bus.multicast_scouting.to_string(),
+    )?;
+    Ok(config)
+}
+
+/// Opens a zenoh session.
+pub async fn open(bus: &BusSection, role: Role) -> Result<Session, BusError> {
+    zenoh::open(zenoh_config(bus, role)?).await.map_err(zerr)
+}
+
+/// Counts messages refused by the codec (foreign, malformed, other schema), per process.
+#[derive(Clone, Default, Debug)]
+pub struct Rejects(Arc<AtomicU64>);
+
+impl Rejects {
+    pub fn count(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
+    }
+    fn bump(&self) -> u64 {
+        self.0.fetch_add(1, Ordering::Relaxed) + 1
+    }
+}
+
+/// Decodes a payload received on `key`; a refused one is counted and logged (warn), never fatal.
+pub fn decode_sample<M: Message>(key: &str, bytes: &[u8], rejects: &Rejects) -> Option<M> {
+    match codec::decode::<M>(bytes) {
+        Ok(m) => Some(m),
+        Err(e) => {
+            let n = rejects.bump();
+            tracing::warn!(key, bytes = bytes.len(), rejected = n, "refused a message: {e}");
+            None
+        }
+    }
+}
+
+/// The zenoh encoding of a cabc message: bytes with the schema named, e.g. `application/octet-stream;cabc/TrajMessage/1`.
+pub fn encoding_of<M: Message>() -> Encoding {
+    Encoding::APPLICATION_OCTET_STREAM.with_schema(format!(
+        "cabc/{}/{}",
+        M::NAME,
+        codec::SCHEMA_VERSION
+    ))
+}
+
+/// A process's handle on the bus.
+pub struct Bus {
+    pub session: Session,
+    pub keys: Keys,
+    pub rejects: Rejects,
+    component: String,
+    _alive: LivelinessToken,
+}
+
+impl Bus {
+    /// Opens the session and declares the liveliness token `alive/<component>`.
+    pub async fn connect(
+        bus: &BusSection,
+        role: Role,
+        keys: Keys,
+        component: &str,
+    ) -> Result<Bus, BusError> {
+        let session = open(bus, role).await?;
+        let alive = session
+            .liveliness()
+            .declare_token(keys.alive(component))
+            .await
+            .map_err(zerr)?;
+        Ok(Bus {
+            session,
+            keys,
+            rejects: Rejects::default(),
+            component: component.to_string(),
+            _alive: alive,
+        })
+    }
+
+    pub fn component(&self) -> &str {
+        &self.component
+    }
+
+    /// Publishes a message reliably (blocks under congestion rather than dropping).
+    pub async fn put<M: Message>(&self, key: &str, message: &M) -> Result<(), BusError> {
+        self.session
+            .put(key, codec::encode(message))
+            .encoding(encoding_of::<M>())
+            .reliability(Reliability::Reliable)
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(zerr)
+    }
+
+    /// Publishes this component's metrics as JSON on `metrics/<component>` (readable with the zenoh CLI).
+    pub async fn metrics(&self, value: &serde_json::Value) -> Result<(), BusError> {
+        self.session
+            .put(self.keys.metrics(&self.component), value.to_string())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Drop)
+            .await
+            .map_err(zerr)
+    }
+
+    /// Closes the session (the liveliness token goes with it).
+    pub async fn close(self) -> Result<(), BusError> {
+        self.session.close().await.map_err(zerr)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_of_each_role_is_valid() {
+        let bus = BusSection::default();
+        zenoh_config(&bus, Role::Listen).unwrap();
+        zenoh_config(&bus, Role::Connect).unwrap();
+    }
+
+    #[test]
+    fn a_bad_endpoint_is_refused_with_its_key() {
+        let bus = BusSection {
+            listen: vec!["not an endpoint".into()],
+            ..BusSection::default()
+        };
+        let err = zenoh_config(&bus, Role::Listen).unwrap_err().to_string();
+        assert!(err.contains("listen/endpoints"), "{err}");
+    }
+
+    #[test]
+    fn rejects_are_counted() {
+        let rejects = Rejects::default();
+        assert!(decode_sample::<cabc_proto::messages::Stop>("k", b"junk", &rejects).is_none());
+        assert!(decode_sample::<cabc_proto::messages::Stop>("k", b"CABCxxxxxx", &rejects).is_none());
+        assert_eq!(rejects.count(), 2);
+    }
+}

@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# README command 1: a local multi-process training run on loopback.
+#
+#   deploy/run-local.sh [--baseline] [PRESET|CONFIG.toml] [-- extra learner args]
+#
+# Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
+# eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
+# Default preset: v-b (MPCC expert, full state, lambda 10, rho 1). --baseline runs the same with lambda = 0.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+
+config=v-b
+baseline=0
+learner_args=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --baseline) baseline=1 ;;
+    --resume) learner_args+=(--resume) ;;
+    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    --) shift; learner_args+=("$@"); break ;;
+    -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
+    *) config=$1 ;;
+  esac
+  shift
+done
+
+"$root/deploy/setup.sh"
+echo "[run-local] building (release)" >&2
+cargo build --release --quiet --bins
+bin="$root/target/release"
+for b in learner actor expert-server; do
+  [ -x "$bin/$b" ] || { echo "[run-local] error: $bin/$b was not built" >&2; exit 1; }
+done
+
+extra=()
+[ "$baseline" = 1 ] && extra+=(--baseline)
+# The learner resolves the configuration (preset or file), writes it into the run folder and prints the folder.
+run_dir=$("$bin/learner" prepare --config "$config" "${extra[@]}")
+cfg="$run_dir/config.toml"
+logs="$run_dir/logs"
+mkdir -p "$logs"
+actors=$("$bin/learner" show --config "$cfg" actors.count)
+echo "[run-local] run folder $run_dir; $actors actors + 1 eval actor; logs in $logs" >&2
+
+pids=()
+cleanup() {
+  trap - INT TERM EXIT
+  echo "[run-local] stopping" >&2
+  for p in "${pids[@]}"; do kill -INT "$p" 2>/dev/null || true; done
+  sleep 2
+  for p in "${pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+}
+trap cleanup INT TERM EXIT
+
+"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> "$logs/learner.log" &
+learner_pid=$!
+pids+=("$learner_pid")
+sleep 1
+"$bin/expert-server" serve --config "$cfg" --id 0 2> "$logs/expert-server-0.log" &
+pids+=($!)
+for i in $(seq 0 $((actors - 1))); do
+  "$bin/actor" --config "$cfg" --id "actor-$i" 2> "$logs/actor-$i.log" &
+  pids+=($!)
+done
+"$bin/actor" --config "$cfg" --id eval --eval 2> "$logs/eval.log" &
+pids+=($!)
+
+status=0
+wait "$learner_pid" || status=$?
+echo "[run-local] learner finished (exit $status); summary: $run_dir/summary.json" >&2
+exit "$status"

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Installs everything the build needs, idempotently (a second run takes a second):
+#   * libtorch 2.13.0, from `pip install torch==2.13.0` into .deps/torch (git-ignored): the only way to get
+#     libtorch here. tch finds it through LIBTORCH, set in .cargo/config.toml; binaries carry an rpath to it.
+#   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable.
+# Prints what it does; fails with a message that names what is missing.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+TORCH_VERSION=2.13.0
+deps="$root/.deps"
+torch_dir="$deps/torch"
+marker="$torch_dir/.cabc-installed-$TORCH_VERSION"
+
+say() { echo "[setup] $*" >&2; }
+die() { echo "[setup] error: $*" >&2; exit 1; }
+
+command -v cargo >/dev/null || die "cargo is not on PATH: install Rust (rustup) first"
+python=${PYTHON:-python3}
+command -v "$python" >/dev/null || die "$python is not on PATH: libtorch is installed with pip, which needs Python 3"
+
+if [ ! -f "$marker" ]; then
+  say "installing libtorch $TORCH_VERSION (pip install torch==$TORCH_VERSION, ~4.7 GB with its CUDA libraries) into $torch_dir"
+  start=$(date +%s)
+  rm -rf "$torch_dir.partial"
+  "$python" -m pip install --quiet --disable-pip-version-check --no-cache-dir \
+    --target "$torch_dir.partial" "torch==$TORCH_VERSION" \
+    || die "pip install torch==$TORCH_VERSION failed (is PyPI reachable?)"
+  rm -rf "$torch_dir"
+  mv "$torch_dir.partial" "$torch_dir"
+  touch "$marker"
+  say "libtorch installed in $(( $(date +%s) - start )) s ($(du -sh "$torch_dir" | cut -f1))"
+fi
+[ -f "$torch_dir/torch/lib/libtorch_cpu.so" ] || die "$torch_dir/torch/lib/libtorch_cpu.so is missing: remove $torch_dir and run again"
+
+if ! pkg-config --exists fontconfig freetype2 2>/dev/null; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    say "installing fontconfig/freetype development files (plots)"
+    apt-get update -qq && apt-get install -y -qq pkg-config libfontconfig1-dev libfreetype-dev fonts-dejavu-core >/dev/null
+  else
+    die "fontconfig and freetype development files are missing: install pkg-config, libfontconfig1-dev and libfreetype-dev"
+  fi
+fi
+say "ready (LIBTORCH=$torch_dir/torch, set for cargo in .cargo/config.toml)"

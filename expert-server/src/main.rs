@@ -1,0 +1,108 @@
+//! `expert-server`: answers relabelling queries on `cabc/<run>/expert/<kind>` (serve), drives the simulator with an
+//! expert alone (drive), and measures solve rates (bench). A thin shell over the `cabc_expert` library.
+
+mod server;
+
+use anyhow::{bail, Context, Result};
+use cabc_expert::drive::{bench, drive, DriveOptions};
+use cabc_expert::relabel::Expert;
+use cabc_expert::{Mpcc, MpccConfig};
+use cabc_proto::config::{ExpertKind, RunConfig};
+use cabc_sim::track::Track;
+use cabc_sim::vehicle::VehicleParams;
+use clap::{Parser, Subcommand};
+use std::sync::Arc;
+
+#[derive(Parser)]
+#[command(name = "expert-server", version, about = "The cabc expert: MPCC-conv on Clarabel or the PID lane follower")]
+struct Cli {
+    /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
+    #[arg(long, short, global = true, default_value = "v-b")]
+    config: String,
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Serve relabelling queries over zenoh (the default).
+    Serve(server::ServeArgs),
+    /// Drive the simulator with the MPCC alone from the fixed spawn and print a JSON summary.
+    Drive {
+        /// Laps to drive.
+        #[arg(long, default_value_t = 3)]
+        laps: usize,
+        /// Step limit.
+        #[arg(long, default_value_t = 5000)]
+        max_steps: usize,
+        /// Write every step as CSV.
+        #[arg(long)]
+        trace: Option<std::path::PathBuf>,
+        /// Draw the driven line on the track (PNG).
+        #[arg(long)]
+        plot: Option<std::path::PathBuf>,
+    },
+    /// Print MPCC solves per second per core and step-time percentiles.
+    Bench {
+        /// Closed-loop steps to time.
+        #[arg(long, default_value_t = 300)]
+        steps: usize,
+    },
+}
+
+fn main() -> Result<()> {
+    cabc_proto::telemetry::init();
+    let cli = Cli::parse();
+    let config = RunConfig::load(&cli.config).with_context(|| format!("loading configuration {}", cli.config))?;
+    match cli.command.unwrap_or(Command::Serve(server::ServeArgs::default())) {
+        Command::Serve(args) => {
+            let expert = match config.expert.kind {
+                ExpertKind::Mpcc => Expert::Mpcc(Arc::new(mpcc()?)),
+                ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
+            };
+            server::serve(config, expert, args)
+        }
+        Command::Drive {
+            laps,
+            max_steps,
+            trace,
+            plot,
+        } => {
+            let mpcc = mpcc()?;
+            let report = drive(
+                &mpcc,
+                &VehicleParams::default(),
+                &DriveOptions {
+                    laps,
+                    max_steps,
+                    stop_on_failure: false,
+                },
+            );
+            if let Some(path) = &trace {
+                report
+                    .write_csv(path)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            if let Some(path) = &plot {
+                let line: Vec<(f64, f64)> = report.steps.iter().map(|s| (s.state[3], s.state[4])).collect();
+                cabc_sim::picture::track_picture(mpcc.track(), &[&line], 600)
+                    .write_png(path)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            println!("{}", serde_json::to_string_pretty(&report.summary())?);
+            Ok(())
+        }
+        Command::Bench { steps } => {
+            if steps < 10 {
+                bail!("--steps must be at least 10");
+            }
+            let report = bench(&mpcc()?, &VehicleParams::default(), steps)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(())
+        }
+    }
+}
+
+fn mpcc() -> Result<Mpcc> {
+    Mpcc::new(Track::l_track_barc(), VehicleParams::default(), MpccConfig::default()).context("building the MPCC")
+}

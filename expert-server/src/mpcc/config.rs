@@ -1,0 +1,138 @@
+//! Every number of MPCC-conv (expert.md §2–§9), in one place. `Default` = the reference wrapper's values.
+
+use serde::{Deserialize, Serialize};
+
+/// The MPCC-conv configuration. Weights are the *effective* ones (expert.md §4: the reference's `0.5·c·v²` costs
+/// with a doubled Hessian minimise `c·v²`); the slack weight is HPIPM's `Z` (cost `½·Z·σ²`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MpccConfig {
+    /// Horizon length N (stages).
+    pub horizon: usize,
+    /// Control period dt [s].
+    pub dt: f64,
+    /// RK4 sub-steps per dt in the prediction model (M = 10, h = 0.01 s).
+    pub rk4_substeps: usize,
+
+    /// Contouring-error weight q_c (also terminal q_cN).
+    pub q_contour: f64,
+    /// Lag-error weight q_l (also terminal q_lN).
+    pub q_lag: f64,
+    /// Yaw-rate weight at stages 1..N−1.
+    pub q_yaw_rate: f64,
+    /// Yaw-rate weight at the terminal stage N.
+    pub q_yaw_rate_terminal: f64,
+    /// Input weights on (a, δ, v_s).
+    pub r_input: [f64; 3],
+    /// Linear progress reward on v_s (the cost is −reward·v_s per stage).
+    pub progress_reward: f64,
+    /// Weights on the **scaled** input rates r = T_w·Δw/dt (expert.md §6).
+    pub r_rate: [f64; 3],
+    /// Quadratic track-slack weight Z (cost ½·Z·σ²; HPIPM's Zl = Zu).
+    pub slack_weight: f64,
+    /// Regularisation added to each scaled stage Hessian diagonal (the reference's 1e−10·I).
+    pub hessian_reg: f64,
+
+    /// Lower state bounds on (v_x, v_y, ω, ψ); X and Y are unbounded (the reference's ±1e9).
+    pub state_lb: [f64; 4],
+    /// Upper state bounds on (v_x, v_y, ω, ψ).
+    pub state_ub: [f64; 4],
+    /// Progress bounds: s ∈ [s_lb, s_ub_laps·L].
+    pub s_lb: f64,
+    /// Upper progress bound in track lengths (2).
+    pub s_ub_laps: f64,
+    /// Input lower bounds (a, δ, v_s).
+    pub input_lb: [f64; 3],
+    /// Input upper bounds (a, δ, v_s).
+    pub input_ub: [f64; 3],
+    /// Symmetric bounds on the scaled rates r (40, 4.5, 5).
+    pub rate_bound: [f64; 3],
+
+    /// Boundary tightening [m]: the boundary splines sit at e_y = ±(half_width − tightening).
+    pub track_tightening: f64,
+    /// Number of spline sample points along the track (100, including both ends).
+    pub spline_points: usize,
+
+    /// State scaling T_x⁻¹ (physical = scale × scaled) for (v_x, v_y, ω, X, Y, ψ); s uses ⌈L⌉.
+    pub state_scale: [f64; 6],
+    /// Input scaling T_w⁻¹ for (a, δ, v_s).
+    pub input_scale: [f64; 3],
+
+    /// QP iterations per control step.
+    pub qp_iters: usize,
+    /// Weight of the previous iterate in the damped update D ← damping·D + (1 − damping)·D*.
+    pub damping: f64,
+    /// QP iterations at a stream's start.
+    pub start_qp_iters: usize,
+    /// Damping at a stream's start.
+    pub start_damping: f64,
+    /// Initial (a, δ) of the warm start and of w_prev at a stream's start (v_s starts at 0).
+    pub start_input: f64,
+
+    /// Clarabel iteration limit.
+    pub max_iter: u32,
+    /// Clarabel absolute and relative gap tolerance.
+    pub tol_gap: f64,
+    /// Clarabel feasibility tolerance.
+    pub tol_feas: f64,
+    /// Count Clarabel's `AlmostSolved` (reduced accuracy) as success. Off: HPIPM has no such status and stops
+    /// with "max iterations" where Clarabel would fall back to reduced tolerances.
+    pub accept_almost_solved: bool,
+    /// Reuse one Clarabel solver per stream and overwrite its data (`update_P/q/A/b`) instead of rebuilding.
+    pub reuse_solver: bool,
+}
+
+impl Default for MpccConfig {
+    fn default() -> Self {
+        Self {
+            horizon: 20,
+            dt: 0.1,
+            rk4_substeps: 10,
+            q_contour: 0.1,
+            q_lag: 1000.0,
+            q_yaw_rate: 1e-5,
+            q_yaw_rate_terminal: 1e-4,
+            r_input: [1e-3, 1e-3, 1e-4],
+            progress_reward: 0.03,
+            r_rate: [0.01, 0.01, 1e-3],
+            slack_weight: 10000.0,
+            hessian_reg: 1e-10,
+            state_lb: [-4.0, -2.0, -7.0, -10.0],
+            state_ub: [4.0, 2.0, 7.0, 10.0],
+            s_lb: -1.0,
+            s_ub_laps: 2.0,
+            input_lb: [-2.0, -0.45, 0.0],
+            input_ub: [2.0, 0.45, 4.5],
+            rate_bound: [40.0, 4.5, 5.0],
+            track_tightening: 0.1,
+            spline_points: 100,
+            state_scale: [4.0, 2.0, 7.0, 6.0, 6.0, 2.0 * std::f64::consts::PI],
+            input_scale: [2.0, 0.436, 4.5],
+            qp_iters: 2,
+            damping: 0.25,
+            start_qp_iters: 5,
+            start_damping: 0.5,
+            start_input: 1e-3,
+            max_iter: 200,
+            tol_gap: 1e-6,
+            tol_feas: 1e-6,
+            accept_almost_solved: false,
+            reuse_solver: true,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips_through_json_and_fills_defaults() {
+        let c = MpccConfig { qp_iters: 3, ..MpccConfig::default() };
+        let s = serde_json::to_string(&c).unwrap();
+        assert_eq!(serde_json::from_str::<MpccConfig>(&s).unwrap(), c);
+        let partial: MpccConfig = serde_json::from_str(r#"{"damping": 0.5}"#).unwrap();
+        assert_eq!(partial.damping, 0.5);
+        assert_eq!(partial.horizon, 20);
+    }
+}

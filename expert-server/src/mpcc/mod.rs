@@ -1,0 +1,330 @@
+//! MPCC-conv: the convexified model predictive contouring controller of the seed paper's expert (expert.md).
+//!
+//! Per control step (expert.md §7): measure (q̂ with ψ mod 2π, ŝ from the exact Frenet projection), roll the
+//! shifted warm start w̄_ws out with the nonlinear RK4 model, then `qp_iters` (2) times build the convex QP around
+//! the iterate D — RK4 Jacobians, Gauss–Newton contouring/lag errors on not-a-knot track splines, input-rate
+//! variables, a soft track slab frozen at the warm-start progress, hard boxes, scaled variables — solve it with
+//! Clarabel and take the damped step D ← 0.25·D + 0.75·D*. The action is the first input of the *blended* iterate.
+//! A stream starts with 5 such iterations, damping 0.5, from a 1e−3 input guess (`Mpcc::start`).
+//!
+//! # Reference quirks kept on purpose
+//! * Transition k → k+1 is linearised at (q̄_k, w̄_{k−1}), the input stored with stage k, not the one applied on
+//!   the interval (the reference linearises the rate-augmented dynamics at zero rate).
+//! * Rate bounds and weights act on *scaled* rates r = T_w·Δw/dt (|Δδ| ≤ 0.196 rad per step, §6).
+//! * Track constraint is a soft slab with a quadratic-only penalty, linearised at the warm-start progress and kept
+//!   fixed over the iterations of a step; the reference point is the midpoint of the two tightened boundaries.
+//! * The applied action comes from the blended (damped) iterate; no line search, no convergence test.
+//! * On failure the shifted previous plan is replayed (its first input is applied) and `success = false`; start-up
+//!   failures only stop the start-up loop. w_prev is the expert's own previous output (not the applied action).
+//! * Spline lookups use C `fmod(s, L)`; the splines are not periodic (derivatives jump slightly at s = 0 ≡ L).
+//! * The first step after `start` uses w_prev = (1e−3, 1e−3, 0) (the reference never stores it at reset).
+//!
+//! # Deviations from the reference (and why)
+//! * **Clarabel instead of HPIPM** (the project's solver). Same QP; stage 0 is substituted into the right-hand
+//!   side instead of being fixed by lbx = ubx; the two one-sided slab slacks are one shared σ_k ≥ 0 (equivalent,
+//!   the slab has positive width); the inactive ±1e9 bounds on X, Y are dropped. Tolerances: gap (abs, rel) and
+//!   feasibility 1e−6, 200 iterations, as HPIPM's tol_stat/eq/ineq; HPIPM's tol_comp 1e−5 has no separate knob.
+//! * **success = Clarabel `Solved`**. `AlmostSolved` (reduced accuracy after a stall) counts as a failure by
+//!   default, matching HPIPM, which would stop at its iteration limit instead; `accept_almost_solved` flips it.
+//! * Exact RK4 Jacobians come from forward sensitivities with the simulator's hand-derived continuous Jacobians
+//!   instead of CasADi AD (equal to round-off; tested against central differences).
+//! * A QP whose assembled data is not finite is not handed to the solver: status `NonFiniteData`, a failure.
+//! * Measurements that are not finite or farther than 0.85 m from the centreline return [`MpccError`] (the
+//!   reference raises from `global_to_local`); the stream is left unchanged.
+//! * The solver is cached per stream and refilled through Clarabel's data-update interface (the pattern is
+//!   fixed); the equilibration computed for the first QP of a stream is reused for its later QPs.
+
+mod config;
+mod contour;
+mod qp;
+
+use std::time::{Duration, Instant};
+
+use cabc_sim::track::{Track, TrackError};
+use cabc_sim::vehicle::{State, VehicleParams};
+
+pub use config::MpccConfig;
+pub use contour::{ContourErrors, Slab, TrackSplines};
+pub use qp::{Linearisation, QpLayout, QpSolution, QpStatus, QpWorkspace, Stage};
+
+use crate::rk4::{Rk4, NQ};
+use crate::spline::SplineError;
+use qp::{QpInput, NZ, S, VS};
+
+/// Why the controller could not be built or could not run a step.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MpccError {
+    #[error("invalid MPCC configuration: {0}")]
+    Config(String),
+    #[error("track splines: {0}")]
+    Spline(#[from] SplineError),
+    #[error("measured state is not finite: {0:?}")]
+    NonFinite(State),
+    #[error("measured state is off the track: {0}")]
+    OffTrack(#[from] TrackError),
+}
+
+/// The controller: track splines, model and configuration. Immutable, `Send + Sync`; one per process is enough.
+#[derive(Debug, Clone)]
+pub struct Mpcc {
+    cfg: MpccConfig,
+    track: Track,
+    splines: TrackSplines,
+    model: VehicleParams,
+    rk4: Rk4,
+    layout: QpLayout,
+}
+
+/// Per-stream controller memory (expert.md §7): the warm start w̄_ws (N+1 rows of (a, δ, v_s)), w_prev, and the
+/// cached QP solver. Create with [`Mpcc::start`]; one per episode.
+#[derive(Debug)]
+pub struct MpccStream {
+    w_ws: Vec<[f64; 3]>,
+    w_prev: [f64; 3],
+    steps: u64,
+    ws: QpWorkspace,
+}
+
+impl MpccStream {
+    /// The current warm start w̄_ws (rows 0..N of (a, δ, v_s)).
+    pub fn warm_start(&self) -> &[[f64; 3]] {
+        &self.w_ws
+    }
+
+    /// w_prev = w_{−1} of the next QP.
+    pub fn w_prev(&self) -> [f64; 3] {
+        self.w_prev
+    }
+
+    /// Steps taken on this stream.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+}
+
+/// What one control step returns.
+#[derive(Debug, Clone)]
+pub struct MpccStep {
+    /// (a, δ) to apply.
+    pub action: [f64; 2],
+    /// Every QP of the step returned `Solved`.
+    pub success: bool,
+    /// The first failing QP's status, else the last QP's.
+    pub status: QpStatus,
+    /// QPs solved (attempted) in this step.
+    pub qps: u32,
+    /// Sum of Clarabel's interior-point iterations.
+    pub qp_iterations: u32,
+    /// Sum of Clarabel's solve times.
+    pub solve_time: Duration,
+    /// Wall time of the whole step (rollouts, linearisation, assembly, solves).
+    pub step_time: Duration,
+    /// Nonlinear rollout of the plan from (q̂, ŝ): N+1 states (ψ continues from ψ̂ = ψ mod 2π).
+    pub predicted: Vec<State>,
+    /// Progress s along the prediction (N+1 values, not wrapped).
+    pub predicted_s: Vec<f64>,
+    /// The plan w_pred (N rows of (a, δ, v_s)); `plan[0]` holds the action.
+    pub plan: Vec<[f64; 3]>,
+}
+
+/// Outcome of the QP loop around one warm start.
+struct LoopOutcome {
+    iterate: Vec<Stage>,
+    success: bool,
+    status: QpStatus,
+    qps: u32,
+    iterations: u32,
+    solve_time: Duration,
+}
+
+impl Mpcc {
+    /// The controller for `track` with the prediction model `model` (the simulator's vehicle).
+    pub fn new(track: Track, model: VehicleParams, cfg: MpccConfig) -> Result<Self, MpccError> {
+        if cfg.horizon == 0 || cfg.rk4_substeps == 0 || !(cfg.dt > 0.0) {
+            return Err(MpccError::Config("horizon, rk4_substeps and dt must be positive".into()));
+        }
+        if !(0.0..1.0).contains(&cfg.damping) || !(0.0..1.0).contains(&cfg.start_damping) {
+            return Err(MpccError::Config("damping must lie in [0, 1)".into()));
+        }
+        if cfg.spline_points < 4 {
+            return Err(MpccError::Config("spline_points must be at least 4".into()));
+        }
+        let splines = TrackSplines::new(&track, cfg.spline_points, cfg.track_tightening)?;
+        let layout = QpLayout::new(&cfg, track.length());
+        let rk4 = Rk4 { dt: cfg.dt, substeps: cfg.rk4_substeps };
+        Ok(Self { cfg, track, splines, model, rk4, layout })
+    }
+
+    /// The reference controller on `L_track_barc` with the reference vehicle.
+    pub fn reference() -> Self {
+        Self::new(Track::l_track_barc(), VehicleParams::default(), MpccConfig::default())
+            .expect("the reference configuration is valid")
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MpccConfig {
+        &self.cfg
+    }
+
+    /// The track.
+    pub fn track(&self) -> &Track {
+        &self.track
+    }
+
+    /// The track splines.
+    pub fn splines(&self) -> &TrackSplines {
+        &self.splines
+    }
+
+    /// The QP layout.
+    pub fn layout(&self) -> &QpLayout {
+        &self.layout
+    }
+
+    /// (q̂, ŝ): ψ mod 2π and the exact Frenet progress (expert.md §7.1).
+    fn measure(&self, q: &State) -> Result<[f64; 7], MpccError> {
+        if q.iter().any(|v| !v.is_finite()) {
+            return Err(MpccError::NonFinite(*q));
+        }
+        let psi = q[5].rem_euclid(2.0 * std::f64::consts::PI);
+        let s = self.track.global_to_local(q[3], q[4], psi)?.s;
+        Ok([q[0], q[1], q[2], q[3], q[4], psi, s])
+    }
+
+    /// Nonlinear rollout of inputs `w[0..N]` (w[k] applied on [k, k+1]) from x0; returns N+1 stages' (q, s).
+    fn rollout(&self, x0: &[f64; 7], w: &[[f64; 3]]) -> Vec<[f64; 7]> {
+        let mut out = Vec::with_capacity(w.len() + 1);
+        out.push(*x0);
+        for wk in w {
+            let x = out.last().expect("nonempty");
+            let q: [f64; NQ] = std::array::from_fn(|i| x[i]);
+            let qn = self.rk4.map(&self.model, &q, &[wk[0], wk[1]]);
+            out.push([qn[0], qn[1], qn[2], qn[3], qn[4], qn[5], x[S] + self.cfg.dt * wk[2]]);
+        }
+        out
+    }
+
+    /// The QP loop of expert.md §7.2–3 around the warm start `w_ws` (N+1 rows) from `x0`.
+    fn qp_loop(
+        &self,
+        ws: &mut QpWorkspace,
+        x0: &[f64; 7],
+        w_ws: &[[f64; 3]],
+        w_prev: [f64; 3],
+        iters: usize,
+        damping: f64,
+    ) -> LoopOutcome {
+        let (mut d, slabs) = self.initial_iterate(x0, w_ws);
+        let mut out = LoopOutcome {
+            iterate: Vec::new(),
+            success: true,
+            status: QpStatus::NotRun,
+            qps: 0,
+            iterations: 0,
+            solve_time: Duration::ZERO,
+        };
+        for _ in 0..iters {
+            let sol = self.qp_around(&d, &slabs, w_prev, ws);
+            out.qps += 1;
+            out.iterations += sol.iterations;
+            out.solve_time += sol.solve_time;
+            out.status = sol.status;
+            if !sol.status.is_success(self.cfg.accept_almost_solved) {
+                out.success = false;
+                break;
+            }
+            for (dk, sk) in d.iter_mut().zip(&sol.stages).skip(1) {
+                for j in 0..NZ {
+                    dk[j] = damping * dk[j] + (1.0 - damping) * sk[j];
+                }
+            }
+        }
+        out.iterate = d;
+        out
+    }
+
+    /// Start a stream at state `q` (expert.md §7, reset): 1e−3 input guess, `start_qp_iters` (5) QP iterations
+    /// with damping `start_damping` (0.5); QP failures only stop the loop.
+    pub fn start(&self, q: &State) -> Result<MpccStream, MpccError> {
+        let x0 = self.measure(q)?;
+        let u0 = self.cfg.start_input;
+        let w0 = [u0, u0, 0.0];
+        let w_ws = vec![w0; self.cfg.horizon + 1];
+        let mut ws = QpWorkspace::default();
+        let out = self.qp_loop(&mut ws, &x0, &w_ws, w0, self.cfg.start_qp_iters, self.cfg.start_damping);
+        Ok(MpccStream { w_ws: out.iterate.iter().map(|z| [z[7], z[8], z[VS]]).collect(), w_prev: w0, steps: 0, ws })
+    }
+
+    /// One control step for the stream at measured state `q` (global frame, ψ may be unwrapped).
+    pub fn step(&self, stream: &mut MpccStream, q: &State) -> Result<MpccStep, MpccError> {
+        let t0 = Instant::now();
+        let n = self.cfg.horizon;
+        let x0 = self.measure(q)?;
+        let out =
+            self.qp_loop(&mut stream.ws, &x0, &stream.w_ws, stream.w_prev, self.cfg.qp_iters, self.cfg.damping);
+        let plan: Vec<[f64; 3]> = if out.success {
+            out.iterate[1..].iter().map(|z| [z[7], z[8], z[VS]]).collect()
+        } else {
+            stream.w_ws[1..].to_vec()
+        };
+        let xs = self.rollout(&x0, &plan);
+        // Shift: w̄_ws ← [w_pred[0..N], w_pred[N−1]], w_prev ← w_pred[0].
+        stream.w_ws.clear();
+        stream.w_ws.extend_from_slice(&plan);
+        stream.w_ws.push(plan[n - 1]);
+        stream.w_prev = plan[0];
+        stream.steps += 1;
+        Ok(MpccStep {
+            action: [plan[0][0], plan[0][1]],
+            success: out.success,
+            status: out.status,
+            qps: out.qps,
+            qp_iterations: out.iterations,
+            solve_time: out.solve_time,
+            step_time: t0.elapsed(),
+            predicted: xs.iter().map(|x| std::array::from_fn(|i| x[i])).collect(),
+            predicted_s: xs.iter().map(|x| x[S]).collect(),
+            plan,
+        })
+    }
+
+    /// Build and solve a single QP around the warm start of `stream` at `q` without changing the stream
+    /// (diagnostics and tests).
+    pub fn probe_qp(&self, stream: &MpccStream, q: &State) -> Result<QpSolution, MpccError> {
+        let x0 = self.measure(q)?;
+        let (d, slabs) = self.initial_iterate(&x0, &stream.w_ws);
+        Ok(self.qp_around(&d, &slabs, stream.w_prev, &mut QpWorkspace::default()))
+    }
+
+    /// The initial iterate of a step (nonlinear rollout of w̄_ws[1..N] from x0; stage k holds w̄_ws[k]) and the
+    /// slabs at its progress, which stay fixed for all iterations of the step.
+    fn initial_iterate(&self, x0: &[f64; 7], w_ws: &[[f64; 3]]) -> (Vec<Stage>, Vec<Slab>) {
+        let xs = self.rollout(x0, &w_ws[1..]);
+        let d = xs
+            .iter()
+            .zip(w_ws)
+            .map(|(x, w)| [x[0], x[1], x[2], x[3], x[4], x[5], x[6], w[0], w[1], w[2]])
+            .collect();
+        let slabs = xs[1..].iter().map(|x| self.splines.slab(x[S])).collect();
+        (d, slabs)
+    }
+
+    /// Linearise around the iterate `d` (transition k at (q̄_k, w̄_{k−1}), errors at stages 1..N) and solve.
+    fn qp_around(&self, d: &[Stage], slabs: &[Slab], w_prev: [f64; 3], ws: &mut QpWorkspace) -> QpSolution {
+        let n = self.cfg.horizon;
+        let lin: Vec<Linearisation> = d[..n]
+            .iter()
+            .map(|z| {
+                let q: [f64; NQ] = std::array::from_fn(|i| z[i]);
+                let (f, a, b) = self.rk4.map_with_jacobians(&self.model, &q, &[z[7], z[8]]);
+                Linearisation { f, a, b }
+            })
+            .collect();
+        let errors: Vec<ContourErrors> = d[1..].iter().map(|z| self.splines.errors(z[3], z[4], z[S])).collect();
+        let input = QpInput { iterate: d, lin: &lin, errors: &errors, slabs, w_prev };
+        self.layout.solve(&input, ws)
+    }
+}
+
+#[cfg(test)]
+mod tests;

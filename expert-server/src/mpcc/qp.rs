@@ -1,0 +1,545 @@
+//! The MPCC-conv QP in Clarabel's form `min ½zᵀPz + qᵀz s.t. Az + s = b, s ∈ K` (expert.md §3–§6, §9).
+//!
+//! Decision vector z (scaled, n = 14N):
+//! * `10(k−1) + j`, k = 1..N: stage k = (x_k, w_{k−1}) = (v_x, v_y, ω, X, Y, ψ, s, a, δ, v_s), scaled x̃ = T·x;
+//! * `10N + 3k + j`, k = 0..N−1: the scaled input rate r_k (w̃_k = w̃_{k−1} + dt·r_k);
+//! * `13N + k − 1`, k = 1..N: the track slack σ_k (one per stage, relaxing both sides of the slab).
+//!
+//! Stage 0 (x_0, w_{−1}) is fixed by the measurement and w_prev, so it is substituted into the right-hand side
+//! instead of being a variable (HPIPM keeps it with lbx = ubx; same solution).
+//!
+//! Rows: 10N equalities (per transition k: 7 dynamics rows for x_{k+1}, 3 rate-integration rows for w_k), then
+//! 25N inequalities (per stage k ≥ 1: 16 box rows, 6 rate-box rows for r_{k−1}, 2 slab rows, σ_k ≥ 0).
+//!
+//! The sparsity pattern never changes: every assembly emits the same entries in the same order, so the first
+//! assembly fixes the pattern and later ones only scatter values, which is what Clarabel's `update_P/q/A/b` need.
+
+use std::time::Duration;
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{
+    DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+};
+use serde::{Deserialize, Serialize};
+
+use super::config::MpccConfig;
+use super::contour::{ContourErrors, Slab};
+use crate::rk4::{JacQ, JacU, NQ};
+
+/// Variables per stage: x_k (7) and w_{k−1} (3).
+pub const NZ: usize = 10;
+/// Index of v_s in a stage.
+pub const VS: usize = 9;
+/// Index of s in a stage.
+pub const S: usize = 6;
+const X: usize = 3;
+const Y: usize = 4;
+const OMEGA: usize = 2;
+/// Stage variables with box rows (X, Y have none: the reference's ±1e9 bounds are dropped).
+const BOXED: [usize; 8] = [0, 1, 2, 5, 6, 7, 8, 9];
+const EQ_PER_STAGE: usize = 10;
+const INEQ_PER_STAGE: usize = 2 * BOXED.len() + 6 + 2 + 1;
+
+/// A stage of the iterate in physical units.
+pub type Stage = [f64; NZ];
+
+/// One affine transition x_{k+1} = A_k x_k + B_k w_k + g_k, linearised at (q̄_k, w̄_{k−1}).
+#[derive(Debug, Clone, Copy)]
+pub struct Linearisation {
+    /// f_d(q̄_k, w̄_{k−1}).
+    pub f: [f64; NQ],
+    /// ∂f_d/∂q.
+    pub a: JacQ,
+    /// ∂f_d/∂(a, δ).
+    pub b: JacU,
+}
+
+/// Whether A_d[i][j] can be nonzero: the dynamics of (v_x, v_y, ω, ψ) do not depend on X, Y, ψ, and X and Y
+/// depend on each other only through themselves. These zeros are exact in the forward sensitivities too.
+fn a_structural(i: usize, j: usize) -> bool {
+    match j {
+        0..=2 => true,
+        3 | 4 => i == j,
+        _ => matches!(i, 3..=5),
+    }
+}
+
+/// Solver outcome of one QP, or of a whole control step (the first failing QP, else the last one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum QpStatus {
+    /// No QP was solved.
+    NotRun,
+    /// The assembled data contained NaN or ±∞ (diverged linearisation); the QP was not handed to the solver.
+    NonFiniteData,
+    /// Clarabel could not be set up with this data.
+    SetupFailed,
+    /// Clarabel's statuses.
+    Solved,
+    AlmostSolved,
+    PrimalInfeasible,
+    DualInfeasible,
+    AlmostPrimalInfeasible,
+    AlmostDualInfeasible,
+    MaxIterations,
+    MaxTime,
+    NumericalError,
+    InsufficientProgress,
+    CallbackTerminated,
+    Unsolved,
+}
+
+impl QpStatus {
+    /// The status name (Clarabel's spelling for Clarabel's statuses).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NotRun => "NotRun",
+            Self::NonFiniteData => "NonFiniteData",
+            Self::SetupFailed => "SetupFailed",
+            Self::Solved => "Solved",
+            Self::AlmostSolved => "AlmostSolved",
+            Self::PrimalInfeasible => "PrimalInfeasible",
+            Self::DualInfeasible => "DualInfeasible",
+            Self::AlmostPrimalInfeasible => "AlmostPrimalInfeasible",
+            Self::AlmostDualInfeasible => "AlmostDualInfeasible",
+            Self::MaxIterations => "MaxIterations",
+            Self::MaxTime => "MaxTime",
+            Self::NumericalError => "NumericalError",
+            Self::InsufficientProgress => "InsufficientProgress",
+            Self::CallbackTerminated => "CallbackTerminated",
+            Self::Unsolved => "Unsolved",
+        }
+    }
+
+    /// Whether the solution may be used (expert.md §7: HPIPM status 0; `AlmostSolved` only if configured).
+    pub fn is_success(self, accept_almost_solved: bool) -> bool {
+        self == Self::Solved || (accept_almost_solved && self == Self::AlmostSolved)
+    }
+}
+
+impl From<SolverStatus> for QpStatus {
+    fn from(s: SolverStatus) -> Self {
+        match s {
+            SolverStatus::Unsolved => Self::Unsolved,
+            SolverStatus::Solved => Self::Solved,
+            SolverStatus::PrimalInfeasible => Self::PrimalInfeasible,
+            SolverStatus::DualInfeasible => Self::DualInfeasible,
+            SolverStatus::AlmostSolved => Self::AlmostSolved,
+            SolverStatus::AlmostPrimalInfeasible => Self::AlmostPrimalInfeasible,
+            SolverStatus::AlmostDualInfeasible => Self::AlmostDualInfeasible,
+            SolverStatus::MaxIterations => Self::MaxIterations,
+            SolverStatus::MaxTime => Self::MaxTime,
+            SolverStatus::NumericalError => Self::NumericalError,
+            SolverStatus::InsufficientProgress => Self::InsufficientProgress,
+            SolverStatus::CallbackTerminated => Self::CallbackTerminated,
+        }
+    }
+}
+
+impl std::fmt::Display for QpStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A fixed CSC pattern and the map from emission order to nonzero slot (duplicates are summed).
+#[derive(Debug, Clone)]
+struct Pattern {
+    m: usize,
+    n: usize,
+    colptr: Vec<usize>,
+    rowval: Vec<usize>,
+    slot: Vec<usize>,
+    entries: Vec<(usize, usize)>,
+}
+
+impl Pattern {
+    fn new(m: usize, n: usize, entries: &[(usize, usize, f64)]) -> Self {
+        let mut keys: Vec<(usize, usize)> = entries.iter().map(|&(r, c, _)| (c, r)).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        let mut colptr = vec![0; n + 1];
+        for &(c, _) in &keys {
+            colptr[c + 1] += 1;
+        }
+        for c in 0..n {
+            colptr[c + 1] += colptr[c];
+        }
+        let rowval = keys.iter().map(|&(_, r)| r).collect();
+        let slot = entries.iter().map(|&(r, c, _)| keys.binary_search(&(c, r)).expect("entry in pattern")).collect();
+        Self { m, n, colptr, rowval, slot, entries: entries.iter().map(|&(r, c, _)| (r, c)).collect() }
+    }
+
+    fn scatter(&self, entries: &[(usize, usize, f64)], nz: &mut Vec<f64>) {
+        debug_assert_eq!(entries.len(), self.slot.len());
+        debug_assert!(entries.iter().zip(&self.entries).all(|(&(r, c, _), &e)| (r, c) == e));
+        nz.clear();
+        nz.resize(self.rowval.len(), 0.0);
+        for (&(_, _, v), &k) in entries.iter().zip(&self.slot) {
+            nz[k] += v;
+        }
+    }
+
+    fn matrix(&self, nz: &[f64]) -> CscMatrix<f64> {
+        CscMatrix::new(self.m, self.n, self.colptr.clone(), self.rowval.clone(), nz.to_vec())
+    }
+}
+
+/// Everything the QP needs from one iterate D (stages 0..N, physical units).
+pub struct QpInput<'a> {
+    /// The iterate D: stage 0 is (q̂, ŝ, w_prev), stages 1..N the current guess.
+    pub iterate: &'a [Stage],
+    /// Transition k = 0..N−1 linearised at (q̄_k, w̄_{k−1}).
+    pub lin: &'a [Linearisation],
+    /// Contouring/lag errors at D's stages 1..N.
+    pub errors: &'a [ContourErrors],
+    /// Slabs at the warm-start progress of stages 1..N.
+    pub slabs: &'a [Slab],
+    /// w_{−1} (the expert's previous output).
+    pub w_prev: [f64; 3],
+}
+
+/// The assembled data, in emission order (so the pattern can be checked) and as vectors.
+#[derive(Debug, Default)]
+struct Assembled {
+    p: Vec<(usize, usize, f64)>,
+    a: Vec<(usize, usize, f64)>,
+    q: Vec<f64>,
+    b: Vec<f64>,
+}
+
+/// The immutable shape of the QP for one configuration and track length.
+#[derive(Debug, Clone)]
+pub struct QpLayout {
+    horizon: usize,
+    dt: f64,
+    /// Physical = scale × scaled, per stage variable.
+    scale: [f64; NZ],
+    lb: [f64; NZ],
+    ub: [f64; NZ],
+    cfg: MpccConfig,
+    p_pat: Pattern,
+    a_pat: Pattern,
+}
+
+/// Per-stream (or per-thread) solver memory: buffers and, with `reuse_solver`, the Clarabel solver.
+#[derive(Default)]
+pub struct QpWorkspace {
+    asm: Assembled,
+    p_nz: Vec<f64>,
+    a_nz: Vec<f64>,
+    solver: Option<DefaultSolver<f64>>,
+}
+
+impl std::fmt::Debug for QpWorkspace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("QpWorkspace").field("solver_cached", &self.solver.is_some()).finish()
+    }
+}
+
+/// The result of one QP.
+#[derive(Debug, Clone)]
+pub struct QpSolution {
+    /// Solver status.
+    pub status: QpStatus,
+    /// Interior-point iterations.
+    pub iterations: u32,
+    /// Clarabel's own solve time.
+    pub solve_time: Duration,
+    /// D*: stages 0..N in physical units (stage 0 copied from the input). Empty unless solved.
+    pub stages: Vec<Stage>,
+    /// σ_k, k = 1..N.
+    pub slacks: Vec<f64>,
+    /// Scaled rates r_k, k = 0..N−1.
+    pub rates: Vec<[f64; 3]>,
+}
+
+impl QpLayout {
+    /// The layout for `cfg` on a track of length `track_length`.
+    pub fn new(cfg: &MpccConfig, track_length: f64) -> Self {
+        let (sx, sw) = (cfg.state_scale, cfg.input_scale);
+        let scale = [sx[0], sx[1], sx[2], sx[3], sx[4], sx[5], track_length.ceil(), sw[0], sw[1], sw[2]];
+        let (l, u) = (cfg.state_lb, cfg.state_ub);
+        let (il, iu) = (cfg.input_lb, cfg.input_ub);
+        let inf = f64::INFINITY;
+        let lb = [l[0], l[1], l[2], -inf, -inf, l[3], cfg.s_lb, il[0], il[1], il[2]];
+        let ub = [u[0], u[1], u[2], inf, inf, u[3], cfg.s_ub_laps * track_length, iu[0], iu[1], iu[2]];
+        let mut layout = Self {
+            horizon: cfg.horizon,
+            dt: cfg.dt,
+            scale,
+            lb,
+            ub,
+            cfg: cfg.clone(),
+            p_pat: Pattern::new(0, 0, &[]),
+            a_pat: Pattern::new(0, 0, &[]),
+        };
+        // Any finite data fixes the pattern (every entry is emitted regardless of its value).
+        let n = cfg.horizon;
+        let iterate = vec![[0.0; NZ]; n + 1];
+        let lin = vec![Linearisation { f: [0.0; NQ], a: JacQ::zeros(), b: JacU::zeros() }; n];
+        let errors = vec![ContourErrors { e_c: 0.0, e_l: 0.0, grad_c: [0.0; 3], grad_l: [0.0; 3] }; n];
+        let slabs = vec![Slab { normal: [1.0, 0.0], lo: -1.0, hi: 1.0 }; n];
+        let input = QpInput { iterate: &iterate, lin: &lin, errors: &errors, slabs: &slabs, w_prev: [0.0; 3] };
+        let mut asm = Assembled::default();
+        layout.assemble(&input, &mut asm);
+        layout.p_pat = Pattern::new(layout.n(), layout.n(), &asm.p);
+        layout.a_pat = Pattern::new(layout.m(), layout.n(), &asm.a);
+        layout
+    }
+
+    /// Number of variables.
+    pub fn n(&self) -> usize {
+        14 * self.horizon
+    }
+
+    /// Number of equality rows.
+    pub fn m_eq(&self) -> usize {
+        EQ_PER_STAGE * self.horizon
+    }
+
+    /// Number of rows.
+    pub fn m(&self) -> usize {
+        (EQ_PER_STAGE + INEQ_PER_STAGE) * self.horizon
+    }
+
+    /// Nonzeros of (P, A).
+    pub fn nnz(&self) -> (usize, usize) {
+        (self.p_pat.rowval.len(), self.a_pat.rowval.len())
+    }
+
+    fn stage_var(&self, k: usize, j: usize) -> usize {
+        debug_assert!((1..=self.horizon).contains(&k));
+        NZ * (k - 1) + j
+    }
+
+    fn rate_var(&self, k: usize, j: usize) -> usize {
+        NZ * self.horizon + 3 * k + j
+    }
+
+    fn slack_var(&self, k: usize) -> usize {
+        13 * self.horizon + k - 1
+    }
+
+    fn assemble(&self, inp: &QpInput, out: &mut Assembled) {
+        let (n_h, dt, c, cfg) = (self.horizon, self.dt, &self.scale, &self.cfg);
+        let Assembled { p, a, q, b } = out;
+        p.clear();
+        a.clear();
+        q.clear();
+        q.resize(self.n(), 0.0);
+        b.clear();
+        b.resize(self.m(), 0.0);
+
+        // ---- cost ----
+        for k in 1..=n_h {
+            let z = &inp.iterate[k];
+            let e = &inp.errors[k - 1];
+            let sv = |j| self.stage_var(k, j);
+            // Gauss–Newton contouring/lag: q_c(e_c + g_c·Δ)² + q_l(e_l + g_l·Δ)² over (X, Y, s).
+            let idx = [X, Y, S];
+            let r_c = e.e_c - (0..3).map(|i| e.grad_c[i] * z[idx[i]]).sum::<f64>();
+            let r_l = e.e_l - (0..3).map(|i| e.grad_l[i] * z[idx[i]]).sum::<f64>();
+            let mut diag = [cfg.hessian_reg; NZ];
+            for i in 0..3 {
+                for j in i..3 {
+                    let h = 2.0
+                        * (cfg.q_contour * e.grad_c[i] * e.grad_c[j] + cfg.q_lag * e.grad_l[i] * e.grad_l[j])
+                        * c[idx[i]]
+                        * c[idx[j]];
+                    if i == j {
+                        diag[idx[i]] += h;
+                    } else {
+                        p.push((sv(idx[i]), sv(idx[j]), h));
+                    }
+                }
+                q[sv(idx[i])] +=
+                    2.0 * (cfg.q_contour * r_c * e.grad_c[i] + cfg.q_lag * r_l * e.grad_l[i]) * c[idx[i]];
+            }
+            let w_omega = if k == n_h { cfg.q_yaw_rate_terminal } else { cfg.q_yaw_rate };
+            diag[OMEGA] += 2.0 * w_omega * c[OMEGA] * c[OMEGA];
+            for j in 0..3 {
+                diag[7 + j] += 2.0 * cfg.r_input[j] * c[7 + j] * c[7 + j];
+            }
+            q[sv(VS)] -= cfg.progress_reward * c[VS];
+            for (j, &d) in diag.iter().enumerate() {
+                p.push((sv(j), sv(j), d));
+            }
+            for j in 0..3 {
+                p.push((self.rate_var(k - 1, j), self.rate_var(k - 1, j), 2.0 * cfg.r_rate[j] + cfg.hessian_reg));
+            }
+            p.push((self.slack_var(k), self.slack_var(k), cfg.slack_weight));
+        }
+
+        // ---- equalities: dynamics and rate integration, transition k → k+1 ----
+        let x0 = &inp.iterate[0];
+        for k in 0..n_h {
+            let row0 = EQ_PER_STAGE * k;
+            let lin = &inp.lin[k];
+            let q_bar = &inp.iterate[k];
+            let w_bar = [q_bar[7], q_bar[8]];
+            // g_k = f − A q̄ − B w̄, and for k = 0 the fixed x_0 moves to the right-hand side: A x_0 + g_0.
+            for i in 0..NQ {
+                let row = row0 + i;
+                let ri = 1.0 / c[i];
+                a.push((row, self.stage_var(k + 1, i), 1.0));
+                let mut g = lin.f[i] - lin.b[(i, 0)] * w_bar[0] - lin.b[(i, 1)] * w_bar[1];
+                for j in 0..NQ {
+                    if a_structural(i, j) {
+                        g -= lin.a[(i, j)] * q_bar[j];
+                        if k == 0 {
+                            g += lin.a[(i, j)] * x0[j];
+                        } else {
+                            a.push((row, self.stage_var(k, j), -lin.a[(i, j)] * c[j] * ri));
+                        }
+                    }
+                }
+                for j in 0..2 {
+                    a.push((row, self.stage_var(k + 1, 7 + j), -lin.b[(i, j)] * c[7 + j] * ri));
+                }
+                b[row] = g * ri;
+            }
+            // s_{k+1} = s_k + dt·v_s,k (exact).
+            let row = row0 + S;
+            a.push((row, self.stage_var(k + 1, S), 1.0));
+            a.push((row, self.stage_var(k + 1, VS), -dt * c[VS] / c[S]));
+            if k == 0 {
+                b[row] = x0[S] / c[S];
+            } else {
+                a.push((row, self.stage_var(k, S), -1.0));
+            }
+            // w̃_k = w̃_{k−1} + dt·r_k (the rate is defined in scaled units, expert.md §6).
+            for j in 0..3 {
+                let row = row0 + 7 + j;
+                a.push((row, self.stage_var(k + 1, 7 + j), 1.0));
+                a.push((row, self.rate_var(k, j), -dt));
+                if k == 0 {
+                    b[row] = inp.w_prev[j] / c[7 + j];
+                } else {
+                    a.push((row, self.stage_var(k, 7 + j), -1.0));
+                }
+            }
+        }
+
+        // ---- inequalities (Az ≤ b) ----
+        let mut row = self.m_eq();
+        for k in 1..=n_h {
+            for &j in &BOXED {
+                a.push((row, self.stage_var(k, j), 1.0));
+                b[row] = self.ub[j] / c[j];
+                a.push((row + 1, self.stage_var(k, j), -1.0));
+                b[row + 1] = -self.lb[j] / c[j];
+                row += 2;
+            }
+            for j in 0..3 {
+                a.push((row, self.rate_var(k - 1, j), 1.0));
+                b[row] = cfg.rate_bound[j];
+                a.push((row + 1, self.rate_var(k - 1, j), -1.0));
+                b[row + 1] = cfg.rate_bound[j];
+                row += 2;
+            }
+            // lo − σ ≤ c·(X, Y) ≤ hi + σ.
+            let sl = &inp.slabs[k - 1];
+            let (vx, vy, vs) = (self.stage_var(k, X), self.stage_var(k, Y), self.slack_var(k));
+            a.push((row, vx, sl.normal[0] * c[X]));
+            a.push((row, vy, sl.normal[1] * c[Y]));
+            a.push((row, vs, -1.0));
+            b[row] = sl.hi;
+            a.push((row + 1, vx, -sl.normal[0] * c[X]));
+            a.push((row + 1, vy, -sl.normal[1] * c[Y]));
+            a.push((row + 1, vs, -1.0));
+            b[row + 1] = -sl.lo;
+            a.push((row + 2, vs, -1.0));
+            row += 3;
+        }
+        debug_assert_eq!(row, self.m());
+    }
+
+    fn settings(&self) -> DefaultSettings<f64> {
+        DefaultSettingsBuilder::default()
+            .verbose(false)
+            .max_iter(self.cfg.max_iter)
+            .tol_gap_abs(self.cfg.tol_gap)
+            .tol_gap_rel(self.cfg.tol_gap)
+            .tol_feas(self.cfg.tol_feas)
+            // Presolve would drop rows and forbid the data-update interface; there are no infinite bounds anyway.
+            .presolve_enable(false)
+            .build()
+            .expect("valid Clarabel settings")
+    }
+
+    fn cones(&self) -> [SupportedConeT<f64>; 2] {
+        [SupportedConeT::ZeroConeT(self.m_eq()), SupportedConeT::NonnegativeConeT(self.m() - self.m_eq())]
+    }
+
+    /// Assemble and solve the QP around `inp`.
+    pub fn solve(&self, inp: &QpInput, ws: &mut QpWorkspace) -> QpSolution {
+        let mut sol = QpSolution {
+            status: QpStatus::NotRun,
+            iterations: 0,
+            solve_time: Duration::ZERO,
+            stages: Vec::new(),
+            slacks: Vec::new(),
+            rates: Vec::new(),
+        };
+        self.assemble(inp, &mut ws.asm);
+        self.p_pat.scatter(&ws.asm.p, &mut ws.p_nz);
+        self.a_pat.scatter(&ws.asm.a, &mut ws.a_nz);
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !(finite(&ws.p_nz) && finite(&ws.a_nz) && finite(&ws.asm.q) && finite(&ws.asm.b)) {
+            sol.status = QpStatus::NonFiniteData;
+            return sol;
+        }
+        let updated = self.cfg.reuse_solver
+            && ws.solver.as_mut().is_some_and(|s| {
+                s.update_P(&ws.p_nz).is_ok()
+                    && s.update_A(&ws.a_nz).is_ok()
+                    && s.update_q(&ws.asm.q[..]).is_ok()
+                    && s.update_b(&ws.asm.b[..]).is_ok()
+            });
+        if !updated {
+            let (p, a) = (self.p_pat.matrix(&ws.p_nz), self.a_pat.matrix(&ws.a_nz));
+            match DefaultSolver::new(&p, &ws.asm.q, &a, &ws.asm.b, &self.cones(), self.settings()) {
+                Ok(s) => ws.solver = Some(s),
+                Err(_) => {
+                    ws.solver = None;
+                    sol.status = QpStatus::SetupFailed;
+                    return sol;
+                }
+            }
+        }
+        let solver = ws.solver.as_mut().expect("solver set above");
+        solver.solve();
+        let r = &solver.solution;
+        sol.status = r.status.into();
+        sol.iterations = r.iterations;
+        sol.solve_time = Duration::from_secs_f64(r.solve_time.max(0.0));
+        if sol.status.is_success(self.cfg.accept_almost_solved) {
+            let z = &r.x;
+            sol.stages.push(inp.iterate[0]);
+            for k in 1..=self.horizon {
+                sol.stages.push(std::array::from_fn(|j| z[self.stage_var(k, j)] * self.scale[j]));
+            }
+            sol.slacks = (1..=self.horizon).map(|k| z[self.slack_var(k)]).collect();
+            sol.rates = (0..self.horizon).map(|k| std::array::from_fn(|j| z[self.rate_var(k, j)])).collect();
+        }
+        if !self.cfg.reuse_solver {
+            ws.solver = None;
+        }
+        sol
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_match_expert_md() {
+        let l = QpLayout::new(&MpccConfig::default(), 17.461412207630154);
+        assert_eq!(l.n(), 280);
+        assert_eq!(l.m_eq(), 200);
+        assert_eq!(l.m(), 700);
+        let (np, na) = l.nnz();
+        assert!(np > 280 && na > 1000, "{np} {na}");
+    }
+}

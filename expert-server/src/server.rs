@@ -1,0 +1,200 @@
+//! The zenoh queryable over [`Relabeller`]: decode, answer in parallel, reply; metrics and liveliness.
+
+use anyhow::{Context, Result};
+use cabc_bus::{decode_sample, encoding_of, Bus, Role};
+use cabc_expert::relabel::{BatchStats, Expert, Relabeller};
+use cabc_proto::codec::{self};
+use cabc_proto::config::RunConfig;
+use cabc_proto::keys::Keys;
+use cabc_proto::messages::{ExpertReply, ExpertRequest, Stop};
+use serde_json::json;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args, Default)]
+pub struct ServeArgs {
+    /// Replica id (several servers may run at once).
+    #[arg(long, default_value = "0")]
+    id: String,
+    /// Zenoh endpoints to connect to, overriding the configuration's `bus.connect`.
+    #[arg(long)]
+    connect: Vec<String>,
+    /// Worker threads for solving batches (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+/// Solve-time and request counters, published as JSON on `metrics/expert-server/<id>`.
+#[derive(Default)]
+struct Metrics {
+    requests: u64,
+    items: u64,
+    failures: u64,
+    cold_starts: u64,
+    refused: u64,
+    max_batch: usize,
+    /// Recent per-item solve times (µs), for percentiles.
+    recent_us: Vec<u32>,
+}
+
+impl Metrics {
+    fn record(&mut self, stats: &BatchStats) {
+        self.requests += 1;
+        self.items += stats.items as u64;
+        self.failures += stats.failures as u64;
+        self.cold_starts += stats.cold_starts as u64;
+        self.max_batch = self.max_batch.max(stats.items);
+        self.recent_us.extend_from_slice(&stats.solve_us);
+        let excess = self.recent_us.len().saturating_sub(10_000);
+        self.recent_us.drain(..excess);
+    }
+
+    fn json(&mut self, rejects: u64, cache: (usize, u64)) -> serde_json::Value {
+        let mut sorted = self.recent_us.clone();
+        sorted.sort_unstable();
+        let pct = |p: f64| -> Option<f64> {
+            if sorted.is_empty() {
+                None
+            } else {
+                let i = ((sorted.len() - 1) as f64 * p).round() as usize;
+                Some(sorted[i] as f64 / 1000.0)
+            }
+        };
+        json!({
+            "requests": self.requests,
+            "items": self.items,
+            "mean_batch": if self.requests > 0 { self.items as f64 / self.requests as f64 } else { 0.0 },
+            "max_batch": self.max_batch,
+            "failures": self.failures,
+            "cold_starts": self.cold_starts,
+            "refused_requests": self.refused,
+            "rejected_messages": rejects,
+            "streams_held": cache.0,
+            "streams_evicted": cache.1,
+            "solve_ms_p50": pct(0.5),
+            "solve_ms_p99": pct(0.99),
+        })
+    }
+}
+
+pub fn serve(config: RunConfig, expert: Expert, args: ServeArgs) -> Result<()> {
+    if let Some(threads) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global()
+            .context("configuring the solver threads")?;
+    }
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(serve_async(config, expert, args))
+}
+
+async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> Result<()> {
+    if !args.connect.is_empty() {
+        config.bus.connect = args.connect.clone();
+    }
+    let keys = Keys::new(&config.run.name)?;
+    let component = format!("expert-server/{}", args.id);
+    let kind = expert.kind();
+    let relabeller = Arc::new(Relabeller::new(
+        expert,
+        config.expert.max_streams,
+        config.expert.max_batch,
+    ));
+    let bus = Bus::connect(&config.bus, Role::Connect, keys.clone(), &component)
+        .await
+        .context("joining the bus")?;
+    let key = keys.expert(kind.as_str());
+    let queryable = bus
+        .session
+        .declare_queryable(&key)
+        .await
+        .map_err(|e| anyhow::anyhow!("declaring the queryable {key}: {e}"))?;
+    let control = bus
+        .session
+        .declare_subscriber(keys.control())
+        .await
+        .map_err(|e| anyhow::anyhow!("subscribing to {}: {e}", keys.control()))?;
+    tracing::info!(%key, component, "serving {} relabelling queries", kind.as_str());
+
+    let metrics = Arc::new(Mutex::new(Metrics::default()));
+    let mut tick = tokio::time::interval(Duration::from_secs(2));
+    loop {
+        tokio::select! {
+            query = queryable.recv_async() => {
+                let Ok(query) = query else { break };
+                let relabeller = relabeller.clone();
+                let metrics = metrics.clone();
+                let rejects = bus.rejects.clone();
+                tokio::spawn(async move {
+                    let bytes = query.payload().map(|p| p.to_bytes().to_vec()).unwrap_or_default();
+                    let Some(request) = decode_sample::<ExpertRequest>(query.key_expr().as_str(), &bytes, &rejects) else {
+                        let why = match codec::decode::<ExpertRequest>(&bytes) {
+                            Err(e) => e.to_string(),
+                            Ok(_) => "unreadable request".into(),
+                        };
+                        metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
+                        if let Err(e) = query.reply_err(format!("refused: {why}")).await {
+                            tracing::warn!("replying with an error: {e}");
+                        }
+                        return;
+                    };
+                    let started = Instant::now();
+                    let answered = tokio::task::spawn_blocking(move || relabeller.answer(&request)).await;
+                    match answered {
+                        Ok(Ok((reply, stats))) => {
+                            metrics.lock().unwrap_or_else(|e| e.into_inner()).record(&stats);
+                            tracing::debug!(items = stats.items, ms = started.elapsed().as_secs_f64() * 1e3, "answered");
+                            let key = query.key_expr().clone();
+                            if let Err(e) = query
+                                .reply(key, codec::encode(&reply))
+                                .encoding(encoding_of::<ExpertReply>())
+                                .await
+                            {
+                                tracing::warn!("replying: {e}");
+                            }
+                        }
+                        Ok(Err(refused)) => {
+                            metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
+                            tracing::warn!("refused a request: {refused}");
+                            let _ = query.reply_err(format!("refused: {refused}")).await;
+                        }
+                        Err(e) => {
+                            tracing::error!("solver task failed: {e}");
+                            let _ = query.reply_err(format!("internal error: {e}")).await;
+                        }
+                    }
+                });
+            }
+            sample = control.recv_async() => {
+                let Ok(sample) = sample else { break };
+                let bytes = sample.payload().to_bytes();
+                if let Some(stop) = decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &bus.rejects) {
+                    tracing::info!("stop: {}", stop.reason);
+                    break;
+                }
+            }
+            _ = tick.tick() => {
+                let value = metrics.lock().unwrap_or_else(|e| e.into_inner()).json(bus.rejects.count(), relabeller.cache_stats());
+                if let Err(e) = bus.metrics(&value).await {
+                    tracing::warn!("publishing metrics: {e}");
+                }
+            }
+            _ = tokio::signal::ctrl_c() => {
+                tracing::info!("interrupted");
+                break;
+            }
+        }
+    }
+    let value = metrics
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .json(bus.rejects.count(), relabeller.cache_stats());
+    tracing::info!("final metrics: {value}");
+    drop(queryable);
+    bus.close().await?;
+    Ok(())
+}

@@ -1,0 +1,1 @@
+//! cabc-learner: replay buffers, safety auto-labelling, constraint-aware training and the learner process.

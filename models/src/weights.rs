@@ -1,0 +1,153 @@
+//! Weights as safetensors bytes, with the architecture's name in the metadata.
+//!
+//! The format (https://github.com/huggingface/safetensors): an 8-byte little-endian header length, a JSON header
+//! `{name: {dtype, shape, data_offsets}, "__metadata__": {...}}`, then the raw little-endian data. It is written and
+//! read here directly (f32 only), because tch's safetensors support goes through files; the bytes are the ones
+//! `safetensors.torch.load` reads, so weights can be inspected from Python.
+
+use crate::ModelError;
+use serde_json::{json, Map, Value};
+use std::collections::BTreeMap;
+use tch::{nn, Device, Kind, Tensor};
+
+/// The metadata key holding the architecture's name.
+pub const ARCHITECTURE_KEY: &str = "architecture";
+
+/// Serialises every variable of `vs` (trainable or not, e.g. batch-norm statistics) as f32.
+pub fn to_bytes(vs: &nn::VarStore, architecture: &str) -> Vec<u8> {
+    let named: BTreeMap<String, Tensor> = vs.variables().into_iter().collect();
+    let mut header = Map::new();
+    let mut data: Vec<u8> = Vec::new();
+    for (name, t) in &named {
+        let t = t
+            .detach()
+            .to_device(Device::Cpu)
+            .to_kind(Kind::Float)
+            .contiguous()
+            .view(-1);
+        let values = Vec::<f32>::try_from(&t).expect("a float tensor converts to Vec<f32>");
+        let start = data.len();
+        for v in values {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+        let shape: Vec<i64> = named[name].size();
+        header.insert(
+            name.clone(),
+            json!({"dtype": "F32", "shape": shape, "data_offsets": [start, data.len()]}),
+        );
+    }
+    header.insert(
+        "__metadata__".into(),
+        json!({ ARCHITECTURE_KEY: architecture, "format": "pt" }),
+    );
+    let mut header = serde_json::to_vec(&Value::Object(header)).expect("JSON serialises");
+    while header.len() % 8 != 0 {
+        header.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + header.len() + data.len());
+    out.extend_from_slice(&(header.len() as u64).to_le_bytes());
+    out.extend_from_slice(&header);
+    out.extend_from_slice(&data);
+    out
+}
+
+/// The parsed header: the architecture's name and the tensors' (shape, byte range).
+struct Parsed<'a> {
+    architecture: String,
+    tensors: BTreeMap<String, (Vec<i64>, &'a [u8])>,
+}
+
+fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
+    let bad = |why: &str| ModelError::MalformedWeights(why.to_string());
+    if bytes.len() < 8 {
+        return Err(bad("shorter than the 8-byte header length"));
+    }
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let header = bytes
+        .get(8..8usize.saturating_add(n))
+        .ok_or_else(|| bad("header length beyond the end"))?;
+    let data = &bytes[8 + n..];
+    let header: Map<String, Value> =
+        serde_json::from_slice(header).map_err(|e| bad(&format!("header JSON: {e}")))?;
+    let architecture = header
+        .get("__metadata__")
+        .and_then(|m| m.get(ARCHITECTURE_KEY))
+        .and_then(Value::as_str)
+        .ok_or_else(|| bad("no architecture in the metadata"))?
+        .to_string();
+    let mut tensors = BTreeMap::new();
+    for (name, entry) in &header {
+        if name == "__metadata__" {
+            continue;
+        }
+        if entry.get("dtype").and_then(Value::as_str) != Some("F32") {
+            return Err(bad(&format!("tensor `{name}` is not F32")));
+        }
+        let shape: Vec<i64> = entry
+            .get("shape")
+            .and_then(|s| serde_json::from_value(s.clone()).ok())
+            .ok_or_else(|| bad(&format!("tensor `{name}`: no shape")))?;
+        let [start, end]: [usize; 2] = entry
+            .get("data_offsets")
+            .and_then(|s| serde_json::from_value(s.clone()).ok())
+            .ok_or_else(|| bad(&format!("tensor `{name}`: no data_offsets")))?;
+        let numel: i64 = shape.iter().product();
+        if end < start || end > data.len() || (end - start) as i64 != 4 * numel {
+            return Err(bad(&format!("tensor `{name}`: data_offsets do not fit")));
+        }
+        tensors.insert(name.clone(), (shape, &data[start..end]));
+    }
+    Ok(Parsed {
+        architecture,
+        tensors,
+    })
+}
+
+/// The architecture's name stored in `bytes`.
+pub fn architecture_of(bytes: &[u8]) -> Result<String, ModelError> {
+    Ok(parse(bytes)?.architecture)
+}
+
+/// Copies the weights in `bytes` into `vs`. Refuses another architecture's weights, and missing, extra or
+/// differently shaped tensors, before it changes anything.
+pub fn load_bytes(vs: &mut nn::VarStore, architecture: &str, bytes: &[u8]) -> Result<(), ModelError> {
+    let parsed = parse(bytes)?;
+    if parsed.architecture != architecture {
+        return Err(ModelError::ArchitectureMismatch {
+            expected: architecture.to_string(),
+            found: parsed.architecture,
+        });
+    }
+    let vars = vs.variables();
+    for (name, var) in &vars {
+        let (shape, _) = parsed
+            .tensors
+            .get(name)
+            .ok_or_else(|| ModelError::MissingTensor(name.clone()))?;
+        if *shape != var.size() {
+            return Err(ModelError::ShapeMismatch {
+                name: name.clone(),
+                expected: var.size(),
+                found: shape.clone(),
+            });
+        }
+    }
+    if let Some(extra) = parsed.tensors.keys().find(|k| !vars.contains_key(*k)) {
+        return Err(ModelError::UnexpectedTensor(extra.clone()));
+    }
+    tch::no_grad(|| {
+        for (name, mut var) in vars {
+            let (shape, raw) = &parsed.tensors[&name];
+            let values: Vec<f32> = raw
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect();
+            let t = Tensor::from_slice(&values)
+                .reshape(shape.as_slice())
+                .to_kind(var.kind())
+                .to_device(var.device());
+            var.copy_(&t);
+        }
+    });
+    Ok(())
+}

@@ -1,0 +1,431 @@
+//! The codec: `encode` / `decode` every bus message (bincode 2, behind these two functions so that the format
+//! can change in one place).
+//!
+//! Layout: `b"CABC"` | schema version (u16, little-endian) | message kind (u8) | bincode body.
+//! Decoding refuses, with a [`DecodeError`] that says what was wrong, and never panics:
+//! truncated or empty bytes, a foreign magic, another schema version, another message kind, a body that does not
+//! decode or has trailing bytes, a body larger than [`MAX_BODY`], and NaN/inf where a state or action is expected.
+
+use crate::messages::*;
+use serde::{de::DeserializeOwned, Serialize};
+
+/// The first four bytes of every payload.
+pub const MAGIC: [u8; 4] = *b"CABC";
+/// Bumped whenever a message changes shape.
+pub const SCHEMA_VERSION: u16 = 1;
+/// Header length in bytes.
+pub const HEADER_LEN: usize = 7;
+/// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
+pub const MAX_BODY: usize = 256 << 20;
+
+fn config() -> impl bincode::config::Config {
+    bincode::config::standard().with_limit::<MAX_BODY>()
+}
+
+/// A type that travels on the bus.
+pub trait Message: Serialize + DeserializeOwned {
+    /// Distinguishes message types on the wire.
+    const KIND: u8;
+    /// For error messages.
+    const NAME: &'static str;
+    /// Checks values that serde cannot (finite numbers, consistent sizes).
+    fn validate(&self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+/// Why bytes were refused.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DecodeError {
+    #[error("payload too short: {len} bytes, a header alone is {HEADER_LEN}")]
+    Truncated { len: usize },
+    #[error("foreign payload: magic {found:02x?} is not {MAGIC:02x?} (\"CABC\")")]
+    Foreign { found: [u8; 4] },
+    #[error("schema version {found} is not this build's {SCHEMA_VERSION}: sender and receiver run different cabc versions")]
+    SchemaVersion { found: u16 },
+    #[error("expected a {expected} message (kind {expected_kind}), got kind {found}")]
+    WrongKind {
+        expected: &'static str,
+        expected_kind: u8,
+        found: u8,
+    },
+    #[error("malformed {message} body: {reason}")]
+    Malformed {
+        message: &'static str,
+        reason: String,
+    },
+    #[error("{message} has {extra} trailing bytes after its body")]
+    TrailingBytes { message: &'static str, extra: usize },
+    #[error("invalid {message}: {reason}")]
+    Invalid {
+        message: &'static str,
+        reason: String,
+    },
+}
+
+/// Encodes a message with its header. Encoding plain data cannot fail short of memory exhaustion.
+pub fn encode<M: Message>(message: &M) -> Vec<u8> {
+    let mut out = Vec::with_capacity(64);
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&SCHEMA_VERSION.to_le_bytes());
+    out.push(M::KIND);
+    bincode::serde::encode_into_std_write(message, &mut out, config())
+        .expect("encoding plain data into a Vec cannot fail");
+    out
+}
+
+/// Decodes and validates a message.
+pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
+    let kind = check_header(bytes)?;
+    if kind != M::KIND {
+        return Err(DecodeError::WrongKind {
+            expected: M::NAME,
+            expected_kind: M::KIND,
+            found: kind,
+        });
+    }
+    let body = &bytes[HEADER_LEN..];
+    let (message, used): (M, usize) = bincode::serde::decode_from_slice(body, config())
+        .map_err(|e| DecodeError::Malformed {
+            message: M::NAME,
+            reason: e.to_string(),
+        })?;
+    if used != body.len() {
+        return Err(DecodeError::TrailingBytes {
+            message: M::NAME,
+            extra: body.len() - used,
+        });
+    }
+    message.validate().map_err(|reason| DecodeError::Invalid {
+        message: M::NAME,
+        reason,
+    })?;
+    Ok(message)
+}
+
+/// Checks magic and schema version; returns the message kind.
+pub fn check_header(bytes: &[u8]) -> Result<u8, DecodeError> {
+    if bytes.len() < HEADER_LEN {
+        return Err(DecodeError::Truncated { len: bytes.len() });
+    }
+    let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
+    if magic != MAGIC {
+        return Err(DecodeError::Foreign { found: magic });
+    }
+    let version = u16::from_le_bytes([bytes[4], bytes[5]]);
+    if version != SCHEMA_VERSION {
+        return Err(DecodeError::SchemaVersion { found: version });
+    }
+    Ok(bytes[6])
+}
+
+fn finite(what: &str, values: &[f32]) -> Result<(), String> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(format!("{what}[{i}] is {}", values[i])),
+    }
+}
+
+fn finite64(what: &str, values: &[f64]) -> Result<(), String> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(format!("{what}[{i}] is {}", values[i])),
+    }
+}
+
+impl Image {
+    fn validate(&self) -> Result<(), String> {
+        let want = self.width as usize * self.height as usize * 3;
+        if self.rgb.len() != want {
+            return Err(format!(
+                "image {}x{} holds {} bytes, expected {want}",
+                self.width,
+                self.height,
+                self.rgb.len()
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Step {
+    /// Every number finite, the image consistent.
+    pub fn validate(&self) -> Result<(), String> {
+        finite("state", &self.state)?;
+        finite("pose", &self.pose)?;
+        finite("applied_action", &self.applied_action)?;
+        finite("next_state", &self.next_state)?;
+        if self.expert_ok {
+            finite("expert_action", &self.expert_action)?;
+        }
+        if let Some(image) = &self.image {
+            image.validate()?;
+        }
+        Ok(())
+    }
+}
+
+impl Message for TrajMessage {
+    const KIND: u8 = 1;
+    const NAME: &'static str = "TrajMessage";
+    fn validate(&self) -> Result<(), String> {
+        match self {
+            TrajMessage::Segment(segment) => {
+                for (i, step) in segment.steps.iter().enumerate() {
+                    step.validate().map_err(|e| format!("step {i}: {e}"))?;
+                }
+                Ok(())
+            }
+            TrajMessage::EpochDone(_) => Ok(()),
+        }
+    }
+}
+
+impl Message for PolicyUpdate {
+    const KIND: u8 = 2;
+    const NAME: &'static str = "PolicyUpdate";
+    fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.beta) {
+            return Err(format!("beta {} is outside [0, 1]", self.beta));
+        }
+        Ok(())
+    }
+}
+
+/// Query states are checked item by item by the expert server (a bad state is a per-item failure, not a refusal
+/// of the whole batch), so only the shape is checked here.
+impl Message for ExpertRequest {
+    const KIND: u8 = 3;
+    const NAME: &'static str = "ExpertRequest";
+}
+
+impl Message for ExpertReply {
+    const KIND: u8 = 4;
+    const NAME: &'static str = "ExpertReply";
+    fn validate(&self) -> Result<(), String> {
+        for (i, a) in self.answers.iter().enumerate() {
+            if a.success {
+                finite64(&format!("answer {i} action"), &a.action)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Message for EvalReport {
+    const KIND: u8 = 5;
+    const NAME: &'static str = "EvalReport";
+    fn validate(&self) -> Result<(), String> {
+        finite64("lap_times", &self.lap_times)?;
+        if self.lap_times.len() != self.laps as usize {
+            return Err(format!(
+                "{} laps but {} lap times",
+                self.laps,
+                self.lap_times.len()
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Message for Stop {
+    const KIND: u8 = 6;
+    const NAME: &'static str = "Stop";
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn step(x: f32) -> Step {
+        Step {
+            state: [1.0, 0.1, 0.2, x, 0.3, -0.1],
+            pose: [1.0, 2.0, 0.5],
+            image: Some(Image {
+                width: 2,
+                height: 1,
+                rgb: vec![1, 2, 3, 4, 5, 6],
+            }),
+            expert_action: [0.5, -0.1],
+            applied_action: [0.4, -0.05],
+            next_state: [1.1, 0.1, 0.2, x + 0.1, 0.3, -0.1],
+            expert_ok: true,
+        }
+    }
+
+    fn segment() -> TrajMessage {
+        TrajMessage::Segment(Segment {
+            actor: "actor-0".into(),
+            env: 3,
+            episode: 7,
+            seq: 11,
+            policy_version: 2,
+            outcome: Outcome::Failure(EndReason::OutOfTrack),
+            steps: vec![step(0.0), step(1.0)],
+        })
+    }
+
+    fn round_trip<M: Message + PartialEq + std::fmt::Debug>(m: M) {
+        let bytes = encode(&m);
+        assert_eq!(&bytes[..4], b"CABC");
+        assert_eq!(decode::<M>(&bytes).unwrap(), m);
+    }
+
+    #[test]
+    fn every_message_round_trips() {
+        round_trip(segment());
+        round_trip(TrajMessage::EpochDone(EpochDone {
+            actor: "a".into(),
+            version: 3,
+            segments: 4,
+            steps: 1024,
+        }));
+        round_trip(PolicyUpdate {
+            version: 9,
+            beta: 0.95f64.powi(9),
+            architecture: "mlp-6-3x128-2".into(),
+            weights: vec![0, 1, 2, 255],
+            steps_per_actor: 512,
+        });
+        round_trip(ExpertRequest {
+            request_id: 5,
+            queries: vec![ExpertQuery {
+                stream: StreamId {
+                    actor: "a".into(),
+                    env: 1,
+                    episode: 2,
+                },
+                start: true,
+                vehicle: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+                frenet: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+            }],
+        });
+        round_trip(ExpertReply {
+            request_id: 5,
+            answers: vec![ExpertAnswer {
+                action: [1.0, -0.2],
+                success: true,
+                status: "Solved".into(),
+                iterations: 12,
+                solve_time_us: 800,
+            }],
+        });
+        round_trip(EvalReport {
+            actor: "eval".into(),
+            version: 4,
+            laps: 2,
+            lap_times: [4.9, 5.0].into(),
+            end_reason: EndReason::MaxLaps,
+            steps: 100,
+            line: vec![[0.0, 0.0], [0.1, 0.0]],
+        });
+        round_trip(Stop {
+            reason: "early stop".into(),
+        });
+    }
+
+    #[test]
+    fn truncated_bytes_are_refused() {
+        let bytes = encode(&segment());
+        for len in [0, 3, HEADER_LEN - 1] {
+            assert_eq!(
+                decode::<TrajMessage>(&bytes[..len]),
+                Err(DecodeError::Truncated { len })
+            );
+        }
+        for len in [HEADER_LEN, HEADER_LEN + 5, bytes.len() - 1] {
+            assert!(matches!(
+                decode::<TrajMessage>(&bytes[..len]),
+                Err(DecodeError::Malformed { .. })
+            ));
+        }
+    }
+
+    #[test]
+    fn foreign_bytes_are_refused() {
+        let err = decode::<TrajMessage>(b"hello world, not cabc").unwrap_err();
+        assert!(matches!(err, DecodeError::Foreign { .. }));
+        assert!(err.to_string().contains("foreign"));
+    }
+
+    #[test]
+    fn another_schema_version_is_refused() {
+        let mut bytes = encode(&segment());
+        bytes[4..6].copy_from_slice(&(SCHEMA_VERSION + 1).to_le_bytes());
+        assert_eq!(
+            decode::<TrajMessage>(&bytes),
+            Err(DecodeError::SchemaVersion {
+                found: SCHEMA_VERSION + 1
+            })
+        );
+    }
+
+    #[test]
+    fn another_message_kind_is_refused() {
+        let bytes = encode(&Stop { reason: "x".into() });
+        assert!(matches!(
+            decode::<TrajMessage>(&bytes),
+            Err(DecodeError::WrongKind { found: 6, .. })
+        ));
+    }
+
+    #[test]
+    fn trailing_bytes_are_refused() {
+        let mut bytes = encode(&Stop { reason: "x".into() });
+        bytes.push(0);
+        assert!(matches!(
+            decode::<Stop>(&bytes),
+            Err(DecodeError::TrailingBytes { extra: 1, .. })
+        ));
+    }
+
+    #[test]
+    fn non_finite_states_are_refused() {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let TrajMessage::Segment(mut seg) = segment() else {
+                unreachable!()
+            };
+            seg.steps[1].next_state[4] = bad;
+            let err = decode::<TrajMessage>(&encode(&TrajMessage::Segment(seg))).unwrap_err();
+            assert!(matches!(err, DecodeError::Invalid { .. }), "{err}");
+            assert!(err.to_string().contains("step 1: next_state[4]"), "{err}");
+        }
+    }
+
+    #[test]
+    fn inconsistent_image_is_refused() {
+        let TrajMessage::Segment(mut seg) = segment() else {
+            unreachable!()
+        };
+        seg.steps[0].image.as_mut().unwrap().rgb.pop();
+        let err = decode::<TrajMessage>(&encode(&TrajMessage::Segment(seg))).unwrap_err();
+        assert!(err.to_string().contains("image 2x1"), "{err}");
+    }
+
+    #[test]
+    fn a_huge_length_prefix_does_not_allocate_or_panic() {
+        // A Vec length of u64::MAX right after the header.
+        let mut bytes = encode(&Stop { reason: "".into() });
+        bytes.truncate(HEADER_LEN);
+        bytes.extend_from_slice(&[0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff]);
+        assert!(decode::<Stop>(&bytes).is_err());
+        assert!(decode::<TrajMessage>(&bytes).is_err());
+    }
+
+    #[test]
+    fn random_garbage_never_panics() {
+        let mut x: u64 = 0x9e3779b97f4a7c15;
+        let good = encode(&segment());
+        for _ in 0..2000 {
+            let mut bytes = good.clone();
+            for _ in 0..4 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let i = HEADER_LEN + (x as usize) % (bytes.len() - HEADER_LEN);
+                bytes[i] = (x >> 32) as u8;
+            }
+            let _ = decode::<TrajMessage>(&bytes);
+        }
+    }
+}

@@ -1,0 +1,612 @@
+//! The run configuration: one TOML file describes a run, and it is the one place for every number that defines
+//! an experiment. Defaults are the reference values of algorithm.md; the presets for the paper's experiments
+//! (V-A, V-B, V-C) and a tiny `smoke` run live in `deploy/configs/` and are embedded here too, so that the binaries
+//! can be started with `--config v-b` without a file.
+//!
+//! Unknown keys are refused (`deny_unknown_fields`), and every error names the key and its line.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Which expert relabels the states.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ExpertKind {
+    /// MPCC-conv (experiments V-B, V-C).
+    Mpcc,
+    /// The PID lane follower (experiment V-A).
+    Pid,
+}
+
+impl ExpertKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ExpertKind::Mpcc => "mpcc",
+            ExpertKind::Pid => "pid",
+        }
+    }
+}
+
+/// What the policy observes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObservationKind {
+    /// The full 6-d Frenet state.
+    State,
+    /// A first-person camera image plus the three velocities.
+    Camera,
+}
+
+/// The trunk of the vision policy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VisionTrunk {
+    /// ResNet-18, trained from scratch (the reference uses ImageNet weights, which cannot be had here).
+    Resnet18,
+    /// A small 4-layer CNN for CPU-only machines.
+    SmallCnn,
+}
+
+/// Where the training spawns are drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SpawnKind {
+    Random,
+    Fixed,
+}
+
+/// When the dynamics model and the critic train.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScheduleKind {
+    /// Algorithm 1: dynamics every k_f epochs, critic every k_p epochs.
+    Paper,
+    /// The reference's full-state trainer: all three every epoch.
+    EveryEpoch,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunSection {
+    /// Names the run: the key prefix `cabc/<name>/` and the folder `runs/<name>/`.
+    pub name: String,
+    /// Which experiment of the paper this reproduces (free text, for reports).
+    pub experiment: String,
+    pub seed: u64,
+    /// Training stops after this many epochs at the latest.
+    pub max_epochs: u64,
+    /// Where run folders go.
+    pub runs_dir: String,
+}
+
+impl Default for RunSection {
+    fn default() -> Self {
+        RunSection {
+            name: "cabc".into(),
+            experiment: "custom".into(),
+            seed: 42,
+            max_epochs: 500,
+            runs_dir: "runs".into(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExpertSection {
+    pub kind: ExpertKind,
+    /// PID target speed (m/s), simulator.md 5.
+    pub pid_target_speed: f64,
+    /// Consecutive expert failures after which a rollout is truncated (PATIENCE).
+    pub patience: u32,
+    /// Warm starts the MPCC server keeps (least-recently-used eviction).
+    pub max_streams: usize,
+    /// Largest batch a server answers.
+    pub max_batch: usize,
+    /// Seconds an actor waits for an expert reply before it asks again.
+    pub timeout_s: f64,
+}
+
+impl Default for ExpertSection {
+    fn default() -> Self {
+        ExpertSection {
+            kind: ExpertKind::Mpcc,
+            pid_target_speed: 1.0,
+            patience: 2,
+            max_streams: 4096,
+            max_batch: 1024,
+            timeout_s: 10.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObservationSection {
+    pub kind: ObservationKind,
+    /// Camera image width and height in pixels (224 in the reference; 64 for CPU runs).
+    pub width: u16,
+    pub height: u16,
+    /// Horizontal field of view in degrees.
+    pub fov_deg: f64,
+    pub trunk: VisionTrunk,
+}
+
+impl Default for ObservationSection {
+    fn default() -> Self {
+        ObservationSection {
+            kind: ObservationKind::State,
+            width: 224,
+            height: 224,
+            fov_deg: 110.0,
+            trunk: VisionTrunk::Resnet18,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlgorithmSection {
+    /// Weight of the safety term in L_CA (0 = the behaviour-cloning baseline).
+    pub lambda: f64,
+    /// Auto-labelling radius rho (eq. (20)).
+    pub rho: f64,
+    /// Shrink rho as D+ grows (the paper's future work); off by default.
+    pub adaptive_rho: bool,
+    /// Scale the state by its per-dimension standard deviation before the radius search.
+    pub scale_states: bool,
+    /// Auto-labelling runs every this many epochs.
+    pub autolabel_every: u64,
+    /// beta_j = beta_decay^j.
+    pub beta_decay: f64,
+    /// Critic label for D- (reference 0.1, paper 0).
+    pub negative_label: f64,
+}
+
+impl Default for AlgorithmSection {
+    fn default() -> Self {
+        AlgorithmSection {
+            lambda: 10.0,
+            rho: 1.0,
+            adaptive_rho: false,
+            scale_states: false,
+            autolabel_every: 10,
+            beta_decay: 0.95,
+            negative_label: 0.1,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CollectionSection {
+    /// Environment steps per epoch, all actors together (reference `eps_len`).
+    pub steps_per_epoch: u64,
+    /// Environment steps in epoch 0 (reference `initial_traj_len`).
+    pub initial_steps: u64,
+    pub spawn: SpawnKind,
+    /// Maximum laps of an episode (the env truncates after it).
+    pub max_laps: u32,
+    /// Evaluation: laps a policy must complete from the fixed spawn.
+    pub eval_laps: u32,
+    /// Early stop when the evaluation completes `eval_laps` this many times.
+    pub early_stop_successes: u32,
+}
+
+impl Default for CollectionSection {
+    fn default() -> Self {
+        CollectionSection {
+            steps_per_epoch: 1024,
+            initial_steps: 1024,
+            spawn: SpawnKind::Random,
+            max_laps: 50,
+            eval_laps: 50,
+            early_stop_successes: 2,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplaySection {
+    /// Capacity of D+ and of D? each; random eviction on overflow.
+    pub capacity: usize,
+}
+
+impl Default for ReplaySection {
+    fn default() -> Self {
+        ReplaySection { capacity: 102_400 }
+    }
+}
+
+/// An MLP: `layers` hidden Linear+ReLU layers of `width`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MlpSize {
+    pub layers: usize,
+    pub width: usize,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworksSection {
+    pub policy: MlpSize,
+    pub dynamics: MlpSize,
+    pub critic: MlpSize,
+}
+
+impl Default for NetworksSection {
+    fn default() -> Self {
+        NetworksSection {
+            policy: MlpSize {
+                layers: 3,
+                width: 128,
+            },
+            dynamics: MlpSize {
+                layers: 3,
+                width: 64,
+            },
+            critic: MlpSize {
+                layers: 4,
+                width: 256,
+            },
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainingSection {
+    pub lr: f64,
+    pub weight_decay: f64,
+    pub grad_clip: f64,
+    /// ExponentialLR gamma, stepped once per fit call (reference 0.1^(1/100)).
+    pub lr_gamma: f64,
+    pub batch_size: usize,
+    /// Passes over D+ for the policy in epoch 0 and later.
+    pub initial_passes: usize,
+    pub passes: usize,
+    pub schedule: ScheduleKind,
+    /// k_f: the dynamics model trains every this many epochs.
+    pub dynamics_every: u64,
+    /// k_p: the critic trains every this many epochs.
+    pub critic_every: u64,
+    /// Passes of the dynamics model and critic each time they train.
+    pub aux_passes: usize,
+    /// The critic trains only once |D?| exceeds this.
+    pub critic_min_uncertain: usize,
+    /// "auto" (CUDA when present), "cpu" or "cuda:N".
+    pub device: String,
+}
+
+impl Default for TrainingSection {
+    fn default() -> Self {
+        TrainingSection {
+            lr: 1e-3,
+            weight_decay: 1e-4,
+            grad_clip: 1.0,
+            lr_gamma: 0.1f64.powf(1.0 / 100.0),
+            batch_size: 64,
+            initial_passes: 5,
+            passes: 1,
+            schedule: ScheduleKind::Paper,
+            dynamics_every: 5,
+            critic_every: 10,
+            aux_passes: 10,
+            critic_min_uncertain: 16,
+            device: "auto".into(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActorsSection {
+    /// Actor processes (the eval actor comes on top).
+    pub count: u32,
+    /// Environments each actor steps in lockstep.
+    pub envs_per_actor: u32,
+    /// An evaluation stores the driven line subsampled to at most this many points.
+    pub eval_line_points: usize,
+}
+
+impl Default for ActorsSection {
+    fn default() -> Self {
+        ActorsSection {
+            count: 2,
+            envs_per_actor: 4,
+            eval_line_points: 2000,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BusSection {
+    /// Endpoints the learner listens on (the embedded default: no router needed on one machine).
+    pub listen: Vec<String>,
+    /// Endpoints the other processes connect to (the learner, or a zenohd router).
+    pub connect: Vec<String>,
+    /// Seconds the learner waits for the last actor of an epoch before it closes the epoch without it.
+    pub epoch_timeout_s: f64,
+    /// zenoh multicast scouting; off by default, so that a loopback run never meets strangers.
+    pub multicast_scouting: bool,
+}
+
+impl Default for BusSection {
+    fn default() -> Self {
+        BusSection {
+            listen: vec!["tcp/127.0.0.1:7447".into()],
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            epoch_timeout_s: 120.0,
+            multicast_scouting: false,
+        }
+    }
+}
+
+/// One run, as written in a TOML file.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    pub run: RunSection,
+    pub expert: ExpertSection,
+    pub observation: ObservationSection,
+    pub algorithm: AlgorithmSection,
+    pub collection: CollectionSection,
+    pub replay: ReplaySection,
+    pub networks: NetworksSection,
+    pub training: TrainingSection,
+    pub actors: ActorsSection,
+    pub bus: BusSection,
+}
+
+/// A configuration that could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    /// toml's message names the key, the line and the column.
+    #[error("{origin}: {message}")]
+    Parse { origin: String, message: String },
+    #[error("{origin}: {key} = {value}: {why}")]
+    Invalid {
+        origin: String,
+        key: &'static str,
+        value: String,
+        why: &'static str,
+    },
+    #[error("no preset named `{0}`; presets: {presets}", presets = PRESETS.iter().map(|p| p.0).collect::<Vec<_>>().join(", "))]
+    UnknownPreset(String),
+}
+
+/// The presets of deploy/configs/, embedded.
+pub const PRESETS: &[(&str, &str)] = &[
+    ("v-a", include_str!("../../deploy/configs/v-a.toml")),
+    ("v-b", include_str!("../../deploy/configs/v-b.toml")),
+    ("v-c", include_str!("../../deploy/configs/v-c.toml")),
+    ("smoke", include_str!("../../deploy/configs/smoke.toml")),
+];
+
+impl RunConfig {
+    /// Parses TOML; `origin` names the source in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let config: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        config.validate(origin)?;
+        Ok(config)
+    }
+
+    /// A preset name (`v-a`, `v-b`, `v-c`, `smoke`) or a path to a TOML file.
+    pub fn load(name_or_path: &str) -> Result<Self, ConfigError> {
+        if let Some((name, text)) = PRESETS.iter().find(|(n, _)| *n == name_or_path) {
+            return Self::from_toml(text, &format!("preset {name}"));
+        }
+        let path = Path::new(name_or_path);
+        if !path.exists() && !name_or_path.contains(['/', '.']) {
+            return Err(ConfigError::UnknownPreset(name_or_path.to_string()));
+        }
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+
+    /// Writes the configuration as TOML (for the run folder).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a RunConfig always serialises")
+    }
+
+    /// Checks values that types cannot.
+    pub fn validate(&self, origin: &str) -> Result<(), ConfigError> {
+        let invalid = |key: &'static str, value: String, why: &'static str| {
+            Err(ConfigError::Invalid {
+                origin: origin.to_string(),
+                key,
+                value,
+                why,
+            })
+        };
+        if crate::keys::check_chunk(&self.run.name).is_err() {
+            return invalid(
+                "run.name",
+                self.run.name.clone(),
+                "use letters, digits, '-', '_' or '.'",
+            );
+        }
+        if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
+            return invalid(
+                "algorithm.lambda",
+                self.algorithm.lambda.to_string(),
+                "must be >= 0",
+            );
+        }
+        if !(self.algorithm.rho > 0.0 && self.algorithm.rho.is_finite()) {
+            return invalid("algorithm.rho", self.algorithm.rho.to_string(), "must be > 0");
+        }
+        if !(0.0..=1.0).contains(&self.algorithm.beta_decay) {
+            return invalid(
+                "algorithm.beta_decay",
+                self.algorithm.beta_decay.to_string(),
+                "must lie in [0, 1]",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.algorithm.negative_label) {
+            return invalid(
+                "algorithm.negative_label",
+                self.algorithm.negative_label.to_string(),
+                "must lie in [0, 1]",
+            );
+        }
+        if self.algorithm.autolabel_every == 0 {
+            return invalid("algorithm.autolabel_every", "0".into(), "must be >= 1");
+        }
+        if self.collection.steps_per_epoch == 0 {
+            return invalid("collection.steps_per_epoch", "0".into(), "must be >= 1");
+        }
+        if self.actors.count == 0 {
+            return invalid("actors.count", "0".into(), "must be >= 1");
+        }
+        if self.actors.envs_per_actor == 0 {
+            return invalid("actors.envs_per_actor", "0".into(), "must be >= 1");
+        }
+        if self.training.batch_size == 0 {
+            return invalid("training.batch_size", "0".into(), "must be >= 1");
+        }
+        if self.training.dynamics_every == 0 || self.training.critic_every == 0 {
+            return invalid(
+                "training.dynamics_every / critic_every",
+                "0".into(),
+                "must be >= 1",
+            );
+        }
+        if self.replay.capacity == 0 {
+            return invalid("replay.capacity", "0".into(), "must be >= 1");
+        }
+        if self.observation.kind == ObservationKind::Camera
+            && (self.observation.width < 16 || self.observation.height < 16)
+        {
+            return invalid(
+                "observation.width/height",
+                format!("{}x{}", self.observation.width, self.observation.height),
+                "images must be at least 16x16",
+            );
+        }
+        if self.bus.listen.is_empty() || self.bus.connect.is_empty() {
+            return invalid("bus.listen / bus.connect", "[]".into(), "need at least one endpoint");
+        }
+        Ok(())
+    }
+
+    /// beta_j of Algorithm 1.
+    pub fn beta(&self, epoch: u64) -> f64 {
+        self.algorithm.beta_decay.powi(epoch.min(i32::MAX as u64) as i32)
+    }
+
+    /// Environment steps of epoch `epoch`, all actors together.
+    pub fn epoch_steps(&self, epoch: u64) -> u64 {
+        if epoch == 0 {
+            self.collection.initial_steps
+        } else {
+            self.collection.steps_per_epoch
+        }
+    }
+
+    /// Each actor's share of an epoch's steps (rounded up, so the epoch collects at least its budget).
+    pub fn steps_per_actor(&self, epoch: u64) -> u64 {
+        self.epoch_steps(epoch).div_ceil(self.actors.count as u64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_parse_and_match_the_paper() {
+        for (name, _) in PRESETS {
+            RunConfig::load(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+        }
+        let va = RunConfig::load("v-a").unwrap();
+        assert_eq!(va.expert.kind, ExpertKind::Pid);
+        assert_eq!(va.observation.kind, ObservationKind::Camera);
+        assert_eq!(va.algorithm.lambda, 1.0);
+        let vb = RunConfig::load("v-b").unwrap();
+        assert_eq!(vb.expert.kind, ExpertKind::Mpcc);
+        assert_eq!(vb.observation.kind, ObservationKind::State);
+        assert_eq!((vb.algorithm.lambda, vb.algorithm.rho), (10.0, 1.0));
+        assert_eq!(vb.run.max_epochs, 500);
+        let vc = RunConfig::load("v-c").unwrap();
+        assert_eq!((vc.algorithm.lambda, vc.algorithm.rho), (1.0, 0.5));
+        assert_eq!(vc.observation.kind, ObservationKind::Camera);
+        assert_eq!(vc.run.max_epochs, 200);
+    }
+
+    #[test]
+    fn defaults_are_the_reference_values() {
+        let c = RunConfig::default();
+        assert_eq!(c.replay.capacity, 102_400);
+        assert_eq!(c.networks.policy, MlpSize { layers: 3, width: 128 });
+        assert_eq!(c.networks.critic, MlpSize { layers: 4, width: 256 });
+        assert_eq!(c.training.batch_size, 64);
+        assert!((c.training.lr_gamma.powi(100) - 0.1).abs() < 1e-12);
+        assert_eq!(c.collection.steps_per_epoch, 1024);
+        assert_eq!(c.beta(0), 1.0);
+        assert!((c.beta(2) - 0.9025).abs() < 1e-12);
+    }
+
+    #[test]
+    fn unknown_key_names_key_and_line() {
+        let err = RunConfig::from_toml("[run]\nname = \"x\"\n\n[algorithm]\nlamda = 3\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("lamda"), "{err}");
+        assert!(err.contains("line 5"), "{err}");
+        assert!(err.starts_with("t.toml"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_key_and_line() {
+        let err = RunConfig::from_toml("[algorithm]\nrho = \"big\"\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("line 2"), "{err}");
+        assert!(err.contains("rho") || err.contains("float"), "{err}");
+    }
+
+    #[test]
+    fn invalid_values_are_refused_by_name() {
+        let err = RunConfig::from_toml("[algorithm]\nrho = -1.0\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("algorithm.rho"), "{err}");
+        let err = RunConfig::from_toml("[run]\nname = \"a/b\"\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("run.name"), "{err}");
+    }
+
+    #[test]
+    fn unknown_preset_lists_presets() {
+        let err = RunConfig::load("v-z").unwrap_err().to_string();
+        assert!(err.contains("v-b") && err.contains("smoke"), "{err}");
+    }
+
+    #[test]
+    fn toml_round_trip() {
+        let c = RunConfig::load("v-c").unwrap();
+        assert_eq!(RunConfig::from_toml(&c.to_toml(), "rt").unwrap(), c);
+    }
+
+    #[test]
+    fn steps_are_split_between_actors() {
+        let mut c = RunConfig::default();
+        c.actors.count = 3;
+        assert_eq!(c.steps_per_actor(1), 342);
+    }
+}

@@ -1,0 +1,20 @@
+//! cabc-proto: the wire protocol of cabc and the run configuration.
+//!
+//! * [`messages`]: what travels on the bus (policy updates, trajectory segments, expert queries, evaluation
+//!   reports, stop);
+//! * [`keys`]: every zenoh key expression, built in one place;
+//! * [`codec`]: `encode` / `decode` with a header (magic + schema version + message kind), so a stale or foreign
+//!   payload is refused with a typed error, never half-read;
+//! * [`config`]: the run configuration (TOML), the one place for every number that defines an experiment;
+//! * [`telemetry`]: `tracing` set up the same way in every binary.
+//!
+//! This crate knows nothing of zenoh or tch.
+
+pub mod codec;
+pub mod config;
+pub mod keys;
+pub mod messages;
+pub mod telemetry;
+
+pub use codec::{decode, encode, DecodeError, Message};
+pub use config::RunConfig;

@@ -1,0 +1,205 @@
+//! The messages of the bus (architecture.md). Plain data with serde; the codec adds the header.
+//!
+//! Frames and units: `state` = [v_long, v_tran, omega, s, x_tran, e_psi] (m/s, m/s, rad/s, m, m, rad) in the track's
+//! Frenet frame; `pose` = [X, Y, psi] (m, m, rad; psi unwrapped) in the track's global frame; actions = [a, delta]
+//! (m/s², rad).
+
+use serde::{Deserialize, Serialize};
+
+/// Observation dimension of the full state.
+pub const STATE_DIM: usize = 6;
+/// Action dimension.
+pub const ACTION_DIM: usize = 2;
+
+/// An RGB camera image, row-major HWC.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Image {
+    pub width: u16,
+    pub height: u16,
+    pub rgb: Vec<u8>,
+}
+
+/// One environment step, as the learner stores it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Step {
+    /// [v_long, v_tran, omega, s, x_tran, e_psi] before the step.
+    pub state: [f32; STATE_DIM],
+    /// [X, Y, psi] before the step.
+    pub pose: [f32; 3],
+    /// The camera image before the step, when the run observes images.
+    pub image: Option<Image>,
+    /// The expert's action at `state` (the label). Meaningless when `expert_ok` is false.
+    pub expert_action: [f32; ACTION_DIM],
+    /// The action the environment received (beta mixture), which the dynamics model trains on.
+    pub applied_action: [f32; ACTION_DIM],
+    /// The state after the step.
+    pub next_state: [f32; STATE_DIM],
+    /// Whether the expert solved its problem at this state.
+    pub expert_ok: bool,
+}
+
+impl Step {
+    /// [v_long, v_tran, omega]: the velocities the vision policy sees beside the image.
+    pub fn velocity(&self) -> [f32; 3] {
+        [self.state[0], self.state[1], self.state[2]]
+    }
+}
+
+/// Why an episode was cut (simulator.md 3.6), or that the expert failed twice in a row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum EndReason {
+    /// |x_tran| > half-width: the constraint violation.
+    OutOfTrack,
+    /// The car left the Frenet band (|x_tran| > 0.85).
+    LeftBand,
+    /// v_long < 0.25.
+    Stall,
+    /// |e_psi| > pi/2.
+    Spin,
+    /// The maximum number of laps was driven.
+    MaxLaps,
+    /// The expert failed on consecutive steps (patience exhausted).
+    ExpertFailure,
+    /// The step budget ran out.
+    Budget,
+}
+
+impl std::fmt::Display for EndReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = match self {
+            EndReason::OutOfTrack => "out-of-track",
+            EndReason::LeftBand => "left-band",
+            EndReason::Stall => "stall",
+            EndReason::Spin => "spin",
+            EndReason::MaxLaps => "max-laps",
+            EndReason::ExpertFailure => "expert-failure",
+            EndReason::Budget => "budget",
+        };
+        f.write_str(s)
+    }
+}
+
+/// How a segment ended, which decides its replay buffer (algorithm.md 2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Outcome {
+    /// A lap was completed: every step goes to D+.
+    Lap,
+    /// The episode was truncated: the steps go to D? (uncertain).
+    Failure(EndReason),
+    /// One step at which the expert failed: straight to D?.
+    ExpertFailure,
+    /// The epoch's step budget ran out: kept for the dynamics model, never labelled.
+    Incomplete,
+}
+
+/// A piece of one episode, cut at a lap, a failure or the end of the budget.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Segment {
+    pub actor: String,
+    /// Environment index inside the actor.
+    pub env: u32,
+    /// Episode counter of that environment.
+    pub episode: u64,
+    /// Sequence number of this segment among the actor's segments (0, 1, 2, ... over the actor's life).
+    pub seq: u64,
+    /// Policy version that collected it.
+    pub policy_version: u64,
+    pub outcome: Outcome,
+    pub steps: Vec<Step>,
+}
+
+/// "Actor `actor` is done with policy version `version`": the epoch protocol's marker.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EpochDone {
+    pub actor: String,
+    pub version: u64,
+    /// Segments and steps the actor published for this version, so the learner can check that none was lost.
+    pub segments: u64,
+    pub steps: u64,
+}
+
+/// What an actor publishes on `traj/<actor>`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum TrajMessage {
+    Segment(Segment),
+    EpochDone(EpochDone),
+}
+
+/// The learner's policy broadcast.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PolicyUpdate {
+    pub version: u64,
+    /// Mixture weight of the expert for this version: u = beta * expert + (1 - beta) * policy.
+    pub beta: f64,
+    /// The architecture's name; an actor refuses weights of another architecture.
+    pub architecture: String,
+    /// safetensors bytes of the policy network.
+    pub weights: Vec<u8>,
+    /// Environment steps each actor collects with this version (the epoch budget).
+    pub steps_per_actor: u64,
+}
+
+/// Identifies a stream of expert queries (one environment's episode), for the MPCC warm start.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct StreamId {
+    pub actor: String,
+    pub env: u32,
+    pub episode: u64,
+}
+
+/// One state to relabel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExpertQuery {
+    pub stream: StreamId,
+    /// True on the first query of a stream (the MPCC cold-starts).
+    pub start: bool,
+    /// [v_x, v_y, omega, X, Y, psi]: the vehicle state in the global frame.
+    pub vehicle: [f64; 6],
+    /// [v_long, v_tran, omega, s, x_tran, e_psi]: the same state in the Frenet frame (the PID reads it).
+    pub frenet: [f64; 6],
+}
+
+/// A batch of states to relabel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExpertRequest {
+    pub request_id: u64,
+    pub queries: Vec<ExpertQuery>,
+}
+
+/// The expert's answer for one query.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExpertAnswer {
+    pub action: [f64; 2],
+    pub success: bool,
+    /// Solver status, human-readable ("Solved", "MaxIterations", "out of band: ...").
+    pub status: String,
+    pub iterations: u32,
+    pub solve_time_us: u32,
+}
+
+/// The answer to an [`ExpertRequest`], item by item.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExpertReply {
+    pub request_id: u64,
+    pub answers: Vec<ExpertAnswer>,
+}
+
+/// The result of one evaluation of a policy version (fixed spawn, beta = 0).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    pub actor: String,
+    pub version: u64,
+    pub laps: u32,
+    /// Seconds per completed lap.
+    pub lap_times: Vec<f64>,
+    pub end_reason: EndReason,
+    pub steps: u64,
+    /// The driven line, [X, Y] per step (subsampled by the actor when long).
+    pub line: Vec<[f32; 2]>,
+}
+
+/// The learner ends the run.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Stop {
+    pub reason: String,
+}

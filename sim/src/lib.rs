@@ -1,0 +1,16 @@
+//! cabc-sim: the racing simulator of the seed paper, ported from its reference implementation
+//! (simulator.md): the `L_track_barc` track with Frenet conversions ([`track`]), the dynamic bicycle
+//! ([`vehicle`]), the PID lane-follower expert ([`pid`]), the gym-like environment ([`env`]) and a
+//! CPU first-person camera ([`camera`]). It knows nothing of the bus or of the learner.
+
+pub mod camera;
+pub mod env;
+pub mod pid;
+pub mod track;
+pub mod vehicle;
+
+pub use pid::PidLaneFollower;
+pub use track::{Frenet, Pose, Segment, Track, TrackError};
+pub use vehicle::{clip_action, Input, State, VehicleParams, ACTION_HIGH, ACTION_LOW};
+pub use camera::{Camera, Image, Sun, TrackLookup};
+pub use env::{Env, EnvBatch, EnvConfig, Observation, Spawn, StepResult, Truncation};
