@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
-use zenoh::qos::{CongestionControl, Reliability};
+use zenoh::qos::CongestionControl;
 use zenoh::Session;
 
 /// How a process joins the bus.
@@ -155,12 +155,11 @@ impl Bus {
         &self.component
     }
 
-    /// Publishes a message reliably (blocks under congestion rather than dropping).
+    /// Publishes a message reliably (zenoh's default reliability; blocks under congestion rather than dropping).
     pub async fn put<M: Message>(&self, key: &str, message: &M) -> Result<(), BusError> {
         self.session
             .put(key, codec::encode(message))
             .encoding(encoding_of::<M>())
-            .reliability(Reliability::Reliable)
             .congestion_control(CongestionControl::Block)
             .await
             .map_err(zerr)

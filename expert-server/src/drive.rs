@@ -32,7 +32,11 @@ pub struct DriveOptions {
 
 impl Default for DriveOptions {
     fn default() -> Self {
-        Self { laps: 3, max_steps: 2000, stop_on_failure: true }
+        Self {
+            laps: 3,
+            max_steps: 2000,
+            stop_on_failure: true,
+        }
     }
 }
 
@@ -102,11 +106,32 @@ fn truncation(f: &Frenet, v_long: f64, half_width: f64) -> Option<String> {
 
 /// Drive the MPCC from the fixed spawn in the nominal plant.
 pub fn drive(mpcc: &Mpcc, plant: &VehicleParams, opts: &DriveOptions) -> DriveReport {
+    drive_from(mpcc, plant, fixed_spawn(mpcc.track()), opts)
+}
+
+/// Drive the MPCC from state `spawn` (global frame) in the nominal plant.
+pub fn drive_from(
+    mpcc: &Mpcc,
+    plant: &VehicleParams,
+    spawn: State,
+    opts: &DriveOptions,
+) -> DriveReport {
     let track = mpcc.track();
     let dt = mpcc.config().dt;
-    let mut q = fixed_spawn(track);
-    let mut frenet = Frenet { s: 0.1, x_tran: 0.0, e_psi: 0.0 };
-    let mut report = DriveReport { steps: Vec::new(), lap_times: Vec::new(), failures: 0, end: DriveEnd::MaxSteps };
+    let mut q = spawn;
+    let mut report = DriveReport {
+        steps: Vec::new(),
+        lap_times: Vec::new(),
+        failures: 0,
+        end: DriveEnd::MaxSteps,
+    };
+    let mut frenet = match track.global_to_local(q[3], q[4], q[5]) {
+        Ok(f) => f,
+        Err(e) => {
+            report.end = DriveEnd::Error(e.to_string());
+            return report;
+        }
+    };
     let mut stream = match mpcc.start(&q) {
         Ok(s) => s,
         Err(e) => {
@@ -219,13 +244,25 @@ fn quantile<T: Copy + Ord>(v: &mut [T], p: f64) -> T {
 
 /// Time `steps` MPCC steps of a closed-loop drive from the fixed spawn (on the calling thread, one core).
 pub fn bench(mpcc: &Mpcc, plant: &VehicleParams, steps: usize) -> Result<BenchReport, MpccError> {
-    let opts = DriveOptions { laps: usize::MAX, max_steps: steps.max(1), stop_on_failure: false };
+    let opts = DriveOptions {
+        laps: usize::MAX,
+        max_steps: steps.max(1),
+        stop_on_failure: false,
+    };
     let r = drive(mpcc, plant, &opts);
     if let DriveEnd::Error(e) = &r.end {
         return Err(MpccError::Config(format!("bench drive stopped: {e}")));
     }
-    let mut t: Vec<Duration> = r.steps.iter().map(|s| Duration::from_secs_f64(s.step_time)).collect();
-    let mut st: Vec<Duration> = r.steps.iter().map(|s| Duration::from_secs_f64(s.solve_time)).collect();
+    let mut t: Vec<Duration> = r
+        .steps
+        .iter()
+        .map(|s| Duration::from_secs_f64(s.step_time))
+        .collect();
+    let mut st: Vec<Duration> = r
+        .steps
+        .iter()
+        .map(|s| Duration::from_secs_f64(s.solve_time))
+        .collect();
     let mut it: Vec<u32> = r.steps.iter().map(|s| s.qp_iterations).collect();
     let n = t.len();
     Ok(BenchReport {

@@ -11,5 +11,8 @@ pub mod relabel;
 pub mod rk4;
 pub mod spline;
 
-pub use drive::{bench, drive, fixed_spawn, BenchReport, DriveEnd, DriveOptions, DriveReport, DriveStep};
+pub use drive::{
+    bench, drive, drive_from, fixed_spawn, BenchReport, DriveEnd, DriveOptions, DriveReport,
+    DriveStep,
+};
 pub use mpcc::{Mpcc, MpccConfig, MpccError, MpccStep, MpccStream, QpStatus};

@@ -4,17 +4,22 @@
 mod server;
 
 use anyhow::{bail, Context, Result};
-use cabc_expert::drive::{bench, drive, DriveOptions};
+use cabc_expert::drive::{bench, drive, DriveOptions, DriveReport};
 use cabc_expert::relabel::Expert;
 use cabc_expert::{Mpcc, MpccConfig};
 use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::VehicleParams;
 use clap::{Parser, Subcommand};
+use serde_json::json;
 use std::sync::Arc;
 
 #[derive(Parser)]
-#[command(name = "expert-server", version, about = "The cabc expert: MPCC-conv on Clarabel or the PID lane follower")]
+#[command(
+    name = "expert-server",
+    version,
+    about = "The cabc expert: MPCC-conv on Clarabel or the PID lane follower"
+)]
 struct Cli {
     /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
     #[arg(long, short, global = true, default_value = "v-b")]
@@ -53,8 +58,12 @@ enum Command {
 fn main() -> Result<()> {
     cabc_proto::telemetry::init();
     let cli = Cli::parse();
-    let config = RunConfig::load(&cli.config).with_context(|| format!("loading configuration {}", cli.config))?;
-    match cli.command.unwrap_or(Command::Serve(server::ServeArgs::default())) {
+    let config = RunConfig::load(&cli.config)
+        .with_context(|| format!("loading configuration {}", cli.config))?;
+    match cli
+        .command
+        .unwrap_or(Command::Serve(server::ServeArgs::default()))
+    {
         Command::Serve(args) => {
             let expert = match config.expert.kind {
                 ExpertKind::Mpcc => Expert::Mpcc(Arc::new(mpcc()?)),
@@ -79,17 +88,15 @@ fn main() -> Result<()> {
                 },
             );
             if let Some(path) = &trace {
-                report
-                    .write_csv(path)
-                    .with_context(|| format!("writing {}", path.display()))?;
+                write_trace(&report, path).with_context(|| format!("writing {}", path.display()))?;
             }
             if let Some(path) = &plot {
                 let line: Vec<(f64, f64)> = report.steps.iter().map(|s| (s.state[3], s.state[4])).collect();
-                cabc_sim::picture::track_picture(mpcc.track(), &[&line], 600)
+                cabc_sim::map::render_track(mpcc.track(), 100.0, &line)
                     .write_png(path)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
-            println!("{}", serde_json::to_string_pretty(&report.summary())?);
+            println!("{}", serde_json::to_string_pretty(&summary(&report))?);
             Ok(())
         }
         Command::Bench { steps } => {
@@ -103,6 +110,52 @@ fn main() -> Result<()> {
     }
 }
 
+/// The JSON summary of a drive: laps, lap times, failures, truncation, max |x_tran|, solve-time percentiles.
+fn summary(report: &DriveReport) -> serde_json::Value {
+    let mut solve_ms: Vec<f64> = report.steps.iter().map(|s| s.solve_time * 1e3).collect();
+    solve_ms.sort_by(f64::total_cmp);
+    let pct = |p: f64| {
+        (!solve_ms.is_empty()).then(|| solve_ms[((solve_ms.len() - 1) as f64 * p).round() as usize])
+    };
+    let n = report.lap_times.len() as f64;
+    let mean = (n > 0.0).then(|| report.lap_times.iter().sum::<f64>() / n);
+    let std = mean.map(|m| (report.lap_times.iter().map(|t| (t - m).powi(2)).sum::<f64>() / n).sqrt());
+    json!({
+        "steps": report.steps.len(),
+        "laps": report.lap_times.len(),
+        "lap_times": report.lap_times,
+        "lap_time_mean": mean,
+        "lap_time_std": std,
+        "failures": report.failures,
+        "end": format!("{:?}", report.end),
+        "max_abs_x_tran": report.steps.iter().map(|s| s.frenet.x_tran.abs()).fold(0.0, f64::max),
+        "solve_ms_p50": pct(0.5),
+        "solve_ms_p99": pct(0.99),
+    })
+}
+
+/// Every step of a drive as CSV.
+fn write_trace(report: &DriveReport, path: &std::path::Path) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(f, "t,v_x,v_y,omega,X,Y,psi,s,x_tran,e_psi,a,delta,success,status,qp_iterations,solve_ms,step_ms")?;
+    for s in &report.steps {
+        let q = s.state;
+        writeln!(
+            f,
+            "{:.2},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4}",
+            s.t, q[0], q[1], q[2], q[3], q[4], q[5], s.frenet.s, s.frenet.x_tran, s.frenet.e_psi,
+            s.action[0], s.action[1], s.success, s.status, s.qp_iterations, s.solve_time * 1e3, s.step_time * 1e3
+        )?;
+    }
+    f.flush()
+}
+
 fn mpcc() -> Result<Mpcc> {
-    Mpcc::new(Track::l_track_barc(), VehicleParams::default(), MpccConfig::default()).context("building the MPCC")
+    Mpcc::new(
+        Track::l_track_barc(),
+        VehicleParams::default(),
+        MpccConfig::default(),
+    )
+    .context("building the MPCC")
 }

@@ -125,7 +125,10 @@ impl Relabeller {
     }
 
     /// Answers a batch, item by item.
-    pub fn answer(&self, request: &ExpertRequest) -> Result<(ExpertReply, BatchStats), RelabelError> {
+    pub fn answer(
+        &self,
+        request: &ExpertRequest,
+    ) -> Result<(ExpertReply, BatchStats), RelabelError> {
         let n = request.queries.len();
         if n > self.max_batch {
             return Err(RelabelError::Oversized {
@@ -266,7 +269,10 @@ mod tests {
     fn spawn() -> ([f64; 6], [f64; 6]) {
         let track = Track::l_track_barc();
         let p = track.local_to_global(0.1, 0.0, 0.0);
-        ([0.5, 0.0, 0.0, p.x, p.y, p.psi], [0.5, 0.0, 0.0, 0.1, 0.0, 0.0])
+        (
+            [0.5, 0.0, 0.0, p.x, p.y, p.psi],
+            [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+        )
     }
 
     #[test]
@@ -308,7 +314,11 @@ mod tests {
         let far = [1.0, 0.0, 0.0, 50.0, 50.0, 0.0];
         let req = ExpertRequest {
             request_id: 2,
-            queries: vec![query(0, true, nan, f), query(1, true, far, f), query(2, true, v, f)],
+            queries: vec![
+                query(0, true, nan, f),
+                query(1, true, far, f),
+                query(2, true, v, f),
+            ],
         };
         let (reply, stats) = r.answer(&req).unwrap();
         assert!(!reply.answers[0].success && reply.answers[0].status.contains("non-finite"));

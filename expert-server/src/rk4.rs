@@ -57,7 +57,9 @@ impl Rk4 {
             let k2 = model.f(&axpy(&q, h / 2.0, &k1), u);
             let k3 = model.f(&axpy(&q, h / 2.0, &k2), u);
             let k4 = model.f(&axpy(&q, h, &k3), u);
-            q = std::array::from_fn(|i| q[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+            q = std::array::from_fn(|i| {
+                q[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            });
         }
         q
     }
@@ -82,12 +84,20 @@ impl Rk4 {
         };
         for _ in 0..self.substeps {
             let (k1, dq1, du1) = stage(&q, &sq, &su);
-            let (k2, dq2, du2) =
-                stage(&axpy(&q, h / 2.0, &k1), &(sq + dq1 * (h / 2.0)), &(su + du1 * (h / 2.0)));
-            let (k3, dq3, du3) =
-                stage(&axpy(&q, h / 2.0, &k2), &(sq + dq2 * (h / 2.0)), &(su + du2 * (h / 2.0)));
+            let (k2, dq2, du2) = stage(
+                &axpy(&q, h / 2.0, &k1),
+                &(sq + dq1 * (h / 2.0)),
+                &(su + du1 * (h / 2.0)),
+            );
+            let (k3, dq3, du3) = stage(
+                &axpy(&q, h / 2.0, &k2),
+                &(sq + dq2 * (h / 2.0)),
+                &(su + du2 * (h / 2.0)),
+            );
             let (k4, dq4, du4) = stage(&axpy(&q, h, &k3), &(sq + dq3 * h), &(su + du3 * h));
-            q = std::array::from_fn(|i| q[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+            q = std::array::from_fn(|i| {
+                q[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            });
             sq += (dq1 + (dq2 + dq3) * 2.0 + dq4) * (h / 6.0);
             su += (du1 + (du2 + du3) * 2.0 + du4) * (h / 6.0);
         }
@@ -133,7 +143,10 @@ mod tests {
     #[test]
     fn jacobians_match_central_differences() {
         let p = VehicleParams::default();
-        let rk = Rk4 { dt: 0.1, substeps: 10 };
+        let rk = Rk4 {
+            dt: 0.1,
+            substeps: 10,
+        };
         let cases: [([f64; NQ], [f64; NU]); 4] = [
             ([2.0, 0.0, 0.0, 1.0, 0.2, 0.3], [0.5, 0.0]),
             ([3.1, 0.35, 2.4, -1.0, 3.0, 2.0], [-1.2, 0.3]),
@@ -146,7 +159,10 @@ mod tests {
             let (af, bf) = fd(&rk, &p, &q, &u, 1e-6);
             let rel_a = (a - af).norm() / a.norm();
             let rel_b = (b - bf).norm() / b.norm();
-            assert!(rel_a < 1e-6 && rel_b < 1e-6, "q={q:?} u={u:?}: rel err A {rel_a:e}, B {rel_b:e}");
+            assert!(
+                rel_a < 1e-6 && rel_b < 1e-6,
+                "q={q:?} u={u:?}: rel err A {rel_a:e}, B {rel_b:e}"
+            );
             // Entry-wise, relative to the column scale.
             for j in 0..NQ {
                 let s = af.column(j).norm().max(1.0);
@@ -158,7 +174,10 @@ mod tests {
     #[test]
     fn map_matches_the_simulator_step() {
         let p = VehicleParams::default();
-        let rk = Rk4 { dt: 0.1, substeps: 10 };
+        let rk = Rk4 {
+            dt: 0.1,
+            substeps: 10,
+        };
         let q = [2.5, 0.1, 0.5, 0.3, -0.2, 0.4];
         let u = [0.7, 0.12];
         let ours = rk.map(&p, &q, &u);

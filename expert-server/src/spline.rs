@@ -63,15 +63,27 @@ impl CubicSpline {
         let coef = (0..n - 1)
             .map(|i| {
                 let (hi, mi, mj) = (h[i], m[i], m[i + 1]);
-                [ys[i], slope[i] - hi * (2.0 * mi + mj) / 6.0, mi / 2.0, (mj - mi) / (6.0 * hi)]
+                [
+                    ys[i],
+                    slope[i] - hi * (2.0 * mi + mj) / 6.0,
+                    mi / 2.0,
+                    (mj - mi) / (6.0 * hi),
+                ]
             })
             .collect();
-        Ok(Self { knots: xs.to_vec(), coef })
+        Ok(Self {
+            knots: xs.to_vec(),
+            coef,
+        })
     }
 
     /// The piece that holds `x` (end pieces extend past the knot range) and the offset into it.
     fn piece(&self, x: f64) -> (&[f64; 4], f64) {
-        let i = self.knots.partition_point(|&k| k <= x).saturating_sub(1).min(self.coef.len() - 1);
+        let i = self
+            .knots
+            .partition_point(|&k| k <= x)
+            .saturating_sub(1)
+            .min(self.coef.len() - 1);
         (&self.coef[i], x - self.knots[i])
     }
 
@@ -112,7 +124,9 @@ mod tests {
     #[test]
     fn reproduces_any_cubic_exactly() {
         // Non-uniform knots, to exercise the general system.
-        let xs: Vec<f64> = (0..12).map(|i| i as f64 * 0.37 + 0.05 * (i as f64).sin()).collect();
+        let xs: Vec<f64> = (0..12)
+            .map(|i| i as f64 * 0.37 + 0.05 * (i as f64).sin())
+            .collect();
         let ys: Vec<f64> = xs.iter().map(|&x| cubic(x)[0]).collect();
         let sp = CubicSpline::not_a_knot(&xs, &ys).unwrap();
         for j in 0..200 {
@@ -120,7 +134,12 @@ mod tests {
             let got = sp.eval(x);
             let want = cubic(x);
             for d in 0..3 {
-                assert!((got[d] - want[d]).abs() < 1e-9, "x={x} d={d}: {} vs {}", got[d], want[d]);
+                assert!(
+                    (got[d] - want[d]).abs() < 1e-9,
+                    "x={x} d={d}: {} vs {}",
+                    got[d],
+                    want[d]
+                );
             }
         }
     }
@@ -152,7 +171,10 @@ mod tests {
 
     #[test]
     fn rejects_bad_input() {
-        assert_eq!(CubicSpline::not_a_knot(&[0.0, 1.0, 2.0], &[0.0; 3]).unwrap_err(), SplineError::TooFewPoints(3));
+        assert_eq!(
+            CubicSpline::not_a_knot(&[0.0, 1.0, 2.0], &[0.0; 3]).unwrap_err(),
+            SplineError::TooFewPoints(3)
+        );
         assert!(CubicSpline::not_a_knot(&[0.0, 1.0, 1.0, 2.0], &[0.0; 4]).is_err());
     }
 }

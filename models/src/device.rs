@@ -34,7 +34,10 @@ pub fn parse_device(spec: &str) -> Result<Device, ModelError> {
                 return Err(ModelError::Device(spec.into(), "CUDA is not available"));
             }
             if index as i64 >= tch::Cuda::device_count() {
-                return Err(ModelError::Device(spec.into(), "no CUDA device with that index"));
+                return Err(ModelError::Device(
+                    spec.into(),
+                    "no CUDA device with that index",
+                ));
             }
             Ok(Device::Cuda(index))
         }
@@ -53,7 +56,10 @@ mod tests {
         let auto = parse_device("auto").unwrap();
         assert_eq!(auto.is_cuda(), cuda_available());
         if !cuda_available() {
-            assert!(matches!(parse_device("cuda:0"), Err(ModelError::Device(..))));
+            assert!(matches!(
+                parse_device("cuda:0"),
+                Err(ModelError::Device(..))
+            ));
         }
     }
 }

@@ -27,18 +27,33 @@ impl Mlp {
         let mut layers = Vec::with_capacity(size.layers + 1);
         let mut dim = in_dim;
         for i in 0..size.layers {
-            layers.push(nn::linear(p / i.to_string(), dim, size.width as i64, config));
+            layers.push(nn::linear(
+                p / i.to_string(),
+                dim,
+                size.width as i64,
+                config,
+            ));
             dim = size.width as i64;
         }
-        layers.push(nn::linear(p / size.layers.to_string(), dim, out_dim, config));
+        layers.push(nn::linear(
+            p / size.layers.to_string(),
+            dim,
+            out_dim,
+            config,
+        ));
         Mlp { layers }
     }
 }
 
 impl Module for Mlp {
     fn forward(&self, xs: &Tensor) -> Tensor {
-        let (last, hidden) = self.layers.split_last().expect("an MLP has an output layer");
-        let h = hidden.iter().fold(xs.shallow_clone(), |h, l| l.forward(&h).relu());
+        let (last, hidden) = self
+            .layers
+            .split_last()
+            .expect("an MLP has an output layer");
+        let h = hidden
+            .iter()
+            .fold(xs.shallow_clone(), |h, l| l.forward(&h).relu());
         last.forward(&h)
     }
 }
@@ -69,7 +84,10 @@ mod tests {
                 let fan_in = t.size()[1] as f64;
                 let std = t.std(true).double_value(&[]);
                 let want = (2.0 / fan_in).sqrt();
-                assert!((std / want - 1.0).abs() < 0.1, "{name}: std {std}, want {want}");
+                assert!(
+                    (std / want - 1.0).abs() < 0.1,
+                    "{name}: std {std}, want {want}"
+                );
                 assert!(t.mean(Kind::Float).double_value(&[]).abs() < 0.1 * want);
             }
         }

@@ -9,7 +9,15 @@
 use cabc_proto::config::VisionTrunk;
 use tch::{nn, nn::ModuleT, Tensor};
 
-fn conv(p: nn::Path, c_in: i64, c_out: i64, k: i64, stride: i64, padding: i64, bias: bool) -> nn::Conv2D {
+fn conv(
+    p: nn::Path,
+    c_in: i64,
+    c_out: i64,
+    k: i64,
+    stride: i64,
+    padding: i64,
+    bias: bool,
+) -> nn::Conv2D {
     let config = nn::ConvConfig {
         stride,
         padding,
@@ -90,7 +98,12 @@ impl ResNet18 {
             for i in 0..2 {
                 let stride = if stage > 0 && i == 0 { 2 } else { 1 };
                 let name = format!("layer{}", stage + 1);
-                blocks.push(BasicBlock::new(p / name / i.to_string(), c_in, c_out, stride));
+                blocks.push(BasicBlock::new(
+                    p / name / i.to_string(),
+                    c_in,
+                    c_out,
+                    stride,
+                ));
                 c_in = c_out;
             }
         }
@@ -126,7 +139,12 @@ impl SmallCnn {
     pub const FEATURES: i64 = 128;
 
     pub fn new(p: &nn::Path) -> Self {
-        let spec = [(3, 32, 5), (32, 64, 3), (64, 128, 3), (128, Self::FEATURES, 3)];
+        let spec = [
+            (3, 32, 5),
+            (32, 64, 3),
+            (64, 128, 3),
+            (128, Self::FEATURES, 3),
+        ];
         let convs = spec
             .iter()
             .enumerate()
@@ -138,7 +156,10 @@ impl SmallCnn {
 
 impl ModuleT for SmallCnn {
     fn forward_t(&self, xs: &Tensor, _train: bool) -> Tensor {
-        let h = self.convs.iter().fold(xs.shallow_clone(), |h, c| h.apply(c).relu());
+        let h = self
+            .convs
+            .iter()
+            .fold(xs.shallow_clone(), |h, c| h.apply(c).relu());
         h.adaptive_avg_pool2d([1, 1]).flatten(1, -1)
     }
 }
@@ -146,14 +167,14 @@ impl ModuleT for SmallCnn {
 /// One of the trunks.
 #[derive(Debug)]
 pub enum Trunk {
-    Resnet18(ResNet18),
+    Resnet18(Box<ResNet18>),
     SmallCnn(SmallCnn),
 }
 
 impl Trunk {
     pub fn new(p: &nn::Path, kind: VisionTrunk) -> Self {
         match kind {
-            VisionTrunk::Resnet18 => Trunk::Resnet18(ResNet18::new(p)),
+            VisionTrunk::Resnet18 => Trunk::Resnet18(Box::new(ResNet18::new(p))),
             VisionTrunk::SmallCnn => Trunk::SmallCnn(SmallCnn::new(p)),
         }
     }

@@ -110,7 +110,11 @@ pub fn architecture_of(bytes: &[u8]) -> Result<String, ModelError> {
 
 /// Copies the weights in `bytes` into `vs`. Refuses another architecture's weights, and missing, extra or
 /// differently shaped tensors, before it changes anything.
-pub fn load_bytes(vs: &mut nn::VarStore, architecture: &str, bytes: &[u8]) -> Result<(), ModelError> {
+pub fn load_bytes(
+    vs: &mut nn::VarStore,
+    architecture: &str,
+    bytes: &[u8],
+) -> Result<(), ModelError> {
     let parsed = parse(bytes)?;
     if parsed.architecture != architecture {
         return Err(ModelError::ArchitectureMismatch {

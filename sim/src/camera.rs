@@ -34,11 +34,11 @@ pub const CAMERA_HEIGHT: f64 = 0.2;
 pub const REFERENCE_SIZE: usize = 224;
 pub const REFERENCE_FOV_DEG: f64 = 110.0;
 
-const AMBIENT: f64 = 0.35;
-const DIFFUSE: f64 = 0.65;
-const ROAD_RGB: [f64; 3] = [0.34, 0.34, 0.36];
+const AMBIENT: f64 = 0.4;
+const DIFFUSE: f64 = 0.6;
+const ROAD_RGB: [f64; 3] = [0.26, 0.26, 0.28];
 const GROUND_RGB: [f64; 3] = [0.36, 0.46, 0.26];
-const WALL_RGB: [f64; 3] = [0.85, 0.82, 0.76];
+const WALL_RGB: [f64; 3] = [0.95, 0.88, 0.78];
 const SKY_HORIZON_RGB: [f64; 3] = [0.78, 0.86, 0.95];
 const SKY_ZENITH_RGB: [f64; 3] = [0.32, 0.52, 0.86];
 
@@ -51,7 +51,10 @@ pub struct Sun {
 
 impl Default for Sun {
     fn default() -> Self {
-        Sun { azimuth: 0.8, elevation: 45f64.to_radians() }
+        Sun {
+            azimuth: 0.8,
+            elevation: 45f64.to_radians(),
+        }
     }
 }
 
@@ -82,7 +85,11 @@ pub struct Image {
 
 impl Image {
     pub fn new(width: usize, height: usize) -> Image {
-        Image { width, height, rgb: vec![0; width * height * 3] }
+        Image {
+            width,
+            height,
+            rgb: vec![0; width * height * 3],
+        }
     }
 
     #[inline]
@@ -104,7 +111,9 @@ impl Image {
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(std::io::Error::other)?;
-        writer.write_image_data(&self.rgb).map_err(std::io::Error::other)?;
+        writer
+            .write_image_data(&self.rgb)
+            .map_err(std::io::Error::other)?;
         writer.finish().map_err(std::io::Error::other)
     }
 }
@@ -124,7 +133,11 @@ pub struct TrackLookup {
 impl TrackLookup {
     /// Grid with cell size `res` (m) covering the centreline bounds plus a 1.2 m margin.
     pub fn new(track: &Track, res: f64) -> TrackLookup {
-        let res = if res.is_finite() && res > 1e-3 { res } else { 0.01 };
+        let res = if res.is_finite() && res > 1e-3 {
+            res
+        } else {
+            0.01
+        };
         let (bx0, by0, bx1, by1) = track.centreline_bounds();
         let margin = 1.2;
         // Origin on a multiple of `res` so that the grid is symmetric about the axes through the start.
@@ -140,7 +153,14 @@ impl TrackLookup {
                 dist.push(track.distance_to_centreline(x, y).min(10.0) as f32);
             }
         }
-        TrackLookup { x0, y0, res, nx, ny, dist }
+        TrackLookup {
+            x0,
+            y0,
+            res,
+            nx,
+            ny,
+            dist,
+        }
     }
 
     /// Distance to the centreline at (x, y) (nearest cell); +∞ outside the grid.
@@ -215,18 +235,36 @@ impl Camera {
     /// A `width` × `height` camera with horizontal field of view `fov_deg` (clamped to [1°, 179°]).
     pub fn new(width: usize, height: usize, fov_deg: f64) -> Camera {
         let (width, height) = (width.max(1), height.max(1));
-        let fov_deg = if fov_deg.is_finite() { fov_deg.clamp(1.0, 179.0) } else { REFERENCE_FOV_DEG };
+        let fov_deg = if fov_deg.is_finite() {
+            fov_deg.clamp(1.0, 179.0)
+        } else {
+            REFERENCE_FOV_DEG
+        };
         let f = (width as f64 / 2.0) / (fov_deg.to_radians() / 2.0).tan();
-        let col_left = (0..width).map(|i| -((i as f64 + 0.5) - width as f64 / 2.0) / f).collect();
-        let row_up: Vec<f64> = (0..height).map(|j| -((j as f64 + 0.5) - height as f64 / 2.0) / f).collect();
+        let col_left = (0..width)
+            .map(|i| -((i as f64 + 0.5) - width as f64 / 2.0) / f)
+            .collect();
+        let row_up: Vec<f64> = (0..height)
+            .map(|j| -((j as f64 + 0.5) - height as f64 / 2.0) / f)
+            .collect();
         let sky = row_up
             .iter()
             .map(|&u| {
                 let k = (u.atan() / (PI / 2.0)).clamp(0.0, 1.0).sqrt();
-                to_u8(std::array::from_fn(|c| SKY_HORIZON_RGB[c] * (1.0 - k) + SKY_ZENITH_RGB[c] * k))
+                to_u8(std::array::from_fn(|c| {
+                    SKY_HORIZON_RGB[c] * (1.0 - k) + SKY_ZENITH_RGB[c] * k
+                }))
             })
             .collect();
-        Camera { width, height, fov_deg, col_left, row_up, sky, image: Image::new(width, height) }
+        Camera {
+            width,
+            height,
+            fov_deg,
+            col_left,
+            row_up,
+            sky,
+            image: Image::new(width, height),
+        }
     }
 
     /// The reference camera: 224 × 224, 110°.
@@ -253,7 +291,11 @@ impl Camera {
         let (sun_dx, sun_dy) = (sun.azimuth.cos(), sun.azimuth.sin());
         let sun_up = s[2].max(0.0);
         // Horizontal distance over which a ray towards the sun stays below the wall top.
-        let shadow_len = if s[2] > 1e-6 { WALL_HEIGHT * (1.0 - s[2] * s[2]).sqrt() / s[2] } else { 1e3 };
+        let shadow_len = if s[2] > 1e-6 {
+            WALL_HEIGHT * (1.0 - s[2] * s[2]).sqrt() / s[2]
+        } else {
+            1e3
+        };
         let flat_lit = AMBIENT + DIFFUSE * sun_up;
         let road_lit = to_u8(ROAD_RGB.map(|c| c * flat_lit));
         let road_dark = to_u8(ROAD_RGB.map(|c| c * AMBIENT));
@@ -292,7 +334,10 @@ impl Camera {
                             if d <= ROAD_HALF_WIDTH || d > ROAD_HALF_WIDTH + WALL_THICKNESS {
                                 let near_wall = d <= ROAD_HALF_WIDTH + WALL_THICKNESS + shadow_len;
                                 let shadowed = near_wall
-                                    && (s[2] <= 0.0 || lookup.trace_wall(gx, gy, sun_dx, sun_dy, shadow_len).is_some());
+                                    && (s[2] <= 0.0
+                                        || lookup
+                                            .trace_wall(gx, gy, sun_dx, sun_dy, shadow_len)
+                                            .is_some());
                                 match (d <= ROAD_HALF_WIDTH, shadowed) {
                                     (true, false) => road_lit,
                                     (true, true) => road_dark,

@@ -162,7 +162,11 @@ impl Env {
 
     /// The reference setup: `L_track_barc`, default vehicle, default config.
     pub fn barc() -> Env {
-        Env::new(Arc::new(Track::l_track_barc()), VehicleParams::default(), EnvConfig::default())
+        Env::new(
+            Arc::new(Track::l_track_barc()),
+            VehicleParams::default(),
+            EnvConfig::default(),
+        )
     }
 
     /// The RNG stream for env `index` of a run seeded with `seed`.
@@ -181,7 +185,11 @@ impl Env {
                 let band = self.track.band();
                 let s = uniform(rng, 0.1, self.track.length() - 2.0);
                 let x_tran = uniform(rng, -band, band);
-                let e_psi = uniform(rng, -std::f64::consts::FRAC_PI_6, std::f64::consts::FRAC_PI_6);
+                let e_psi = uniform(
+                    rng,
+                    -std::f64::consts::FRAC_PI_6,
+                    std::f64::consts::FRAC_PI_6,
+                );
                 let v = uniform(rng, 0.5, 2.0);
                 self.set_spawn(s, x_tran, e_psi, v);
             }
@@ -195,7 +203,10 @@ impl Env {
         let p = self.track.local_to_global(s, x_tran, e_psi);
         self.q = [v_long, 0.0, 0.0, p.x, p.y, p.psi];
         // Within the band the conversion succeeds; fall back to the requested values otherwise.
-        self.frenet = self.track.global_to_local(p.x, p.y, p.psi).unwrap_or(Frenet { s, x_tran, e_psi });
+        self.frenet = self
+            .track
+            .global_to_local(p.x, p.y, p.psi)
+            .unwrap_or(Frenet { s, x_tran, e_psi });
         self.u = [0.0; 2];
         self.t = 0.0;
         self.lap_no = 0;
@@ -212,7 +223,9 @@ impl Env {
         let h = self.config.dt / self.config.substeps.max(1) as f64;
         let mut left_band = false;
         for _ in 0..self.config.substeps.max(1) {
-            self.q = self.params.step(&self.q, &u, h, self.config.rk4_per_substep);
+            self.q = self
+                .params
+                .step(&self.q, &u, h, self.config.rk4_per_substep);
             match self.track.global_to_local(self.q[3], self.q[4], self.q[5]) {
                 Ok(f) => self.frenet = f,
                 Err(_) => {
@@ -227,8 +240,10 @@ impl Env {
         self.steps_in_lap += 1;
 
         let f = self.frenet;
-        let lap_completed =
-            f.s < f_old.s && self.track.crosses_start_line((q_old[3], q_old[4]), (self.q[3], self.q[4]));
+        let lap_completed = f.s < f_old.s
+            && self
+                .track
+                .crosses_start_line((q_old[3], q_old[4]), (self.q[3], self.q[4]));
         let mut reward = f.s - f_old.s;
         if lap_completed {
             reward += self.track.length();
@@ -254,12 +269,22 @@ impl Env {
             self.steps_in_lap = 0;
             lap_time = Some(lt);
         }
-        StepResult { obs: self.observation(), reward, lap_completed, truncation, lap_no: self.lap_no, lap_time }
+        StepResult {
+            obs: self.observation(),
+            reward,
+            lap_completed,
+            truncation,
+            lap_no: self.lap_no,
+            lap_time,
+        }
     }
 
     pub fn observation(&self) -> Observation {
         let (q, f) = (&self.q, &self.frenet);
-        Observation { state: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi], pose: [q[3], q[4], q[5]] }
+        Observation {
+            state: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
+            pose: [q[3], q[4], q[5]],
+        }
     }
 
     /// The full ground-truth vehicle state q = [v_x, v_y, ω, X, Y, ψ] (the reference's `info['vehicle_state']`).
@@ -335,10 +360,22 @@ pub struct EnvBatch {
 }
 
 impl EnvBatch {
-    pub fn new(track: Arc<Track>, params: VehicleParams, config: EnvConfig, k: usize, seed: u64) -> EnvBatch {
-        let envs = (0..k).map(|_| Env::new(track.clone(), params.clone(), config.clone())).collect();
+    pub fn new(
+        track: Arc<Track>,
+        params: VehicleParams,
+        config: EnvConfig,
+        k: usize,
+        seed: u64,
+    ) -> EnvBatch {
+        let envs = (0..k)
+            .map(|_| Env::new(track.clone(), params.clone(), config.clone()))
+            .collect();
         let rngs = (0..k as u64).map(|i| Env::rng(seed, i)).collect();
-        EnvBatch { envs, rngs, results: vec![StepResult::default(); k] }
+        EnvBatch {
+            envs,
+            rngs,
+            results: vec![StepResult::default(); k],
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -358,7 +395,11 @@ impl EnvBatch {
     }
 
     pub fn reset_all(&mut self, spawn: Spawn) -> Vec<Observation> {
-        self.envs.iter_mut().zip(self.rngs.iter_mut()).map(|(e, r)| e.reset(spawn, r)).collect()
+        self.envs
+            .iter_mut()
+            .zip(self.rngs.iter_mut())
+            .map(|(e, r)| e.reset(spawn, r))
+            .collect()
     }
 
     pub fn reset_one(&mut self, i: usize, spawn: Spawn) -> Result<Observation, EnvError> {
@@ -372,9 +413,17 @@ impl EnvBatch {
     /// Step env i with `actions[i]`; the results live in a buffer reused across calls.
     pub fn step(&mut self, actions: &[Input]) -> Result<&[StepResult], EnvError> {
         if actions.len() != self.envs.len() {
-            return Err(EnvError::BatchSize { expected: self.envs.len(), got: actions.len() });
+            return Err(EnvError::BatchSize {
+                expected: self.envs.len(),
+                got: actions.len(),
+            });
         }
-        for ((env, a), out) in self.envs.iter_mut().zip(actions).zip(self.results.iter_mut()) {
+        for ((env, a), out) in self
+            .envs
+            .iter_mut()
+            .zip(actions)
+            .zip(self.results.iter_mut())
+        {
             *out = env.step(a);
         }
         Ok(&self.results)

@@ -5,12 +5,13 @@
 
 pub mod camera;
 pub mod env;
+pub mod map;
 pub mod pid;
 pub mod track;
 pub mod vehicle;
 
+pub use camera::{Camera, Image, Sun, TrackLookup};
+pub use env::{Env, EnvBatch, EnvConfig, Observation, Spawn, StepResult, Truncation};
 pub use pid::PidLaneFollower;
 pub use track::{Frenet, Pose, Segment, Track, TrackError};
 pub use vehicle::{clip_action, Input, State, VehicleParams, ACTION_HIGH, ACTION_LOW};
-pub use camera::{Camera, Image, Sun, TrackLookup};
-pub use env::{Env, EnvBatch, EnvConfig, Observation, Spawn, StepResult, Truncation};

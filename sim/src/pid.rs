@@ -114,11 +114,19 @@ mod tests {
     #[test]
     fn closed_form() {
         let mut pid = PidLaneFollower::default();
-        for &(v, e, p) in &[(0.5, 0.0, 0.0), (1.7, 0.1, -0.2), (3.0, -0.5, 0.4), (0.0, 0.3, 0.3)] {
+        for &(v, e, p) in &[
+            (0.5, 0.0, 0.0),
+            (1.7, 0.1, -0.2),
+            (3.0, -0.5, 0.4),
+            (0.0, 0.3, 0.3),
+        ] {
             let u = pid.action(v, e, p);
             let a = (1.5 * (1.0 - v)).clamp(-2.0, 2.0);
             let d = (-2.5 * e - 0.5 * p).clamp(-0.436, 0.436);
-            assert!((u[0] - a).abs() < 1e-12 && (u[1] - d).abs() < 1e-12, "{u:?} vs {a} {d}");
+            assert!(
+                (u[0] - a).abs() < 1e-12 && (u[1] - d).abs() < 1e-12,
+                "{u:?} vs {a} {d}"
+            );
         }
     }
 }

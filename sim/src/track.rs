@@ -34,7 +34,9 @@ pub struct Frenet {
 #[derive(thiserror::Error, Debug, Clone, PartialEq)]
 pub enum TrackError {
     /// The reference's "Point is out of the track!": no segment holds the point within the band.
-    #[error("point ({x:.4}, {y:.4}) is out of the track (farther than {band} m from the centreline)")]
+    #[error(
+        "point ({x:.4}, {y:.4}) is out of the track (farther than {band} m from the centreline)"
+    )]
     OutOfBand { x: f64, y: f64, band: f64 },
     #[error("segment {index} is invalid: {reason}")]
     InvalidSegment { index: usize, reason: String },
@@ -122,15 +124,42 @@ impl Track {
         // The npz's `cl_segs` to full double precision, as `generate_LTrack_barc` computes them
         // (e.g. s2 = 1.051 - 0.15 = 0.9009999999999999, arcs = π r or π r / 2).
         let segments = vec![
-            Segment { length: 2.251, radius: 0.0 },
-            Segment { length: 3.620685533262237, radius: 1.1525 },
-            Segment { length: 0.9009999999999999, radius: 0.0 },
-            Segment { length: 1.6024753617155325, radius: -1.0201675 },
-            Segment { length: 0.15000000000000002, radius: 0.0 },
-            Segment { length: 3.858449119267546, radius: 1.2281825 },
-            Segment { length: 2.25454, radius: 0.0 },
-            Segment { length: 1.9173571933848375, radius: 1.2206275 },
-            Segment { length: 0.9059049999999997, radius: 0.0 },
+            Segment {
+                length: 2.251,
+                radius: 0.0,
+            },
+            Segment {
+                length: 3.620685533262237,
+                radius: 1.1525,
+            },
+            Segment {
+                length: 0.9009999999999999,
+                radius: 0.0,
+            },
+            Segment {
+                length: 1.6024753617155325,
+                radius: -1.0201675,
+            },
+            Segment {
+                length: 0.15000000000000002,
+                radius: 0.0,
+            },
+            Segment {
+                length: 3.858449119267546,
+                radius: 1.2281825,
+            },
+            Segment {
+                length: 2.25454,
+                radius: 0.0,
+            },
+            Segment {
+                length: 1.9173571933848375,
+                radius: 1.2206275,
+            },
+            Segment {
+                length: 0.9059049999999997,
+                radius: 0.0,
+            },
         ];
         Track::new(segments, 0.55, 0.3).expect("L_track_barc is a valid closed track")
     }
@@ -142,16 +171,29 @@ impl Track {
             return Err(TrackError::InvalidWidth { half_width, slack });
         }
         if segments.is_empty() {
-            return Err(TrackError::InvalidSegment { index: 0, reason: "no segments".into() });
+            return Err(TrackError::InvalidSegment {
+                index: 0,
+                reason: "no segments".into(),
+            });
         }
         let band = half_width + slack;
         let mut key = Vec::with_capacity(segments.len() + 1);
-        key.push(KeyPoint { x: 0.0, y: 0.0, psi: 0.0, cum_s: 0.0, len: 0.0, curvature: 0.0 });
+        key.push(KeyPoint {
+            x: 0.0,
+            y: 0.0,
+            psi: 0.0,
+            cum_s: 0.0,
+            len: 0.0,
+            curvature: 0.0,
+        });
         for (i, seg) in segments.iter().enumerate() {
             if !(seg.length.is_finite() && seg.length > 0.0 && seg.radius.is_finite()) {
                 return Err(TrackError::InvalidSegment {
                     index: i,
-                    reason: format!("length {} / radius {} must be finite with length > 0", seg.length, seg.radius),
+                    reason: format!(
+                        "length {} / radius {} must be finite with length > 0",
+                        seg.length, seg.radius
+                    ),
                 });
             }
             if seg.radius != 0.0 && seg.radius.abs() <= band {
@@ -162,7 +204,12 @@ impl Track {
             }
             let p = key[i];
             let (x, y, psi, curvature) = if seg.radius == 0.0 {
-                (p.x + seg.length * p.psi.cos(), p.y + seg.length * p.psi.sin(), p.psi, 0.0)
+                (
+                    p.x + seg.length * p.psi.cos(),
+                    p.y + seg.length * p.psi.sin(),
+                    p.psi,
+                    0.0,
+                )
             } else {
                 let r = seg.radius;
                 let (cx, cy) = (p.x - r * p.psi.sin(), p.y + r * p.psi.cos());
@@ -170,7 +217,14 @@ impl Track {
                 let a = p.psi + theta;
                 (cx + r * a.sin(), cy - r * a.cos(), wrap(a), 1.0 / r)
             };
-            key.push(KeyPoint { x, y, psi, cum_s: p.cum_s + seg.length, len: seg.length, curvature });
+            key.push(KeyPoint {
+                x,
+                y,
+                psi,
+                cum_s: p.cum_s + seg.length,
+                len: seg.length,
+                curvature,
+            });
         }
         let last = key[key.len() - 1];
         let gap = last.x.hypot(last.y);
@@ -178,7 +232,14 @@ impl Track {
             return Err(TrackError::NotClosed { gap });
         }
         let length = last.cum_s;
-        let mut track = Track { segments, half_width, slack, key, length, start_line: [(0.0, 0.0); 2] };
+        let mut track = Track {
+            segments,
+            half_width,
+            slack,
+            key,
+            length,
+            start_line: [(0.0, 0.0); 2],
+        };
         let a = track.local_to_global(0.0, half_width, 0.0);
         let b = track.local_to_global(0.0, -half_width, 0.0);
         track.start_line = [(a.x, a.y), (b.x, b.y)];
@@ -211,7 +272,19 @@ impl Track {
     /// The end poses of the segments with their cumulative s: row 0 is the start pose, row i the end of
     /// segment i (simulator.md §2.2), as `(pose, cum_s)`.
     pub fn key_points(&self) -> Vec<(Pose, f64)> {
-        self.key.iter().map(|k| (Pose { x: k.x, y: k.y, psi: k.psi }, k.cum_s)).collect()
+        self.key
+            .iter()
+            .map(|k| {
+                (
+                    Pose {
+                        x: k.x,
+                        y: k.y,
+                        psi: k.psi,
+                    },
+                    k.cum_s,
+                )
+            })
+            .collect()
     }
 
     /// The start/finish line: the segment across the track at s = 0 from x_tran = +H to −H.
@@ -276,10 +349,18 @@ impl Track {
             let p0 = (k0.x, k0.y);
             let p1 = (k1.x, k1.y);
             if p == p0 {
-                return Ok(Frenet { s: k0.cum_s, x_tran: 0.0, e_psi: unwrap_diff(k0.psi, psi) });
+                return Ok(Frenet {
+                    s: k0.cum_s,
+                    x_tran: 0.0,
+                    e_psi: unwrap_diff(k0.psi, psi),
+                });
             }
             if p == p1 {
-                return Ok(Frenet { s: k1.cum_s, x_tran: 0.0, e_psi: unwrap_diff(k1.psi, psi) });
+                return Ok(Frenet {
+                    s: k1.cum_s,
+                    x_tran: 0.0,
+                    e_psi: unwrap_diff(k1.psi, psi),
+                });
             }
             if k1.curvature == 0.0 {
                 if angle(p0, p, p1).abs() > FRAC_PI_2 || angle(p1, p, p0).abs() > FRAC_PI_2 {
@@ -299,7 +380,10 @@ impl Track {
                 let r = 1.0 / k1.curvature;
                 let dir = if r >= 0.0 { 1.0 } else { -1.0 };
                 let ar = r.abs();
-                let c = (k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(), k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin());
+                let c = (
+                    k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(),
+                    k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin(),
+                );
                 let span = k1.len / r;
                 let cur = angle(c, p0, p);
                 if sign(span) != sign(cur) || span.abs() < cur.abs() {
@@ -339,10 +423,17 @@ impl Track {
                 let r = 1.0 / k1.curvature;
                 let dir = if r >= 0.0 { 1.0 } else { -1.0 };
                 let ar = r.abs();
-                let c = (k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(), k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin());
+                let c = (
+                    k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(),
+                    k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin(),
+                );
                 let span = k1.len / r;
                 let cur = angle(c, (k0.x, k0.y), (x, y));
-                let inside = if span > 0.0 { cur >= 0.0 && cur <= span } else { cur <= 0.0 && cur >= span };
+                let inside = if span > 0.0 {
+                    cur >= 0.0 && cur <= span
+                } else {
+                    cur <= 0.0 && cur >= span
+                };
                 if inside {
                     ((x - c.0).hypot(y - c.1) - ar).abs()
                 } else {
@@ -357,7 +448,12 @@ impl Track {
     /// Axis-aligned bounding box of the centreline sampled every ~1 cm: (x_min, y_min, x_max, y_max).
     pub fn centreline_bounds(&self) -> (f64, f64, f64, f64) {
         let n = (self.length / 0.01).ceil() as usize;
-        let mut b = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        let mut b = (
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        );
         for k in 0..=n {
             let p = self.local_to_global(self.length * k as f64 / n as f64, 0.0, 0.0);
             b = (b.0.min(p.x), b.1.min(p.y), b.2.max(p.x), b.3.max(p.y));
@@ -409,11 +505,31 @@ mod tests {
 
     #[test]
     fn intersection_cases() {
-        assert!(segments_intersect((-1.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, -1.0)));
-        assert!(!segments_intersect((0.1, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, -1.0)));
+        assert!(segments_intersect(
+            (-1.0, 0.0),
+            (1.0, 0.0),
+            (0.0, 1.0),
+            (0.0, -1.0)
+        ));
+        assert!(!segments_intersect(
+            (0.1, 0.0),
+            (1.0, 0.0),
+            (0.0, 1.0),
+            (0.0, -1.0)
+        ));
         // Touching endpoint counts.
-        assert!(segments_intersect((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, -1.0)));
+        assert!(segments_intersect(
+            (0.0, 0.0),
+            (1.0, 0.0),
+            (0.0, 1.0),
+            (0.0, -1.0)
+        ));
         // Collinear overlap.
-        assert!(segments_intersect((0.0, 0.5), (0.0, 2.0), (0.0, 1.0), (0.0, -1.0)));
+        assert!(segments_intersect(
+            (0.0, 0.5),
+            (0.0, 2.0),
+            (0.0, 1.0),
+            (0.0, -1.0)
+        ));
     }
 }

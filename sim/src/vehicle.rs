@@ -24,7 +24,11 @@ pub const ACTION_HIGH: Input = [2.0, 0.45];
 pub fn clip_action(u: &Input) -> Input {
     let mut out = [0.0; 2];
     for i in 0..2 {
-        out[i] = if u[i].is_nan() { 0.0 } else { u[i].clamp(ACTION_LOW[i], ACTION_HIGH[i]) };
+        out[i] = if u[i].is_nan() {
+            0.0
+        } else {
+            u[i].clamp(ACTION_LOW[i], ACTION_HIGH[i])
+        };
     }
     out
 }
@@ -55,7 +59,18 @@ pub struct VehicleParams {
 
 impl Default for VehicleParams {
     fn default() -> Self {
-        VehicleParams { m: 2.2187, iz: 0.02723, g: 9.81, lf: 0.13, lr: 0.13, mu: 0.9, bf: 5.0, br: 5.0, cf: 2.28, cr: 2.28 }
+        VehicleParams {
+            m: 2.2187,
+            iz: 0.02723,
+            g: 9.81,
+            lf: 0.13,
+            lr: 0.13,
+            mu: 0.9,
+            bf: 5.0,
+            br: 5.0,
+            cf: 2.28,
+            cr: 2.28,
+        }
     }
 }
 
@@ -116,7 +131,12 @@ impl VehicleParams {
                 dalpha_r[k] = -datan2(nr, dr, dn[k], dd[k]);
             }
         }
-        Tyres { alpha_f, dalpha_f, alpha_r, dalpha_r }
+        Tyres {
+            alpha_f,
+            dalpha_f,
+            alpha_r,
+            dalpha_r,
+        }
     }
 
     /// Pacejka lateral force D sin(C atan(B α)) and its derivative w.r.t. α.
@@ -194,7 +214,8 @@ impl VehicleParams {
 
     /// One classic fourth-order Runge–Kutta step of length `h` (s) with u held constant.
     pub fn rk4(&self, q: &State, u: &Input, h: f64) -> State {
-        let add = |a: &State, k: &State, c: f64| -> State { std::array::from_fn(|i| a[i] + c * k[i]) };
+        let add =
+            |a: &State, k: &State, c: f64| -> State { std::array::from_fn(|i| a[i] + c * k[i]) };
         let k1 = self.derivatives(q, u);
         let k2 = self.derivatives(&add(q, &k1, h / 2.0), u);
         let k3 = self.derivatives(&add(q, &k2, h / 2.0), u);

@@ -30,14 +30,25 @@ fn key_points_match_reference() {
     let kp = t.key_points();
     assert_eq!(kp.len(), expect.len());
     for (i, ((p, s), e)) in kp.iter().zip(expect.iter()).enumerate() {
-        assert!((p.x - e.0).abs() < 1e-6 && (p.y - e.1).abs() < 1e-6, "key point {i}: {p:?} vs {e:?}");
+        assert!(
+            (p.x - e.0).abs() < 1e-6 && (p.y - e.1).abs() < 1e-6,
+            "key point {i}: {p:?} vs {e:?}"
+        );
         // ψ = ±π are the same heading; compare on the circle.
         let dpsi = (p.psi - e.2).rem_euclid(2.0 * PI);
-        assert!(dpsi.min(2.0 * PI - dpsi) < 1e-6, "key point {i} heading {} vs {}", p.psi, e.2);
+        assert!(
+            dpsi.min(2.0 * PI - dpsi) < 1e-6,
+            "key point {i} heading {} vs {}",
+            p.psi,
+            e.2
+        );
         assert!((s - e.3).abs() < 1e-5, "key point {i} cum_s {s} vs {}", e.3);
     }
     let (x0, y0, x1, y1) = t.centreline_bounds();
-    assert!((x0 + 2.1265).abs() < 1e-3 && (x1 - 3.4035).abs() < 1e-3, "{x0} {x1}");
+    assert!(
+        (x0 + 2.1265).abs() < 1e-3 && (x1 - 3.4035).abs() < 1e-3,
+        "{x0} {x1}"
+    );
     assert!(y0.abs() < 1e-3 && (y1 - 4.7033).abs() < 1e-3, "{y0} {y1}");
 }
 
@@ -60,9 +71,14 @@ fn round_trip_3000_points() {
         let e = rng.gen_range(-0.85..=0.85);
         let p = rng.gen_range(-1.0..=1.0);
         let pose = t.local_to_global(s, e, p);
-        let f = t.global_to_local(pose.x, pose.y, pose.psi).expect("inside the band");
+        let f = t
+            .global_to_local(pose.x, pose.y, pose.psi)
+            .expect("inside the band");
         let ds = (f.s - s).abs().min(t.length() - (f.s - s).abs());
-        worst = worst.max(ds).max((f.x_tran - e).abs()).max((f.e_psi - p).abs());
+        worst = worst
+            .max(ds)
+            .max((f.x_tran - e).abs())
+            .max((f.e_psi - p).abs());
     }
     assert!(worst < 1e-9, "worst round-trip error {worst}");
 }
@@ -72,7 +88,9 @@ fn unwrapped_heading_gives_same_e_psi() {
     let t = Track::l_track_barc();
     let pose = t.local_to_global(9.0, 0.2, 0.3);
     let a = t.global_to_local(pose.x, pose.y, pose.psi).unwrap();
-    let b = t.global_to_local(pose.x, pose.y, pose.psi + 4.0 * PI).unwrap();
+    let b = t
+        .global_to_local(pose.x, pose.y, pose.psi + 4.0 * PI)
+        .unwrap();
     assert!((a.e_psi - b.e_psi).abs() < 1e-9);
 }
 
@@ -80,7 +98,10 @@ fn unwrapped_heading_gives_same_e_psi() {
 fn out_of_band_is_an_error() {
     let t = Track::l_track_barc();
     let pose = t.local_to_global(1.0, 0.86, 0.0);
-    assert!(matches!(t.global_to_local(pose.x, pose.y, 0.0), Err(TrackError::OutOfBand { .. })));
+    assert!(matches!(
+        t.global_to_local(pose.x, pose.y, 0.0),
+        Err(TrackError::OutOfBand { .. })
+    ));
     assert!(t.global_to_local(0.5, 1.2, 0.0).is_err()); // infield
     assert!(t.global_to_local(20.0, -5.0, 0.0).is_err());
     assert!(t.global_to_local(f64::NAN, 0.0, 0.0).is_err());
@@ -99,10 +120,22 @@ fn tracks_are_data() {
     // A 2 m × circle-ended stadium.
     let r = 1.0;
     let segs = vec![
-        Segment { length: 2.0, radius: 0.0 },
-        Segment { length: PI * r, radius: r },
-        Segment { length: 2.0, radius: 0.0 },
-        Segment { length: PI * r, radius: r },
+        Segment {
+            length: 2.0,
+            radius: 0.0,
+        },
+        Segment {
+            length: PI * r,
+            radius: r,
+        },
+        Segment {
+            length: 2.0,
+            radius: 0.0,
+        },
+        Segment {
+            length: PI * r,
+            radius: r,
+        },
     ];
     let t = Track::new(segs, 0.3, 0.1).unwrap();
     assert!((t.length() - (4.0 + 2.0 * PI)).abs() < 1e-12);
@@ -111,11 +144,42 @@ fn tracks_are_data() {
     assert!((f.s - 3.0).abs() < 1e-9);
     // Open or degenerate tracks are rejected.
     assert!(matches!(
-        Track::new(vec![Segment { length: 1.0, radius: 0.0 }], 0.3, 0.1),
+        Track::new(
+            vec![Segment {
+                length: 1.0,
+                radius: 0.0
+            }],
+            0.3,
+            0.1
+        ),
         Err(TrackError::NotClosed { .. })
     ));
-    assert!(Track::new(vec![Segment { length: -1.0, radius: 0.0 }], 0.3, 0.1).is_err());
-    assert!(Track::new(vec![Segment { length: 1.0, radius: 0.2 }], 0.3, 0.1).is_err());
+    assert!(Track::new(
+        vec![Segment {
+            length: -1.0,
+            radius: 0.0
+        }],
+        0.3,
+        0.1
+    )
+    .is_err());
+    assert!(Track::new(
+        vec![Segment {
+            length: 1.0,
+            radius: 0.2
+        }],
+        0.3,
+        0.1
+    )
+    .is_err());
     assert!(Track::new(vec![], 0.3, 0.1).is_err());
-    assert!(Track::new(vec![Segment { length: 1.0, radius: 0.0 }], f64::NAN, 0.1).is_err());
+    assert!(Track::new(
+        vec![Segment {
+            length: 1.0,
+            radius: 0.0
+        }],
+        f64::NAN,
+        0.1
+    )
+    .is_err());
 }

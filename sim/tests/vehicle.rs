@@ -37,10 +37,27 @@ fn check_values_pid_fixed_spawn() {
         }
     }
     let k10 = [0.9015628, 0.0, 0.0, 0.85236961, 0.0, 0.0];
-    let k50 = [0.99490123, 0.09910894, 0.82484078, 4.66046105, -0.06474356, -0.1043586];
+    let k50 = [
+        0.99490123,
+        0.09910894,
+        0.82484078,
+        4.66046105,
+        -0.06474356,
+        -0.1043586,
+    ];
     for i in 0..6 {
-        assert!((traj[10][i] - k10[i]).abs() < 1e-5, "k=10 entry {i}: {} vs {}", traj[10][i], k10[i]);
-        assert!((traj[50][i] - k50[i]).abs() < 3e-4, "k=50 entry {i}: {} vs {}", traj[50][i], k50[i]);
+        assert!(
+            (traj[10][i] - k10[i]).abs() < 1e-5,
+            "k=10 entry {i}: {} vs {}",
+            traj[10][i],
+            k10[i]
+        );
+        assert!(
+            (traj[50][i] - k50[i]).abs() < 3e-4,
+            "k=50 entry {i}: {} vs {}",
+            traj[50][i],
+            k50[i]
+        );
     }
 }
 
@@ -87,7 +104,10 @@ fn jacobians_match_central_differences() {
                 let fd = (fp[i] - fm[i]) / (2.0 * h);
                 let an = if j < 6 { a[(i, j)] } else { b[(i, j - 6)] };
                 let err = (fd - an).abs() / an.abs().max(1.0);
-                assert!(err < 1e-6, "d f{i}/d x{j}: analytic {an} vs fd {fd} at {q:?} {u:?}");
+                assert!(
+                    err < 1e-6,
+                    "d f{i}/d x{j}: analytic {an} vs fd {fd} at {q:?} {u:?}"
+                );
             }
         }
     }

@@ -44,14 +44,27 @@ impl TrackSplines {
     pub fn new(track: &Track, n: usize, tightening: f64) -> Result<Self, SplineError> {
         let length = track.length();
         let w = track.half_width() - tightening;
-        let s: Vec<f64> = (0..n).map(|i| i as f64 * length / (n - 1).max(1) as f64).collect();
+        let s: Vec<f64> = (0..n)
+            .map(|i| i as f64 * length / (n - 1).max(1) as f64)
+            .collect();
         let curve = |e_y: f64| -> Result<[CubicSpline; 2], SplineError> {
-            let pts: Vec<_> = s.iter().map(|&si| track.local_to_global(si, e_y, 0.0)).collect();
+            let pts: Vec<_> = s
+                .iter()
+                .map(|&si| track.local_to_global(si, e_y, 0.0))
+                .collect();
             let xs: Vec<f64> = pts.iter().map(|p| p.x).collect();
             let ys: Vec<f64> = pts.iter().map(|p| p.y).collect();
-            Ok([CubicSpline::not_a_knot(&s, &xs)?, CubicSpline::not_a_knot(&s, &ys)?])
+            Ok([
+                CubicSpline::not_a_knot(&s, &xs)?,
+                CubicSpline::not_a_knot(&s, &ys)?,
+            ])
         };
-        Ok(Self { length, center: curve(0.0)?, inside: curve(w)?, outside: curve(-w)? })
+        Ok(Self {
+            length,
+            center: curve(0.0)?,
+            inside: curve(w)?,
+            outside: curve(-w)?,
+        })
     }
 
     /// Track length L.
@@ -80,7 +93,12 @@ impl TrackSplines {
         let [yi, yi1, _] = self.inside[1].eval(s);
         let [xo, xo1, _] = self.outside[0].eval(s);
         let [yo, yo1, _] = self.outside[1].eval(s);
-        let (mx, my, mx1, my1) = ((xi + xo) / 2.0, (yi + yo) / 2.0, (xi1 + xo1) / 2.0, (yi1 + yo1) / 2.0);
+        let (mx, my, mx1, my1) = (
+            (xi + xo) / 2.0,
+            (yi + yo) / 2.0,
+            (xi1 + xo1) / 2.0,
+            (yi1 + yo1) / 2.0,
+        );
         let theta = yc1.atan2(xc1);
         let dtheta = (xc1 * yc2 - yc1 * xc2) / (xc1 * xc1 + yc1 * yc1);
         let (sn, cs) = theta.sin_cos();
@@ -102,7 +120,11 @@ impl TrackSplines {
         let p_out = [self.outside[0].value(s), self.outside[1].value(s)];
         let c = [p_in[0] - p_out[0], p_in[1] - p_out[1]];
         let dot = |p: [f64; 2]| c[0] * p[0] + c[1] * p[1];
-        Slab { normal: c, lo: dot(p_out), hi: dot(p_in) }
+        Slab {
+            normal: c,
+            lo: dot(p_out),
+            hi: dot(p_in),
+        }
     }
 }
 
@@ -125,7 +147,10 @@ mod tests {
             let p = t.local_to_global(s, 0.0, 0.0);
             let c = sp.center(s);
             // s = L wraps to 0 (fmod), where the track point is (0, 0) as well.
-            assert!((c[0] - p.x).abs() < 1e-9 && (c[1] - p.y).abs() < 1e-9, "s={s}: {c:?} vs {p:?}");
+            assert!(
+                (c[0] - p.x).abs() < 1e-9 && (c[1] - p.y).abs() < 1e-9,
+                "s={s}: {c:?} vs {p:?}"
+            );
         }
         let c = sp.center(1.0);
         assert!((c[0] - 1.0).abs() < 1e-3 && c[1].abs() < 1e-3, "{c:?}");
@@ -138,7 +163,10 @@ mod tests {
         let (_, sp) = splines();
         // On the first straight (θ = 0): left of the centreline ⇒ e_c < 0; ahead of s ⇒ e_l < 0.
         let e = sp.errors(1.2, 0.3, 1.0);
-        assert!((e.e_c + 0.3).abs() < 1e-3 && (e.e_l + 0.2).abs() < 1e-3, "{e:?}");
+        assert!(
+            (e.e_c + 0.3).abs() < 1e-3 && (e.e_l + 0.2).abs() < 1e-3,
+            "{e:?}"
+        );
         // Gradients against central differences, on an arc.
         let (x, y, s) = (2.9, 1.4, 3.9);
         let e = sp.errors(x, y, s);
@@ -153,8 +181,18 @@ mod tests {
             fd(&|d| sp.errors(x, y, s + d)),
         ];
         for j in 0..3 {
-            assert!((e.grad_c[j] - d[j][0]).abs() < 1e-6, "c {j}: {} vs {}", e.grad_c[j], d[j][0]);
-            assert!((e.grad_l[j] - d[j][1]).abs() < 1e-6, "l {j}: {} vs {}", e.grad_l[j], d[j][1]);
+            assert!(
+                (e.grad_c[j] - d[j][0]).abs() < 1e-6,
+                "c {j}: {} vs {}",
+                e.grad_c[j],
+                d[j][0]
+            );
+            assert!(
+                (e.grad_l[j] - d[j][1]).abs() < 1e-6,
+                "l {j}: {} vs {}",
+                e.grad_l[j],
+                d[j][1]
+            );
         }
     }
 

@@ -115,7 +115,7 @@ pub struct MpccStep {
     pub qps: u32,
     /// Sum of Clarabel's interior-point iterations.
     pub qp_iterations: u32,
-    /// Sum of Clarabel's solve times.
+    /// Wall time spent inside Clarabel (setup or data update, and solve), summed over the QPs.
     pub solve_time: Duration,
     /// Wall time of the whole step (rollouts, linearisation, assembly, solves).
     pub step_time: Duration,
@@ -140,8 +140,10 @@ struct LoopOutcome {
 impl Mpcc {
     /// The controller for `track` with the prediction model `model` (the simulator's vehicle).
     pub fn new(track: Track, model: VehicleParams, cfg: MpccConfig) -> Result<Self, MpccError> {
-        if cfg.horizon == 0 || cfg.rk4_substeps == 0 || !(cfg.dt > 0.0) {
-            return Err(MpccError::Config("horizon, rk4_substeps and dt must be positive".into()));
+        if cfg.horizon == 0 || cfg.rk4_substeps == 0 || cfg.dt.is_nan() || cfg.dt <= 0.0 {
+            return Err(MpccError::Config(
+                "horizon, rk4_substeps and dt must be positive".into(),
+            ));
         }
         if !(0.0..1.0).contains(&cfg.damping) || !(0.0..1.0).contains(&cfg.start_damping) {
             return Err(MpccError::Config("damping must lie in [0, 1)".into()));
@@ -151,14 +153,28 @@ impl Mpcc {
         }
         let splines = TrackSplines::new(&track, cfg.spline_points, cfg.track_tightening)?;
         let layout = QpLayout::new(&cfg, track.length());
-        let rk4 = Rk4 { dt: cfg.dt, substeps: cfg.rk4_substeps };
-        Ok(Self { cfg, track, splines, model, rk4, layout })
+        let rk4 = Rk4 {
+            dt: cfg.dt,
+            substeps: cfg.rk4_substeps,
+        };
+        Ok(Self {
+            cfg,
+            track,
+            splines,
+            model,
+            rk4,
+            layout,
+        })
     }
 
     /// The reference controller on `L_track_barc` with the reference vehicle.
     pub fn reference() -> Self {
-        Self::new(Track::l_track_barc(), VehicleParams::default(), MpccConfig::default())
-            .expect("the reference configuration is valid")
+        Self::new(
+            Track::l_track_barc(),
+            VehicleParams::default(),
+            MpccConfig::default(),
+        )
+        .expect("the reference configuration is valid")
     }
 
     /// The configuration.
@@ -199,7 +215,15 @@ impl Mpcc {
             let x = out.last().expect("nonempty");
             let q: [f64; NQ] = std::array::from_fn(|i| x[i]);
             let qn = self.rk4.map(&self.model, &q, &[wk[0], wk[1]]);
-            out.push([qn[0], qn[1], qn[2], qn[3], qn[4], qn[5], x[S] + self.cfg.dt * wk[2]]);
+            out.push([
+                qn[0],
+                qn[1],
+                qn[2],
+                qn[3],
+                qn[4],
+                qn[5],
+                x[S] + self.cfg.dt * wk[2],
+            ]);
         }
         out
     }
@@ -251,8 +275,20 @@ impl Mpcc {
         let w0 = [u0, u0, 0.0];
         let w_ws = vec![w0; self.cfg.horizon + 1];
         let mut ws = QpWorkspace::default();
-        let out = self.qp_loop(&mut ws, &x0, &w_ws, w0, self.cfg.start_qp_iters, self.cfg.start_damping);
-        Ok(MpccStream { w_ws: out.iterate.iter().map(|z| [z[7], z[8], z[VS]]).collect(), w_prev: w0, steps: 0, ws })
+        let out = self.qp_loop(
+            &mut ws,
+            &x0,
+            &w_ws,
+            w0,
+            self.cfg.start_qp_iters,
+            self.cfg.start_damping,
+        );
+        Ok(MpccStream {
+            w_ws: out.iterate.iter().map(|z| [z[7], z[8], z[VS]]).collect(),
+            w_prev: w0,
+            steps: 0,
+            ws,
+        })
     }
 
     /// One control step for the stream at measured state `q` (global frame, ψ may be unwrapped).
@@ -260,10 +296,19 @@ impl Mpcc {
         let t0 = Instant::now();
         let n = self.cfg.horizon;
         let x0 = self.measure(q)?;
-        let out =
-            self.qp_loop(&mut stream.ws, &x0, &stream.w_ws, stream.w_prev, self.cfg.qp_iters, self.cfg.damping);
+        let out = self.qp_loop(
+            &mut stream.ws,
+            &x0,
+            &stream.w_ws,
+            stream.w_prev,
+            self.cfg.qp_iters,
+            self.cfg.damping,
+        );
         let plan: Vec<[f64; 3]> = if out.success {
-            out.iterate[1..].iter().map(|z| [z[7], z[8], z[VS]]).collect()
+            out.iterate[1..]
+                .iter()
+                .map(|z| [z[7], z[8], z[VS]])
+                .collect()
         } else {
             stream.w_ws[1..].to_vec()
         };
@@ -310,7 +355,13 @@ impl Mpcc {
     }
 
     /// Linearise around the iterate `d` (transition k at (q̄_k, w̄_{k−1}), errors at stages 1..N) and solve.
-    fn qp_around(&self, d: &[Stage], slabs: &[Slab], w_prev: [f64; 3], ws: &mut QpWorkspace) -> QpSolution {
+    fn qp_around(
+        &self,
+        d: &[Stage],
+        slabs: &[Slab],
+        w_prev: [f64; 3],
+        ws: &mut QpWorkspace,
+    ) -> QpSolution {
         let n = self.cfg.horizon;
         let lin: Vec<Linearisation> = d[..n]
             .iter()
@@ -320,8 +371,17 @@ impl Mpcc {
                 Linearisation { f, a, b }
             })
             .collect();
-        let errors: Vec<ContourErrors> = d[1..].iter().map(|z| self.splines.errors(z[3], z[4], z[S])).collect();
-        let input = QpInput { iterate: d, lin: &lin, errors: &errors, slabs, w_prev };
+        let errors: Vec<ContourErrors> = d[1..]
+            .iter()
+            .map(|z| self.splines.errors(z[3], z[4], z[S]))
+            .collect();
+        let input = QpInput {
+            iterate: d,
+            lin: &lin,
+            errors: &errors,
+            slabs,
+            w_prev,
+        };
         self.layout.solve(&input, ws)
     }
 }

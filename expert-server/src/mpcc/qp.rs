@@ -1,20 +1,25 @@
 //! The MPCC-conv QP in Clarabel's form `min ½zᵀPz + qᵀz s.t. Az + s = b, s ∈ K` (expert.md §3–§6, §9).
 //!
-//! Decision vector z (scaled, n = 14N):
-//! * `10(k−1) + j`, k = 1..N: stage k = (x_k, w_{k−1}) = (v_x, v_y, ω, X, Y, ψ, s, a, δ, v_s), scaled x̃ = T·x;
-//! * `10N + 3k + j`, k = 0..N−1: the scaled input rate r_k (w̃_k = w̃_{k−1} + dt·r_k);
-//! * `13N + k − 1`, k = 1..N: the track slack σ_k (one per stage, relaxing both sides of the slab).
+//! Decision vector z (scaled, n = 11N), per stage k = 1..N at `11(k−1)`:
+//! (x_k, w_{k−1}) = (v_x, v_y, ω, X, Y, ψ, s, a, δ, v_s), scaled x̃ = T·x, then the track slack σ_k (one per
+//! stage, relaxing both sides of the slab).
 //!
-//! Stage 0 (x_0, w_{−1}) is fixed by the measurement and w_prev, so it is substituted into the right-hand side
-//! instead of being a variable (HPIPM keeps it with lbx = ubx; same solution).
+//! Eliminated variables (exact substitutions, smaller KKT system than the reference's HPIPM layout):
+//! * stage 0 (x_0, w_{−1}) is fixed by the measurement and w_prev, so it moves to the right-hand side (HPIPM
+//!   keeps it with lbx = ubx);
+//! * the scaled rates r_k = (w̃_k − w̃_{k−1})/dt (HPIPM's stage inputs with the integration w̃_k = w̃_{k−1} + dt·r_k
+//!   as dynamics) are substituted: their cost becomes a banded quadratic in w̃ and their boxes become rows on
+//!   w̃_k − w̃_{k−1};
+//! * σ_k ≥ 0 is not imposed: for fixed (X, Y) the minimiser over σ of ½Zσ² subject to the slab is
+//!   max(0, violation) ≥ 0 anyway.
 //!
-//! Rows: 10N equalities (per transition k: 7 dynamics rows for x_{k+1}, 3 rate-integration rows for w_k), then
-//! 25N inequalities (per stage k ≥ 1: 16 box rows, 6 rate-box rows for r_{k−1}, 2 slab rows, σ_k ≥ 0).
+//! Rows: 7N equalities (dynamics of x_{k+1}), then 24N inequalities (per stage k ≥ 1: 16 box rows, 6 rate-box
+//! rows on w̃_{k−1} − w̃_{k−2}, 2 slab rows).
 //!
 //! The sparsity pattern never changes: every assembly emits the same entries in the same order, so the first
 //! assembly fixes the pattern and later ones only scatter values, which is what Clarabel's `update_P/q/A/b` need.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
@@ -37,8 +42,10 @@ const Y: usize = 4;
 const OMEGA: usize = 2;
 /// Stage variables with box rows (X, Y have none: the reference's ±1e9 bounds are dropped).
 const BOXED: [usize; 8] = [0, 1, 2, 5, 6, 7, 8, 9];
-const EQ_PER_STAGE: usize = 10;
-const INEQ_PER_STAGE: usize = 2 * BOXED.len() + 6 + 2 + 1;
+const EQ_PER_STAGE: usize = 7;
+const INEQ_PER_STAGE: usize = 2 * BOXED.len() + 6 + 2;
+/// Variables per stage in z: the 10 stage variables and σ.
+const VARS_PER_STAGE: usize = NZ + 1;
 
 /// A stage of the iterate in physical units.
 pub type Stage = [f64; NZ];
@@ -165,13 +172,26 @@ impl Pattern {
             colptr[c + 1] += colptr[c];
         }
         let rowval = keys.iter().map(|&(_, r)| r).collect();
-        let slot = entries.iter().map(|&(r, c, _)| keys.binary_search(&(c, r)).expect("entry in pattern")).collect();
-        Self { m, n, colptr, rowval, slot, entries: entries.iter().map(|&(r, c, _)| (r, c)).collect() }
+        let slot = entries
+            .iter()
+            .map(|&(r, c, _)| keys.binary_search(&(c, r)).expect("entry in pattern"))
+            .collect();
+        Self {
+            m,
+            n,
+            colptr,
+            rowval,
+            slot,
+            entries: entries.iter().map(|&(r, c, _)| (r, c)).collect(),
+        }
     }
 
     fn scatter(&self, entries: &[(usize, usize, f64)], nz: &mut Vec<f64>) {
         debug_assert_eq!(entries.len(), self.slot.len());
-        debug_assert!(entries.iter().zip(&self.entries).all(|(&(r, c, _), &e)| (r, c) == e));
+        debug_assert!(entries
+            .iter()
+            .zip(&self.entries)
+            .all(|(&(r, c, _), &e)| (r, c) == e));
         nz.clear();
         nz.resize(self.rowval.len(), 0.0);
         for (&(_, _, v), &k) in entries.iter().zip(&self.slot) {
@@ -180,7 +200,13 @@ impl Pattern {
     }
 
     fn matrix(&self, nz: &[f64]) -> CscMatrix<f64> {
-        CscMatrix::new(self.m, self.n, self.colptr.clone(), self.rowval.clone(), nz.to_vec())
+        CscMatrix::new(
+            self.m,
+            self.n,
+            self.colptr.clone(),
+            self.rowval.clone(),
+            nz.to_vec(),
+        )
     }
 }
 
@@ -227,12 +253,15 @@ pub struct QpWorkspace {
     asm: Assembled,
     p_nz: Vec<f64>,
     a_nz: Vec<f64>,
+    zbar: Vec<f64>,
     solver: Option<DefaultSolver<f64>>,
 }
 
 impl std::fmt::Debug for QpWorkspace {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("QpWorkspace").field("solver_cached", &self.solver.is_some()).finish()
+        f.debug_struct("QpWorkspace")
+            .field("solver_cached", &self.solver.is_some())
+            .finish()
     }
 }
 
@@ -243,7 +272,7 @@ pub struct QpSolution {
     pub status: QpStatus,
     /// Interior-point iterations.
     pub iterations: u32,
-    /// Clarabel's own solve time.
+    /// Wall time inside Clarabel (setup or data update, and the solve).
     pub solve_time: Duration,
     /// D*: stages 0..N in physical units (stage 0 copied from the input). Empty unless solved.
     pub stages: Vec<Stage>,
@@ -257,12 +286,36 @@ impl QpLayout {
     /// The layout for `cfg` on a track of length `track_length`.
     pub fn new(cfg: &MpccConfig, track_length: f64) -> Self {
         let (sx, sw) = (cfg.state_scale, cfg.input_scale);
-        let scale = [sx[0], sx[1], sx[2], sx[3], sx[4], sx[5], track_length.ceil(), sw[0], sw[1], sw[2]];
+        let scale = [
+            sx[0],
+            sx[1],
+            sx[2],
+            sx[3],
+            sx[4],
+            sx[5],
+            track_length.ceil(),
+            sw[0],
+            sw[1],
+            sw[2],
+        ];
         let (l, u) = (cfg.state_lb, cfg.state_ub);
         let (il, iu) = (cfg.input_lb, cfg.input_ub);
         let inf = f64::INFINITY;
-        let lb = [l[0], l[1], l[2], -inf, -inf, l[3], cfg.s_lb, il[0], il[1], il[2]];
-        let ub = [u[0], u[1], u[2], inf, inf, u[3], cfg.s_ub_laps * track_length, iu[0], iu[1], iu[2]];
+        let lb = [
+            l[0], l[1], l[2], -inf, -inf, l[3], cfg.s_lb, il[0], il[1], il[2],
+        ];
+        let ub = [
+            u[0],
+            u[1],
+            u[2],
+            inf,
+            inf,
+            u[3],
+            cfg.s_ub_laps * track_length,
+            iu[0],
+            iu[1],
+            iu[2],
+        ];
         let mut layout = Self {
             horizon: cfg.horizon,
             dt: cfg.dt,
@@ -276,10 +329,38 @@ impl QpLayout {
         // Any finite data fixes the pattern (every entry is emitted regardless of its value).
         let n = cfg.horizon;
         let iterate = vec![[0.0; NZ]; n + 1];
-        let lin = vec![Linearisation { f: [0.0; NQ], a: JacQ::zeros(), b: JacU::zeros() }; n];
-        let errors = vec![ContourErrors { e_c: 0.0, e_l: 0.0, grad_c: [0.0; 3], grad_l: [0.0; 3] }; n];
-        let slabs = vec![Slab { normal: [1.0, 0.0], lo: -1.0, hi: 1.0 }; n];
-        let input = QpInput { iterate: &iterate, lin: &lin, errors: &errors, slabs: &slabs, w_prev: [0.0; 3] };
+        let lin = vec![
+            Linearisation {
+                f: [0.0; NQ],
+                a: JacQ::zeros(),
+                b: JacU::zeros()
+            };
+            n
+        ];
+        let errors = vec![
+            ContourErrors {
+                e_c: 0.0,
+                e_l: 0.0,
+                grad_c: [0.0; 3],
+                grad_l: [0.0; 3]
+            };
+            n
+        ];
+        let slabs = vec![
+            Slab {
+                normal: [1.0, 0.0],
+                lo: -1.0,
+                hi: 1.0
+            };
+            n
+        ];
+        let input = QpInput {
+            iterate: &iterate,
+            lin: &lin,
+            errors: &errors,
+            slabs: &slabs,
+            w_prev: [0.0; 3],
+        };
         let mut asm = Assembled::default();
         layout.assemble(&input, &mut asm);
         layout.p_pat = Pattern::new(layout.n(), layout.n(), &asm.p);
@@ -289,7 +370,7 @@ impl QpLayout {
 
     /// Number of variables.
     pub fn n(&self) -> usize {
-        14 * self.horizon
+        VARS_PER_STAGE * self.horizon
     }
 
     /// Number of equality rows.
@@ -309,15 +390,11 @@ impl QpLayout {
 
     fn stage_var(&self, k: usize, j: usize) -> usize {
         debug_assert!((1..=self.horizon).contains(&k));
-        NZ * (k - 1) + j
-    }
-
-    fn rate_var(&self, k: usize, j: usize) -> usize {
-        NZ * self.horizon + 3 * k + j
+        VARS_PER_STAGE * (k - 1) + j
     }
 
     fn slack_var(&self, k: usize) -> usize {
-        13 * self.horizon + k - 1
+        VARS_PER_STAGE * (k - 1) + NZ
     }
 
     fn assemble(&self, inp: &QpInput, out: &mut Assembled) {
@@ -343,7 +420,8 @@ impl QpLayout {
             for i in 0..3 {
                 for j in i..3 {
                     let h = 2.0
-                        * (cfg.q_contour * e.grad_c[i] * e.grad_c[j] + cfg.q_lag * e.grad_l[i] * e.grad_l[j])
+                        * (cfg.q_contour * e.grad_c[i] * e.grad_c[j]
+                            + cfg.q_lag * e.grad_l[i] * e.grad_l[j])
                         * c[idx[i]]
                         * c[idx[j]];
                     if i == j {
@@ -352,20 +430,37 @@ impl QpLayout {
                         p.push((sv(idx[i]), sv(idx[j]), h));
                     }
                 }
-                q[sv(idx[i])] +=
-                    2.0 * (cfg.q_contour * r_c * e.grad_c[i] + cfg.q_lag * r_l * e.grad_l[i]) * c[idx[i]];
+                q[sv(idx[i])] += 2.0
+                    * (cfg.q_contour * r_c * e.grad_c[i] + cfg.q_lag * r_l * e.grad_l[i])
+                    * c[idx[i]];
             }
-            let w_omega = if k == n_h { cfg.q_yaw_rate_terminal } else { cfg.q_yaw_rate };
+            let w_omega = if k == n_h {
+                cfg.q_yaw_rate_terminal
+            } else {
+                cfg.q_yaw_rate
+            };
             diag[OMEGA] += 2.0 * w_omega * c[OMEGA] * c[OMEGA];
             for j in 0..3 {
                 diag[7 + j] += 2.0 * cfg.r_input[j] * c[7 + j] * c[7 + j];
             }
             q[sv(VS)] -= cfg.progress_reward * c[VS];
+            // Rate cost c_r·r² with r = (w̃_{k−1} − w̃_{k−2})/dt (w̃_{−1} = w_prev is data).
+            for j in 0..3 {
+                let h = 2.0 * cfg.r_rate[j] / (dt * dt);
+                let v = sv(7 + j);
+                diag[7 + j] += h;
+                if k == 1 {
+                    q[v] -= h * inp.w_prev[j] / c[7 + j];
+                } else {
+                    p.push((self.stage_var(k - 1, 7 + j), v, -h));
+                    // The previous stage's diagonal gets its share when that stage is emitted (below).
+                }
+                if k < n_h {
+                    diag[7 + j] += 2.0 * cfg.r_rate[j] / (dt * dt);
+                }
+            }
             for (j, &d) in diag.iter().enumerate() {
                 p.push((sv(j), sv(j), d));
-            }
-            for j in 0..3 {
-                p.push((self.rate_var(k - 1, j), self.rate_var(k - 1, j), 2.0 * cfg.r_rate[j] + cfg.hessian_reg));
             }
             p.push((self.slack_var(k), self.slack_var(k), cfg.slack_weight));
         }
@@ -394,7 +489,11 @@ impl QpLayout {
                     }
                 }
                 for j in 0..2 {
-                    a.push((row, self.stage_var(k + 1, 7 + j), -lin.b[(i, j)] * c[7 + j] * ri));
+                    a.push((
+                        row,
+                        self.stage_var(k + 1, 7 + j),
+                        -lin.b[(i, j)] * c[7 + j] * ri,
+                    ));
                 }
                 b[row] = g * ri;
             }
@@ -406,17 +505,6 @@ impl QpLayout {
                 b[row] = x0[S] / c[S];
             } else {
                 a.push((row, self.stage_var(k, S), -1.0));
-            }
-            // w̃_k = w̃_{k−1} + dt·r_k (the rate is defined in scaled units, expert.md §6).
-            for j in 0..3 {
-                let row = row0 + 7 + j;
-                a.push((row, self.stage_var(k + 1, 7 + j), 1.0));
-                a.push((row, self.rate_var(k, j), -dt));
-                if k == 0 {
-                    b[row] = inp.w_prev[j] / c[7 + j];
-                } else {
-                    a.push((row, self.stage_var(k, 7 + j), -1.0));
-                }
             }
         }
 
@@ -430,16 +518,31 @@ impl QpLayout {
                 b[row + 1] = -self.lb[j] / c[j];
                 row += 2;
             }
+            // |w̃_{k−1} − w̃_{k−2}| ≤ dt·r_max (scaled rates, expert.md §6).
             for j in 0..3 {
-                a.push((row, self.rate_var(k - 1, j), 1.0));
-                b[row] = cfg.rate_bound[j];
-                a.push((row + 1, self.rate_var(k - 1, j), -1.0));
-                b[row + 1] = cfg.rate_bound[j];
+                let (v, rb) = (self.stage_var(k, 7 + j), dt * cfg.rate_bound[j]);
+                a.push((row, v, 1.0));
+                a.push((row + 1, v, -1.0));
+                if k == 1 {
+                    let w = inp.w_prev[j] / c[7 + j];
+                    b[row] = rb + w;
+                    b[row + 1] = rb - w;
+                } else {
+                    let u = self.stage_var(k - 1, 7 + j);
+                    a.push((row, u, -1.0));
+                    a.push((row + 1, u, 1.0));
+                    b[row] = rb;
+                    b[row + 1] = rb;
+                }
                 row += 2;
             }
             // lo − σ ≤ c·(X, Y) ≤ hi + σ.
             let sl = &inp.slabs[k - 1];
-            let (vx, vy, vs) = (self.stage_var(k, X), self.stage_var(k, Y), self.slack_var(k));
+            let (vx, vy, vs) = (
+                self.stage_var(k, X),
+                self.stage_var(k, Y),
+                self.slack_var(k),
+            );
             a.push((row, vx, sl.normal[0] * c[X]));
             a.push((row, vy, sl.normal[1] * c[Y]));
             a.push((row, vs, -1.0));
@@ -448,8 +551,7 @@ impl QpLayout {
             a.push((row + 1, vy, -sl.normal[1] * c[Y]));
             a.push((row + 1, vs, -1.0));
             b[row + 1] = -sl.lo;
-            a.push((row + 2, vs, -1.0));
-            row += 3;
+            row += 2;
         }
         debug_assert_eq!(row, self.m());
     }
@@ -463,12 +565,41 @@ impl QpLayout {
             .tol_feas(self.cfg.tol_feas)
             // Presolve would drop rows and forbid the data-update interface; there are no infinite bounds anyway.
             .presolve_enable(false)
+            .equilibrate_enable(self.cfg.equilibrate)
+            .iterative_refinement_enable(self.cfg.iterative_refinement)
             .build()
             .expect("valid Clarabel settings")
     }
 
     fn cones(&self) -> [SupportedConeT<f64>; 2] {
-        [SupportedConeT::ZeroConeT(self.m_eq()), SupportedConeT::NonnegativeConeT(self.m() - self.m_eq())]
+        [
+            SupportedConeT::ZeroConeT(self.m_eq()),
+            SupportedConeT::NonnegativeConeT(self.m() - self.m_eq()),
+        ]
+    }
+
+    /// Re-pose the assembled QP in the deviation Δ = z − z̄ from the iterate (rates and slacks at 0):
+    /// q ← q + P z̄, b ← b − A z̄. Same minimiser, but the objective and residual norms are those of the step, not
+    /// of the Gauss–Newton expansion around the origin (~1e5), so Clarabel's relative tolerances stay meaningful.
+    fn to_deviations(&self, inp: &QpInput, ws: &mut QpWorkspace) {
+        let zbar = &mut ws.zbar;
+        zbar.clear();
+        zbar.resize(self.n(), 0.0);
+        for k in 1..=self.horizon {
+            for j in 0..NZ {
+                zbar[self.stage_var(k, j)] = inp.iterate[k][j] / self.scale[j];
+            }
+        }
+        let Assembled { p, a, q, b } = &mut ws.asm;
+        for &(r, c, v) in p.iter() {
+            q[r] += v * zbar[c];
+            if r != c {
+                q[c] += v * zbar[r];
+            }
+        }
+        for &(r, c, v) in a.iter() {
+            b[r] -= v * zbar[c];
+        }
     }
 
     /// Assemble and solve the QP around `inp`.
@@ -482,6 +613,7 @@ impl QpLayout {
             rates: Vec::new(),
         };
         self.assemble(inp, &mut ws.asm);
+        self.to_deviations(inp, ws);
         self.p_pat.scatter(&ws.asm.p, &mut ws.p_nz);
         self.a_pat.scatter(&ws.asm.a, &mut ws.a_nz);
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
@@ -489,38 +621,61 @@ impl QpLayout {
             sol.status = QpStatus::NonFiniteData;
             return sol;
         }
+        let t0 = Instant::now();
         let updated = self.cfg.reuse_solver
             && ws.solver.as_mut().is_some_and(|s| {
                 s.update_P(&ws.p_nz).is_ok()
                     && s.update_A(&ws.a_nz).is_ok()
-                    && s.update_q(&ws.asm.q[..]).is_ok()
-                    && s.update_b(&ws.asm.b[..]).is_ok()
+                    && s.update_q(&ws.asm.q).is_ok()
+                    && s.update_b(&ws.asm.b).is_ok()
             });
-        if !updated {
+        if updated {
+            let solver = ws.solver.as_mut().expect("updated above");
+            solver.solve();
+            sol.status = solver.solution.status.into();
+            sol.iterations = solver.solution.iterations;
+        }
+        // A fresh solver: first use, no reuse, or (with equilibration) a reused solver that failed, because its
+        // equilibration belongs to an earlier QP of the stream and can be poor for this one.
+        if !updated
+            || (self.cfg.equilibrate && !sol.status.is_success(self.cfg.accept_almost_solved))
+        {
             let (p, a) = (self.p_pat.matrix(&ws.p_nz), self.a_pat.matrix(&ws.a_nz));
             match DefaultSolver::new(&p, &ws.asm.q, &a, &ws.asm.b, &self.cones(), self.settings()) {
-                Ok(s) => ws.solver = Some(s),
+                Ok(mut s) => {
+                    s.solve();
+                    sol.status = s.solution.status.into();
+                    sol.iterations += s.solution.iterations;
+                    ws.solver = Some(s);
+                }
                 Err(_) => {
                     ws.solver = None;
                     sol.status = QpStatus::SetupFailed;
+                    sol.solve_time = t0.elapsed();
                     return sol;
                 }
             }
         }
-        let solver = ws.solver.as_mut().expect("solver set above");
-        solver.solve();
-        let r = &solver.solution;
-        sol.status = r.status.into();
-        sol.iterations = r.iterations;
-        sol.solve_time = Duration::from_secs_f64(r.solve_time.max(0.0));
+        sol.solve_time = t0.elapsed();
+        let r = &ws.solver.as_ref().expect("solved above").solution;
         if sol.status.is_success(self.cfg.accept_almost_solved) {
-            let z = &r.x;
+            let z: Vec<f64> = r.x.iter().zip(&ws.zbar).map(|(dz, zb)| zb + dz).collect();
             sol.stages.push(inp.iterate[0]);
             for k in 1..=self.horizon {
-                sol.stages.push(std::array::from_fn(|j| z[self.stage_var(k, j)] * self.scale[j]));
+                sol.stages.push(std::array::from_fn(|j| {
+                    z[self.stage_var(k, j)] * self.scale[j]
+                }));
             }
             sol.slacks = (1..=self.horizon).map(|k| z[self.slack_var(k)]).collect();
-            sol.rates = (0..self.horizon).map(|k| std::array::from_fn(|j| z[self.rate_var(k, j)])).collect();
+            let st = &sol.stages;
+            sol.rates = (0..self.horizon)
+                .map(|k| {
+                    std::array::from_fn(|j| {
+                        let prev = if k == 0 { inp.w_prev[j] } else { st[k][7 + j] };
+                        (st[k + 1][7 + j] - prev) / (self.scale[7 + j] * self.dt)
+                    })
+                })
+                .collect();
         }
         if !self.cfg.reuse_solver {
             ws.solver = None;
@@ -536,9 +691,9 @@ mod tests {
     #[test]
     fn sizes_match_expert_md() {
         let l = QpLayout::new(&MpccConfig::default(), 17.461412207630154);
-        assert_eq!(l.n(), 280);
-        assert_eq!(l.m_eq(), 200);
-        assert_eq!(l.m(), 700);
+        assert_eq!(l.n(), 220);
+        assert_eq!(l.m_eq(), 140);
+        assert_eq!(l.m(), 620);
         let (np, na) = l.nnz();
         assert!(np > 280 && na > 1000, "{np} {na}");
     }

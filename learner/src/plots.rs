@@ -1,0 +1,222 @@
+//! The run's plots (PNG, refreshed after every epoch): completed evaluation laps per policy version, imitation and
+//! safety loss per epoch, lap-time mean and spread against the expert's, and the last evaluated line on the track.
+
+use crate::rundir::{EvalSummary, LearnerState};
+use cabc_proto::messages::EvalReport;
+use cabc_sim::track::Track;
+use plotters::prelude::*;
+use std::path::Path;
+
+type PlotResult = Result<(), Box<dyn std::error::Error>>;
+
+const SIZE: (u32, u32) = (900, 500);
+
+/// Draws every plot into `dir`. Errors are returned, not fatal: a run goes on without a picture.
+pub fn draw_all(dir: &Path, state: &LearnerState, last_eval: Option<&EvalReport>, eval_laps: u32) -> PlotResult {
+    laps(&dir.join("laps.png"), &state.evals, eval_laps)?;
+    losses(&dir.join("losses.png"), state)?;
+    lap_times(&dir.join("lap_times.png"), &state.evals, &state.expert_lap_times)?;
+    if let Some(report) = last_eval {
+        line(&dir.join("line.png"), report)?;
+    }
+    Ok(())
+}
+
+fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Completed laps at evaluation (fixed spawn, policy alone)", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("laps")
+        .draw()?;
+    chart.draw_series(evals.iter().map(|e| {
+        let colour = if e.laps >= eval_laps { GREEN } else { BLUE };
+        Rectangle::new([(e.version, 0), (e.version + 1, e.laps)], colour.mix(0.7).filled())
+    }))?;
+    chart
+        .draw_series(LineSeries::new(
+            [(0, eval_laps), (max_v + 1, eval_laps)],
+            RED.stroke_width(2),
+        ))?
+        .label(format!("{eval_laps} laps (early stop)"))
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED));
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+fn losses(path: &Path, state: &LearnerState) -> PlotResult {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let rows = &state.rows;
+    let max_e = rows.iter().map(|r| r.epoch).max().unwrap_or(1).max(1);
+    let positive = |v: f64| if v.is_finite() && v > 0.0 { Some(v) } else { None };
+    let values: Vec<f64> = rows
+        .iter()
+        .flat_map(|r| [r.imitation_loss, r.safety_loss])
+        .filter_map(positive)
+        .collect();
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min).min(1e-3);
+    let hi = values.iter().copied().fold(0.0, f64::max).max(1e-2);
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Training losses per epoch", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0u64..max_e + 1, (lo * 0.5..hi * 2.0).log_scale())?;
+    chart.configure_mesh().x_desc("epoch").y_desc("loss").draw()?;
+    for (name, colour, get) in [
+        ("imitation (L_clone)", BLUE, (|r| r.imitation_loss) as fn(&crate::rundir::EpochRow) -> f64),
+        ("safety (L_safety)", RED, |r| r.safety_loss),
+    ] {
+        let points: Vec<(u64, f64)> = rows
+            .iter()
+            .filter_map(|r| positive(get(r)).map(|v| (r.epoch, v)))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour));
+    }
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let with_laps: Vec<&EvalSummary> = evals.iter().filter(|e| e.lap_mean.is_some()).collect();
+    let expert_ms = crate::rundir::mean_std(expert);
+    let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
+    let hi = with_laps
+        .iter()
+        .filter_map(|e| e.lap_max)
+        .chain(expert_ms.map(|m| m.0 + m.1))
+        .fold(1.0, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Lap time at evaluation: mean ± std, min–max", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("lap time (s)")
+        .draw()?;
+    chart.draw_series(with_laps.iter().filter_map(|e| {
+        let (lo, hi) = (e.lap_min?, e.lap_max?);
+        let x = e.version as f64;
+        Some(PathElement::new([(x, lo), (x, hi)], BLUE.mix(0.4)))
+    }))?;
+    chart
+        .draw_series(with_laps.iter().filter_map(|e| {
+            let (m, s) = (e.lap_mean?, e.lap_std?);
+            Some(ErrorBar::new_vertical(e.version as f64, m - s, m, m + s, BLUE.filled(), 6))
+        }))?
+        .label("policy")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
+    if let Some((m, s)) = expert_ms {
+        let x1 = (max_v + 1) as f64;
+        chart.draw_series([Rectangle::new([(0.0, m - s), (x1, m + s)], GREEN.mix(0.15).filled())])?;
+        chart
+            .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
+            .label(format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len()))
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], GREEN));
+    }
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+fn line(path: &Path, report: &EvalReport) -> PlotResult {
+    let track = Track::l_track_barc();
+    let n = 400;
+    let edge = |e: f64| -> Vec<(f64, f64)> {
+        (0..=n)
+            .map(|i| {
+                let p = track.local_to_global(track.length() * i as f64 / n as f64, e, 0.0);
+                (p.x, p.y)
+            })
+            .collect()
+    };
+    let (x0, x1, y0, y1) = (-3.2, 4.4, -1.2, 5.8);
+    let root = BitMapBackend::new(path, (760, 700)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Evaluation of policy {}: {} laps, ended by {}",
+                report.version, report.laps, report.end_reason
+            ),
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(30)
+        .y_label_area_size(40)
+        .build_cartesian_2d(x0..x1, y0..y1)?;
+    chart.configure_mesh().x_desc("X (m)").y_desc("Y (m)").draw()?;
+    let half = track.half_width();
+    chart.draw_series(LineSeries::new(edge(0.0), BLACK.mix(0.3)))?;
+    for e in [half, -half] {
+        chart.draw_series(LineSeries::new(edge(e), BLACK.stroke_width(2)))?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            report.line.iter().map(|p| (p[0] as f64, p[1] as f64)),
+            RED.stroke_width(2),
+        ))?
+        .label("driven line")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED));
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rundir::EpochRow;
+    use cabc_proto::messages::EndReason;
+
+    #[test]
+    fn plots_are_drawn() {
+        let dir = tempfile::tempdir().unwrap();
+        let report = EvalReport {
+            actor: "e".into(),
+            version: 1,
+            laps: 1,
+            lap_times: vec![5.1],
+            end_reason: EndReason::OutOfTrack,
+            steps: 60,
+            line: (0..60).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+        };
+        let state = LearnerState {
+            rows: (0..3)
+                .map(|e| EpochRow {
+                    epoch: e,
+                    imitation_loss: 1.0 / (e + 1) as f64,
+                    safety_loss: 0.3,
+                    ..Default::default()
+                })
+                .collect(),
+            evals: vec![EvalSummary::of(&report)],
+            expert_lap_times: vec![4.8, 4.9],
+            ..Default::default()
+        };
+        draw_all(dir.path(), &state, Some(&report), 50).unwrap();
+        for f in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
+            let len = std::fs::metadata(dir.path().join(f)).unwrap().len();
+            assert!(len > 1000, "{f} is {len} bytes");
+        }
+    }
+}

@@ -1,0 +1,332 @@
+//! The run folder `runs/<run>/`: configuration, checkpoints, `metrics.csv`, `evals.csv`, plots, `summary.json`.
+//!
+//! Checkpoints are written to `checkpoint.tmp/` and then renamed over `checkpoint/`, so a crash mid-write leaves
+//! the previous checkpoint intact: nothing is lost beyond the epoch in flight.
+
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::EvalReport;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Errors of the run folder.
+#[derive(Debug, thiserror::Error)]
+pub enum RunDirError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
+    move |source| RunDirError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// One row of `metrics.csv` (per epoch).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct EpochRow {
+    pub epoch: u64,
+    pub beta: f64,
+    pub steps_collected: u64,
+    /// Steps the actors said they published for this epoch (their markers).
+    pub steps_published: u64,
+    pub segments: u64,
+    pub d_plus: usize,
+    pub d_uncertain: usize,
+    pub dynamics_only: usize,
+    pub autolabel_removed: usize,
+    pub rho: f64,
+    pub imitation_loss: f64,
+    pub safety_loss: f64,
+    pub dynamics_loss: f64,
+    pub critic_loss: f64,
+    pub critic_accuracy: f64,
+    pub collect_s: f64,
+    pub train_s: f64,
+    pub epoch_s: f64,
+    pub closed_by_timeout: bool,
+    pub eval_version: Option<u64>,
+    pub eval_laps: Option<u32>,
+}
+
+const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,d_plus,d_uncertain,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
+
+impl EpochRow {
+    fn csv(&self) -> String {
+        let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
+        format!(
+            "{},{:.6},{},{},{},{},{},{},{},{},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.3},{},{},{}",
+            self.epoch,
+            self.beta,
+            self.steps_collected,
+            self.steps_published,
+            self.segments,
+            self.d_plus,
+            self.d_uncertain,
+            self.dynamics_only,
+            self.autolabel_removed,
+            self.rho,
+            self.imitation_loss,
+            self.safety_loss,
+            self.dynamics_loss,
+            self.critic_loss,
+            self.critic_accuracy,
+            self.collect_s,
+            self.train_s,
+            self.epoch_s,
+            self.closed_by_timeout,
+            opt(self.eval_version),
+            opt(self.eval_laps.map(u64::from)),
+        )
+    }
+}
+
+/// The learner's bookkeeping besides networks and replay (saved with each checkpoint).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct LearnerState {
+    /// The next epoch to run.
+    pub next_epoch: u64,
+    pub rows: Vec<EpochRow>,
+    pub evals: Vec<EvalSummary>,
+    /// Evaluations that completed the wanted laps.
+    pub successes: u32,
+    pub ledger: crate::epoch::Ledger,
+    /// Lap times of the expert seen in the data (complete laps collected with beta = 1).
+    pub expert_lap_times: Vec<f64>,
+    pub stopped: Option<String>,
+}
+
+/// An evaluation, without its line.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalSummary {
+    pub version: u64,
+    pub laps: u32,
+    pub lap_mean: Option<f64>,
+    pub lap_std: Option<f64>,
+    pub lap_min: Option<f64>,
+    pub lap_max: Option<f64>,
+    pub end_reason: String,
+    pub steps: u64,
+}
+
+/// Mean and (population) standard deviation.
+pub fn mean_std(xs: &[f64]) -> Option<(f64, f64)> {
+    if xs.is_empty() {
+        return None;
+    }
+    let n = xs.len() as f64;
+    let mean = xs.iter().sum::<f64>() / n;
+    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    Some((mean, var.sqrt()))
+}
+
+impl EvalSummary {
+    pub fn of(report: &EvalReport) -> Self {
+        let ms = mean_std(&report.lap_times);
+        let fold = |f: fn(f64, f64) -> f64| report.lap_times.iter().copied().reduce(f);
+        EvalSummary {
+            version: report.version,
+            laps: report.laps,
+            lap_mean: ms.map(|m| m.0),
+            lap_std: ms.map(|m| m.1),
+            lap_min: fold(f64::min),
+            lap_max: fold(f64::max),
+            end_reason: report.end_reason.to_string(),
+            steps: report.steps,
+        }
+    }
+}
+
+/// A run folder.
+#[derive(Clone, Debug)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+impl RunDir {
+    /// `runs_dir/<name>`, created with `logs/` and `plots/`.
+    pub fn create(root: impl Into<PathBuf>) -> Result<Self, RunDirError> {
+        let root = root.into();
+        for sub in ["logs", "plots"] {
+            let p = root.join(sub);
+            std::fs::create_dir_all(&p).map_err(io(&p))?;
+        }
+        Ok(RunDir { root })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join("config.toml")
+    }
+
+    pub fn checkpoint(&self) -> PathBuf {
+        self.root.join("checkpoint")
+    }
+
+    pub fn plots(&self) -> PathBuf {
+        self.root.join("plots")
+    }
+
+    pub fn write_config(&self, config: &RunConfig) -> Result<(), RunDirError> {
+        let path = self.config_path();
+        std::fs::write(&path, config.to_toml()).map_err(io(&path))
+    }
+
+    pub fn has_checkpoint(&self) -> bool {
+        self.checkpoint().join("state.json").exists()
+    }
+
+    /// Writes a checkpoint atomically: `fill` writes into a fresh folder, which then replaces `checkpoint/`.
+    pub fn save_checkpoint(
+        &self,
+        state: &LearnerState,
+        fill: impl FnOnce(&Path) -> Result<(), String>,
+    ) -> Result<(), RunDirError> {
+        let tmp = self.root.join("checkpoint.tmp");
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+        fill(&tmp).map_err(|message| RunDirError::Format {
+            path: tmp.clone(),
+            message,
+        })?;
+        let state_path = tmp.join("state.json");
+        let json = serde_json::to_vec(state).map_err(|e| RunDirError::Format {
+            path: state_path.clone(),
+            message: e.to_string(),
+        })?;
+        std::fs::write(&state_path, json).map_err(io(&state_path))?;
+        let dst = self.checkpoint();
+        let old = self.root.join("checkpoint.old");
+        let _ = std::fs::remove_dir_all(&old);
+        if dst.exists() {
+            std::fs::rename(&dst, &old).map_err(io(&dst))?;
+        }
+        std::fs::rename(&tmp, &dst).map_err(io(&tmp))?;
+        let _ = std::fs::remove_dir_all(&old);
+        Ok(())
+    }
+
+    /// Reads the learner state of the checkpoint.
+    pub fn load_state(&self) -> Result<LearnerState, RunDirError> {
+        let path = self.checkpoint().join("state.json");
+        let bytes = std::fs::read(&path).map_err(io(&path))?;
+        serde_json::from_slice(&bytes).map_err(|e| RunDirError::Format {
+            path,
+            message: e.to_string(),
+        })
+    }
+
+    /// Rewrites `metrics.csv` and `evals.csv` from the state (so a resumed run's files stay consistent).
+    pub fn write_tables(&self, state: &LearnerState) -> Result<(), RunDirError> {
+        let path = self.root.join("metrics.csv");
+        let mut text = String::from(METRICS_HEADER);
+        text.push('\n');
+        for row in &state.rows {
+            text.push_str(&row.csv());
+            text.push('\n');
+        }
+        write_atomic(&path, text.as_bytes())?;
+        let path = self.root.join("evals.csv");
+        let mut text = String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
+        for e in &state.evals {
+            text.push_str(&format!(
+                "{},{},{},{},{},{},{},{}\n",
+                e.version,
+                e.laps,
+                opt(e.lap_mean),
+                opt(e.lap_std),
+                opt(e.lap_min),
+                opt(e.lap_max),
+                e.end_reason,
+                e.steps
+            ));
+        }
+        write_atomic(&path, text.as_bytes())
+    }
+
+    pub fn write_summary(&self, summary: &serde_json::Value) -> Result<(), RunDirError> {
+        let path = self.root.join("summary.json");
+        let text = serde_json::to_string_pretty(summary).unwrap_or_else(|_| summary.to_string());
+        write_atomic(&path, text.as_bytes())
+    }
+
+    /// Writes policy weights beside the checkpoint (`best-policy.safetensors` on early stop).
+    pub fn write_file(&self, name: &str, bytes: &[u8]) -> Result<(), RunDirError> {
+        write_atomic(&self.root.join(name), bytes)
+    }
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
+    let tmp = path.with_extension("tmp");
+    let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
+    f.write_all(bytes).map_err(io(&tmp))?;
+    f.sync_all().map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cabc_proto::messages::EndReason;
+
+    #[test]
+    fn checkpoint_round_trip_and_atomic_replace() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(dir.path().join("r")).unwrap();
+        assert!(!run.has_checkpoint());
+        let mut state = LearnerState {
+            next_epoch: 3,
+            ..Default::default()
+        };
+        run.save_checkpoint(&state, |p| std::fs::write(p.join("x"), b"1").map_err(|e| e.to_string()))
+            .unwrap();
+        state.next_epoch = 4;
+        run.save_checkpoint(&state, |p| std::fs::write(p.join("x"), b"2").map_err(|e| e.to_string()))
+            .unwrap();
+        assert_eq!(run.load_state().unwrap().next_epoch, 4);
+        assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
+        // A failing fill leaves the last checkpoint untouched.
+        assert!(run.save_checkpoint(&state, |_| Err("disk full".into())).is_err());
+        assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
+    }
+
+    #[test]
+    fn tables_are_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(dir.path()).unwrap();
+        let report = EvalReport {
+            actor: "e".into(),
+            version: 2,
+            laps: 2,
+            lap_times: vec![5.0, 6.0],
+            end_reason: EndReason::Spin,
+            steps: 130,
+            line: vec![],
+        };
+        let state = LearnerState {
+            rows: vec![EpochRow {
+                epoch: 0,
+                ..Default::default()
+            }],
+            evals: vec![EvalSummary::of(&report)],
+            ..Default::default()
+        };
+        run.write_tables(&state).unwrap();
+        let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+        assert_eq!(metrics.lines().count(), 2);
+        let header_cols = metrics.lines().next().unwrap().split(',').count();
+        assert_eq!(metrics.lines().nth(1).unwrap().split(',').count(), header_cols);
+        let evals = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
+        assert!(evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"), "{evals}");
+    }
+}

@@ -1,0 +1,17 @@
+//! The Fig. 3 example: a larger rho removes more points wrongly (it bridges the notch), and the critic trained on
+//! the result still finds the true set.
+
+use cabc_learner::demo::autolabel_demo;
+
+#[test]
+fn fig3_demo_runs_and_smaller_rho_removes_fewer_points_wrongly() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("fig3.png");
+    let report = autolabel_demo(&[0.6, 0.15], 0, &png).unwrap();
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+    let (big, small) = (&report.panels[0], &report.panels[1]);
+    assert!(big.removed_wrongly > small.removed_wrongly, "{report:?}");
+    assert!(small.removed_correctly > 100, "{report:?}");
+    assert!(small.accuracy > 0.9, "{report:?}");
+    println!("{}", serde_json::to_string_pretty(&report).unwrap());
+}

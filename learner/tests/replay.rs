@@ -1,0 +1,161 @@
+//! Replay: partition by outcome, random eviction, images, auto-labelling removal, save/load round trip.
+
+use cabc_learner::replay::{Replay, ReplayError};
+use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
+
+fn step(v: f32, ok: bool, image: Option<Image>) -> Step {
+    Step {
+        state: [v, 0.0, 0.0, v, 0.0, 0.0],
+        pose: [0.0; 3],
+        image,
+        expert_action: [v, -v],
+        applied_action: [0.5 * v, 0.0],
+        next_state: [v + 1.0, 0.0, 0.0, v, 0.0, 0.0],
+        expert_ok: ok,
+    }
+}
+
+fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
+    Segment {
+        actor: "a".into(),
+        env: 0,
+        episode: 0,
+        seq: 0,
+        policy_version: 0,
+        outcome,
+        steps,
+    }
+}
+
+#[test]
+fn segments_are_partitioned_by_outcome() {
+    let mut r = Replay::new(100, 0);
+    let c = r
+        .add_segment(&segment(
+            Outcome::Lap,
+            vec![step(1.0, true, None), step(2.0, false, None)],
+        ))
+        .unwrap();
+    assert_eq!((c.plus, c.uncertain, c.dynamics_only), (1, 1, 0));
+    r.add_segment(&segment(
+        Outcome::Failure(EndReason::OutOfTrack),
+        vec![step(3.0, true, None); 3],
+    ))
+    .unwrap();
+    r.add_segment(&segment(
+        Outcome::ExpertFailure,
+        vec![step(4.0, false, None)],
+    ))
+    .unwrap();
+    r.add_segment(&segment(
+        Outcome::Incomplete,
+        vec![step(5.0, true, None); 2],
+    ))
+    .unwrap();
+    assert_eq!(
+        (r.len_plus(), r.len_uncertain(), r.len_dynamics_only()),
+        (1, 5, 2)
+    );
+    assert_eq!(r.plus.expert_actions[0], [1.0, -1.0]);
+    assert_eq!(r.uncertain.states[0][0], 2.0);
+    // Auto-labelling removal: D? entries move to the dynamics-only store.
+    r.remove_uncertain(&[0, 2]);
+    assert_eq!(r.len_uncertain(), 3);
+    assert_eq!(r.len_dynamics_only(), 4);
+    let left: Vec<f32> = r.uncertain.states.iter().map(|s| s[0]).collect();
+    assert_eq!(left, vec![3.0, 3.0, 4.0]);
+}
+
+#[test]
+fn random_eviction_keeps_capacity_and_mixes_ages() {
+    let run = |seed| {
+        let mut r = Replay::new(100, seed);
+        for k in 0..10 {
+            let steps = (0..100)
+                .map(|i| step((k * 100 + i) as f32, true, None))
+                .collect();
+            r.add_segment(&segment(Outcome::Lap, steps)).unwrap();
+        }
+        r
+    };
+    let r = run(7);
+    assert_eq!(r.len_plus(), 100);
+    assert_eq!(r.added.plus, 1000);
+    let ages: Vec<f32> = r.plus.states.iter().map(|s| s[0]).collect();
+    // Random eviction: old entries survive with some probability, the newest batch is mostly present.
+    assert!(ages.iter().any(|&a| a < 700.0), "{ages:?}");
+    assert!(ages.iter().filter(|&&a| a >= 900.0).count() > 40);
+    assert_eq!(run(7).plus, r.plus, "seeded eviction is reproducible");
+    assert_ne!(run(8).plus, r.plus);
+}
+
+fn image(w: u16, h: u16, fill: u8) -> Image {
+    Image {
+        width: w,
+        height: h,
+        rgb: vec![fill; w as usize * h as usize * 3],
+    }
+}
+
+#[test]
+fn images_are_stored_contiguously_and_checked() {
+    let mut r = Replay::new(10, 0);
+    let steps = (0..3)
+        .map(|i| step(i as f32, true, Some(image(4, 2, i as u8))))
+        .collect();
+    r.add_segment(&segment(Outcome::Lap, steps)).unwrap();
+    let images = r.plus.images.as_ref().unwrap();
+    assert_eq!(images.bytes.len(), 3 * 24);
+    assert_eq!(images.get(2), &[2u8; 24][..]);
+    let bad = r.add_segment(&segment(
+        Outcome::Lap,
+        vec![step(0.0, true, Some(image(2, 2, 0)))],
+    ));
+    assert!(matches!(bad, Err(ReplayError::ImageSize { .. })));
+    let none = r.add_segment(&segment(Outcome::Lap, vec![step(0.0, true, None)]));
+    assert!(matches!(none, Err(ReplayError::ImagePresence)));
+    assert_eq!(r.len_plus(), 3, "a refused segment stores nothing");
+}
+
+#[test]
+fn save_and_load_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("replay.bin");
+    let mut r = Replay::new(50, 3);
+    for k in 0..4 {
+        let steps = (0..30)
+            .map(|i| step((k * 30 + i) as f32, true, Some(image(3, 3, i as u8))))
+            .collect();
+        r.add_segment(&segment(Outcome::Lap, steps)).unwrap();
+        let steps = (0..20)
+            .map(|i| step(-(i as f32), true, Some(image(3, 3, 1))))
+            .collect();
+        r.add_segment(&segment(Outcome::Failure(EndReason::Spin), steps))
+            .unwrap();
+    }
+    r.save(&path).unwrap();
+    let mut back = Replay::load(&path).unwrap();
+    assert_eq!(back.plus, r.plus);
+    assert_eq!(back.uncertain, r.uncertain);
+    assert_eq!(back.added, r.added);
+    // The eviction RNG continues where it was.
+    let more = segment(
+        Outcome::Lap,
+        (0..30)
+            .map(|i| step(1000.0 + i as f32, true, Some(image(3, 3, 9))))
+            .collect(),
+    );
+    r.add_segment(&more).unwrap();
+    back.add_segment(&more).unwrap();
+    assert_eq!(back.plus, r.plus);
+    // Not a replay file.
+    std::fs::write(&path, b"garbage!garbage").unwrap();
+    assert!(matches!(
+        Replay::load(&path),
+        Err(ReplayError::BadMagic { .. })
+    ));
+    assert!(matches!(
+        Replay::load(&dir.path().join("missing")),
+        Err(ReplayError::Io { .. })
+    ));
+}

@@ -1,0 +1,243 @@
+//! Training: the dynamics model learns a linear system, the critic separates two blobs, L_safety pushes the policy
+//! away from what the critic marks unsafe, training is deterministic for a seed, and save/load round-trips.
+
+use cabc_learner::replay::Replay;
+use cabc_learner::train::{CriticTrainer, Trainer};
+use cabc_proto::config::{RunConfig, ScheduleKind};
+use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use tch::{Device, Kind, Tensor};
+
+fn config(seed: u64) -> RunConfig {
+    let mut c = RunConfig::default();
+    c.run.seed = seed;
+    c.training.device = "cpu".into();
+    c.training.schedule = ScheduleKind::EveryEpoch;
+    c
+}
+
+fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
+    Segment {
+        actor: "t".into(),
+        env: 0,
+        episode: 0,
+        seq: 0,
+        policy_version: 0,
+        outcome,
+        steps,
+    }
+}
+
+/// x' = A x + B u for a fixed A (near identity) and B.
+fn linear(x: [f32; 6], u: [f32; 2]) -> [f32; 6] {
+    let mut n = [0.0; 6];
+    for k in 0..6 {
+        n[k] = 0.9 * x[k] + 0.1 * x[(k + 1) % 6];
+    }
+    n[0] += 0.5 * u[0];
+    n[2] += 0.3 * u[1];
+    n[4] -= 0.2 * u[0];
+    n
+}
+
+fn random_steps(
+    n: usize,
+    rng: &mut ChaCha8Rng,
+    x0: std::ops::Range<f32>,
+    expert: [f32; 2],
+) -> Vec<Step> {
+    (0..n)
+        .map(|_| {
+            let mut state: [f32; 6] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
+            state[0] = rng.gen_range(x0.clone());
+            let applied = [rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0)];
+            Step {
+                state,
+                pose: [0.0; 3],
+                image: None,
+                expert_action: expert,
+                applied_action: applied,
+                next_state: linear(state, applied),
+                expert_ok: true,
+            }
+        })
+        .collect()
+}
+
+fn replay(seed: u64) -> Replay {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut r = Replay::new(10_000, seed);
+    r.add_segment(&segment(
+        Outcome::Lap,
+        random_steps(2048, &mut rng, -1.0..0.0, [0.5, 0.2]),
+    ))
+    .unwrap();
+    r.add_segment(&segment(
+        Outcome::Failure(EndReason::OutOfTrack),
+        random_steps(2048, &mut rng, 0.3..1.5, [0.5, 0.2]),
+    ))
+    .unwrap();
+    r
+}
+
+#[test]
+fn dynamics_learns_a_linear_system() {
+    let mut c = config(1);
+    c.training.passes = 4;
+    c.training.critic_every = 1000; // not needed here
+    let r = replay(1);
+    let mut t = Trainer::with_device(&c, Device::Cpu);
+    let mut last = f64::INFINITY;
+    for epoch in 0..6 {
+        last = t.train_epoch(epoch, &r, None).unwrap().dynamics.unwrap();
+    }
+    assert!(last < 2e-3, "dynamics MSE {last}");
+    // Held-out states.
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let steps = random_steps(256, &mut rng, -1.0..1.0, [0.0; 2]);
+    let x: Vec<f32> = steps.iter().flat_map(|s| s.state).collect();
+    let u: Vec<f32> = steps.iter().flat_map(|s| s.applied_action).collect();
+    let want: Vec<f32> = steps.iter().flat_map(|s| s.next_state).collect();
+    let pred = tch::no_grad(|| {
+        t.dynamics().forward(
+            &Tensor::from_slice(&x).view([-1, 6]),
+            &Tensor::from_slice(&u).view([-1, 2]),
+        )
+    });
+    let err = (pred - Tensor::from_slice(&want).view([-1, 6]))
+        .square()
+        .mean(Kind::Float)
+        .double_value(&[]);
+    assert!(err < 5e-3, "held-out MSE {err}");
+}
+
+#[test]
+fn critic_separates_two_blobs() {
+    let c = config(2);
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let n = 1024;
+    let mut x = Vec::new();
+    for i in 0..2 * n {
+        let centre = if i < n { -1.0 } else { 1.0 };
+        x.extend((0..6).map(|_| centre + rng.gen_range(-0.8f32..0.8)));
+    }
+    let x = Tensor::from_slice(&x).view([-1, 6]);
+    let labels = Tensor::cat(
+        &[
+            Tensor::ones([n as i64], (Kind::Float, Device::Cpu)),
+            Tensor::zeros([n as i64], (Kind::Float, Device::Cpu)),
+        ],
+        0,
+    );
+    let mut critic = CriticTrainer::new(6, &c, Device::Cpu, 2);
+    let fit = critic.fit(&x, &labels, 5, &c);
+    assert!(fit.accuracy > 0.99, "{fit:?}");
+    let p = tch::no_grad(|| {
+        critic
+            .critic
+            .probability(&Tensor::from_slice(&[-1.0f32; 6]).view([1, 6]))
+    });
+    assert!(p.double_value(&[0]) > 0.95);
+    let q = tch::no_grad(|| {
+        critic
+            .critic
+            .probability(&Tensor::from_slice(&[1.0f32; 6]).view([1, 6]))
+    });
+    assert!(q.double_value(&[0]) < 0.05);
+}
+
+/// Mean policy action over D+.
+fn mean_action(t: &Trainer, r: &Replay) -> [f64; 2] {
+    let a = t.policy().act_states(&r.plus.states).unwrap();
+    let n = a.len() as f64;
+    [
+        a.iter().map(|v| v[0] as f64).sum::<f64>() / n,
+        a.iter().map(|v| v[1] as f64).sum::<f64>() / n,
+    ]
+}
+
+#[test]
+fn safety_term_pushes_the_policy_away_from_unsafe_states() {
+    // D+ has x0 in [-1, 0], D- x0 in [0.3, 1.5]; the expert's u0 = 0.5 moves x0 towards D- (x0' = 0.9 x0 + ... +
+    // 0.5 u0), and u1 barely matters. L_safety must lower u0 (sign) by a clear margin (size), and leave u1 alone.
+    let r = replay(3);
+    let train = |lambda: f64| {
+        let mut c = config(3);
+        c.algorithm.lambda = lambda;
+        c.training.passes = 3;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        let mut last = None;
+        for epoch in 0..6 {
+            last = Some(t.train_epoch(epoch, &r, None).unwrap());
+        }
+        (mean_action(&t, &r), last.unwrap())
+    };
+    let (bc, bc_losses) = train(0.0);
+    let (ca, ca_losses) = train(10.0);
+    assert!(!bc_losses.safety_active && bc_losses.safety == 0.0);
+    assert!(ca_losses.safety_active && ca_losses.safety > 0.0);
+    assert!(ca_losses.critic_accuracy.unwrap() > 0.95, "{ca_losses:?}");
+    assert!(
+        (bc[0] - 0.5).abs() < 0.05 && (bc[1] - 0.2).abs() < 0.05,
+        "baseline clones the expert: {bc:?}"
+    );
+    assert!(
+        ca[0] < bc[0] - 0.1,
+        "u0 must move away from the unsafe side: CA {ca:?}, BC {bc:?}"
+    );
+    assert!(ca[0] > -1.5, "and not without bound: {ca:?}");
+    assert!(
+        ca_losses.imitation > bc_losses.imitation,
+        "the price is imitation: {ca_losses:?} {bc_losses:?}"
+    );
+}
+
+#[test]
+fn training_is_deterministic_for_a_seed() {
+    let r = replay(4);
+    let run = |seed: u64| {
+        let mut c = config(seed);
+        c.algorithm.lambda = 1.0;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        let losses: Vec<_> = (0..2)
+            .map(|e| t.train_epoch(e, &r, None).unwrap())
+            .collect();
+        (
+            t.policy_bytes(),
+            losses
+                .iter()
+                .map(|l| (l.imitation, l.safety, l.dynamics, l.critic))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let a = run(4);
+    let b = run(4);
+    assert_eq!(a.1, b.1);
+    assert!(a.0 == b.0, "same seed, same weights");
+    assert!(run(5).0 != a.0);
+}
+
+#[test]
+fn trainer_save_and_load_round_trip() {
+    let r = replay(6);
+    let c = config(6);
+    let mut t = Trainer::new(&c).unwrap();
+    t.train_epoch(0, &r, None).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    t.save(dir.path()).unwrap();
+    let back = Trainer::resume(&c, dir.path()).unwrap();
+    assert!(back.policy_bytes() == t.policy_bytes());
+    assert_eq!(back.epochs_trained, 1);
+    assert_eq!(back.critic_trained(), t.critic_trained());
+    assert_eq!(back.policy_architecture(), "policy-state-mlp-3x128");
+    // Another architecture's checkpoint is refused.
+    let mut other = c.clone();
+    other.networks.policy.width = 64;
+    assert!(Trainer::resume(&other, dir.path()).is_err());
+    // With a D- mask that is all false, the critic does not train.
+    let mut fresh = Trainer::new(&c).unwrap();
+    let mask = vec![false; r.len_uncertain()];
+    let l = fresh.train_epoch(0, &r, Some(&mask)).unwrap();
+    assert_eq!((l.n_minus, l.critic), (0, None));
+}

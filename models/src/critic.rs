@@ -1,0 +1,72 @@
+//! The safety critic: a logit whose sigmoid p_hat(x) estimates P(x in the backward reachable tube), trained by
+//! binary cross-entropy, eq. (17). The input dimension is free (6 for the state, 2 in the Fig. 3 example).
+
+use crate::init::{kaiming_normal, Fan};
+use crate::{weights, Mlp, ModelError};
+use cabc_proto::config::MlpSize;
+use tch::{nn, nn::Module, Device, Tensor};
+
+#[derive(Debug)]
+pub struct Critic {
+    vs: nn::VarStore,
+    in_dim: usize,
+    size: MlpSize,
+    mlp: Mlp,
+}
+
+impl Critic {
+    pub fn new(in_dim: usize, size: MlpSize, device: Device, seed: u64) -> Self {
+        let vs = nn::VarStore::new(device);
+        let mlp = Mlp::new(&(vs.root() / "mlp"), in_dim as i64, 1, size);
+        kaiming_normal(&vs, seed, |_, _| Fan::In);
+        Critic {
+            vs,
+            in_dim,
+            size,
+            mlp,
+        }
+    }
+
+    /// e.g. `critic-6-mlp-4x256`.
+    pub fn architecture(&self) -> String {
+        format!(
+            "critic-{}-mlp-{}x{}",
+            self.in_dim, self.size.layers, self.size.width
+        )
+    }
+
+    /// Logits [N] for states [N, d].
+    pub fn logits(&self, x: &Tensor) -> Tensor {
+        self.mlp.forward(x).squeeze_dim(1)
+    }
+
+    /// p_hat(x) = sigmoid(logit) [N].
+    pub fn probability(&self, x: &Tensor) -> Tensor {
+        self.logits(x).sigmoid()
+    }
+
+    pub fn in_dim(&self) -> usize {
+        self.in_dim
+    }
+
+    pub fn device(&self) -> Device {
+        self.vs.device()
+    }
+
+    pub fn var_store(&self) -> &nn::VarStore {
+        &self.vs
+    }
+
+    pub fn var_store_mut(&mut self) -> &mut nn::VarStore {
+        &mut self.vs
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        weights::to_bytes(&self.vs, &self.architecture())
+    }
+
+    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), ModelError> {
+        let name = self.architecture();
+        weights::load_bytes(&mut self.vs, &name, bytes)
+    }
+}

@@ -1,0 +1,123 @@
+//! Camera checks: symmetry, sun dependence, determinism.
+use std::sync::OnceLock;
+
+use cabc_sim::camera::{Camera, Image, Sun, TrackLookup};
+use cabc_sim::Track;
+
+fn lookup() -> &'static TrackLookup {
+    static L: OnceLock<TrackLookup> = OnceLock::new();
+    L.get_or_init(|| TrackLookup::new(&Track::l_track_barc(), 0.01))
+}
+
+fn render(w: usize, h: usize, s: f64, e: f64, p: f64, sun: Sun) -> Image {
+    let track = Track::l_track_barc();
+    let mut cam = Camera::new(w, h, 110.0);
+    cam.render(lookup(), track.local_to_global(s, e, p), sun)
+        .clone()
+}
+
+#[test]
+fn centred_car_sees_a_symmetric_road() {
+    let overhead = Sun {
+        azimuth: 0.0,
+        elevation: std::f64::consts::FRAC_PI_2,
+    };
+    let img = render(96, 96, 0.3, 0.0, 0.0, overhead);
+    // Compare the near field (ground closer than ~1.2 m: rows well below the horizon), where the first
+    // straight is the whole view.
+    let (mut diff, mut total) = (0, 0);
+    for y in 64..96 {
+        for x in 0..48 {
+            total += 1;
+            if img.pixel(x, y) != img.pixel(95 - x, y) {
+                diff += 1;
+            }
+        }
+    }
+    assert!(
+        diff * 100 <= total,
+        "{diff} of {total} mirrored pixels differ"
+    );
+    // The centre of the bottom row is road, the bottom corners are walls (brighter than the road).
+    let road = img.pixel(48, 95);
+    let corner = img.pixel(0, 52);
+    assert!(corner[0] > road[0] + 30, "wall {corner:?} vs road {road:?}");
+    // The top row is sky (blue dominates).
+    let sky = img.pixel(48, 0);
+    assert!(sky[2] > sky[0] && sky[2] > 150);
+}
+
+#[test]
+fn sun_direction_changes_the_image_and_rendering_is_deterministic() {
+    let a = render(
+        64,
+        64,
+        4.0,
+        0.2,
+        0.1,
+        Sun {
+            azimuth: 0.5,
+            elevation: 0.4,
+        },
+    );
+    let b = render(
+        64,
+        64,
+        4.0,
+        0.2,
+        0.1,
+        Sun {
+            azimuth: 3.5,
+            elevation: 1.1,
+        },
+    );
+    let a2 = render(
+        64,
+        64,
+        4.0,
+        0.2,
+        0.1,
+        Sun {
+            azimuth: 0.5,
+            elevation: 0.4,
+        },
+    );
+    assert_eq!(a, a2);
+    let differing = a
+        .rgb
+        .chunks(3)
+        .zip(b.rgb.chunks(3))
+        .filter(|(p, q)| p != q)
+        .count();
+    assert!(
+        differing > 64 * 64 / 20,
+        "only {differing} pixels differ between suns"
+    );
+}
+
+#[test]
+fn low_sun_casts_wall_shadows_on_the_road() {
+    // Sun low in the +y direction (left of a car on the first straight): the left wall shades the road.
+    let sun = Sun {
+        azimuth: std::f64::consts::FRAC_PI_2,
+        elevation: 20f64.to_radians(),
+    };
+    let img = render(96, 96, 0.3, 0.0, 0.0, sun);
+    let row = 80;
+    let left = img.pixel(5, row);
+    let right = img.pixel(90, row);
+    assert!(
+        right[0] > left[0] + 10,
+        "left road {left:?} should be in shadow vs right {right:?}"
+    );
+}
+
+#[test]
+fn any_resolution_and_png() {
+    let img = render(17, 5, 10.0, -0.3, 0.4, Sun::default());
+    assert_eq!(img.rgb.len(), 17 * 5 * 3);
+    let path = std::env::temp_dir().join(format!("cabc_sim_cam_{}.png", std::process::id()));
+    img.write_png(&path).unwrap();
+    assert!(std::fs::metadata(&path).unwrap().len() > 50);
+    let _ = std::fs::remove_file(path);
+}

@@ -1,0 +1,181 @@
+//! The distributed run end to end: the real binaries on loopback, smoke-sized (PID expert, full state).
+
+use cabc_tests::Cluster;
+use std::time::Duration;
+
+fn csv_rows(path: &std::path::Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+fn column(rows: &[Vec<String>], name: &str) -> Vec<String> {
+    let i = rows[0]
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column {name}"));
+    rows[1..].iter().map(|r| r[i].clone()).collect()
+}
+
+async fn publish_garbage(endpoint: &str, key: &str) {
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"client\"").unwrap();
+    config
+        .insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    config.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    let session = zenoh::open(config).await.unwrap();
+    for payload in [&b"definitely not cabc"[..], b"CABC\x01\x00\x01garbage", b""] {
+        session.put(key, payload.to_vec()).await.unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    session.close().await.unwrap();
+}
+
+fn endpoint_of(config: &std::path::Path) -> String {
+    let text = std::fs::read_to_string(config).unwrap();
+    let start = text.find("listen = [\"").unwrap() + "listen = [\"".len();
+    let end = start + text[start..].find('"').unwrap();
+    text[start..end].to_string()
+}
+
+/// Two actors, an eval actor, one expert server and the learner complete the run: every published step reaches
+/// the replay exactly once, policy versions advance, evaluations arrive, and the run folder holds the checkpoint,
+/// metrics and plots. A third actor killed mid-run does not stall it, and garbage on a cabc key is counted.
+/// Then the learner resumes the same run for more epochs, continuing its epoch count and buffers.
+#[test]
+fn a_smoke_run_completes_survives_faults_and_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "e2e", 4, "").unwrap();
+    cluster.start_all(3, false).unwrap();
+    let endpoint = endpoint_of(&cluster.config);
+
+    // Let the run get going, then crash actor-2 and throw garbage at the learner.
+    std::thread::sleep(Duration::from_secs(6));
+    cluster.kill("actor-2").unwrap();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    runtime.block_on(publish_garbage(&endpoint, "cabc/e2e/traj/x"));
+
+    let (status, stdout) = cluster
+        .wait("learner", Duration::from_secs(400))
+        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
+    assert!(status.success(), "learner failed:\n{}", cluster.log_tail("learner"));
+    let summary: serde_json::Value = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    assert_eq!(summary["epochs"], 4, "{summary:#}");
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    assert_eq!(summary["segments_not_stored"], 0, "{summary:#}");
+    assert!(
+        summary["rejected_messages"].as_u64().unwrap() >= 2,
+        "garbage not counted: {summary:#}"
+    );
+
+    let dir = &cluster.dir;
+    for f in [
+        "summary.json",
+        "metrics.csv",
+        "evals.csv",
+        "config.toml",
+        "checkpoint/state.json",
+        "checkpoint/replay.bin",
+        "plots/laps.png",
+        "plots/losses.png",
+        "plots/lap_times.png",
+        "final-policy.safetensors",
+    ] {
+        assert!(dir.join(f).exists(), "{f} missing in {}", dir.display());
+    }
+    let metrics = csv_rows(&dir.join("metrics.csv"));
+    assert_eq!(column(&metrics, "epoch"), ["0", "1", "2", "3"]);
+    // Exactly once: what the actors said they published for each epoch is what was stored.
+    assert_eq!(column(&metrics, "steps_collected"), column(&metrics, "steps_published"));
+    let collected: Vec<u64> = column(&metrics, "steps_collected")
+        .iter()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert!(collected.iter().all(|&s| s >= 256), "each epoch collects its budget: {collected:?}");
+    let evals = csv_rows(&dir.join("evals.csv"));
+    assert!(evals.len() > 1, "no evaluation arrived");
+
+    // Resume the same run for two more epochs.
+    let text = std::fs::read_to_string(&cluster.config).unwrap().replace("max_epochs = 4", "max_epochs = 6");
+    std::fs::write(&cluster.config, text).unwrap();
+    let d_plus_before: u64 = column(&metrics, "d_plus").last().unwrap().parse().unwrap();
+    let config = cluster.config.display().to_string();
+    let run_dir = dir.display().to_string();
+    // The surviving actors and the expert server were stopped with the run; start fresh ones.
+    cluster
+        .start("learner-resumed", "learner", &["run", "--config", &config, "--run-dir", &run_dir, "--resume"])
+        .unwrap();
+    cluster.start("expert-server-2", "expert-server", &["--config", &config, "serve", "--id", "1"]).unwrap();
+    for id in ["actor-0", "actor-1"] {
+        cluster.start(&format!("{id}-2"), "actor", &["--config", &config, "--id", id]).unwrap();
+    }
+    let (status, _) = cluster
+        .wait("learner-resumed", Duration::from_secs(300))
+        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail("learner-resumed")));
+    assert!(status.success(), "resumed learner failed:\n{}", cluster.log_tail("learner-resumed"));
+    let metrics = csv_rows(&dir.join("metrics.csv"));
+    assert_eq!(column(&metrics, "epoch"), ["0", "1", "2", "3", "4", "5"]);
+    let d_plus_after: u64 = column(&metrics, "d_plus").last().unwrap().parse().unwrap();
+    assert!(d_plus_after >= d_plus_before, "D+ shrank across the resume: {d_plus_before} -> {d_plus_after}");
+}
+
+/// A malformed request to the expert server gets an error reply, and the next good request is answered.
+#[test]
+fn the_expert_server_refuses_bad_requests_and_keeps_serving() {
+    use cabc_proto::codec::{decode, encode};
+    use cabc_proto::messages::{ExpertQuery, ExpertReply, ExpertRequest, StreamId};
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "expert", 1, "").unwrap();
+    let config = cluster.config.display().to_string();
+    let endpoint = endpoint_of(&cluster.config);
+    // The server is a client of a router: the learner is the router of a run, so start one.
+    let run_dir = cluster.dir.display().to_string();
+    cluster.start("learner", "learner", &["run", "--config", &config, "--run-dir", &run_dir]).unwrap();
+    cluster.start("expert-server", "expert-server", &["--config", &config, "serve"]).unwrap();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    runtime.block_on(async {
+        let mut zc = zenoh::Config::default();
+        zc.insert_json5("mode", "\"client\"").unwrap();
+        zc.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]")).unwrap();
+        zc.insert_json5("scouting/multicast/enabled", "false").unwrap();
+        zc.insert_json5("connect/timeout_ms", "-1").unwrap();
+        let session = zenoh::open(zc).await.unwrap();
+        let key = "cabc/expert/expert/pid";
+        let ask = |payload: Vec<u8>| {
+            let session = session.clone();
+            async move {
+                for _ in 0..100 {
+                    let replies = session.get(key).payload(payload.clone()).timeout(Duration::from_secs(2)).await.unwrap();
+                    if let Ok(reply) = replies.recv_async().await {
+                        return reply.into_result().map(|s| s.payload().to_bytes().to_vec()).map_err(|e| {
+                            String::from_utf8_lossy(&e.payload().to_bytes()).to_string()
+                        });
+                    }
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+                panic!("no expert server answered");
+            }
+        };
+        let err = ask(b"garbage".to_vec()).await.unwrap_err();
+        assert!(err.contains("refused") && err.contains("foreign"), "{err}");
+        let request = ExpertRequest {
+            request_id: 9,
+            queries: vec![ExpertQuery {
+                stream: StreamId { actor: "t".into(), env: 0, episode: 0 },
+                start: true,
+                vehicle: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+                frenet: [0.5, 0.0, 0.0, 0.1, 0.2, 0.0],
+            }],
+        };
+        let reply: ExpertReply = decode(&ask(encode(&request)).await.unwrap()).unwrap();
+        assert_eq!(reply.request_id, 9);
+        assert!(reply.answers[0].success);
+        // The PID's closed form: a = 1.5 (1 - v), delta = -0.5 (5 x_tran + e_psi).
+        assert!((reply.answers[0].action[0] - 0.75).abs() < 1e-12);
+        assert!((reply.answers[0].action[1] + 0.5).abs() < 1e-12);
+        session.close().await.unwrap();
+    });
+}
