@@ -35,8 +35,8 @@ pub fn end_reason(t: Truncation) -> EndReason {
     }
 }
 
-/// The environment set-up of a run (track, vehicle, env constants from the configuration).
-pub fn make_env(config: &RunConfig, max_laps: u32) -> Env {
+/// The environment of a run: the BARC track, the reference vehicle and env constants, `max_laps` laps at most.
+pub fn make_env(max_laps: u32) -> Env {
     let env_config = EnvConfig {
         max_laps,
         ..EnvConfig::default()
@@ -68,7 +68,7 @@ impl Collector {
     /// `index` makes each actor's random streams distinct (actor k uses streams k*K .. k*K+K-1 of the run seed).
     pub fn new(actor: &str, index: u64, config: &RunConfig) -> Self {
         let k = config.actors.envs_per_actor as usize;
-        let envs: Vec<Env> = (0..k).map(|_| make_env(config, config.collection.max_laps)).collect();
+        let envs: Vec<Env> = (0..k).map(|_| make_env(config.collection.max_laps)).collect();
         let rngs = (0..k)
             .map(|i| Env::rng(config.run.seed, index * k as u64 + i as u64))
             .collect();

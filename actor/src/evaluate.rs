@@ -19,7 +19,7 @@ pub fn evaluate(
 ) -> anyhow::Result<EvalReport> {
     let laps_wanted = config.collection.eval_laps;
     // One lap more than wanted so that the env's max-laps truncation never cuts the last wanted lap.
-    let mut env = make_env(config, laps_wanted + 1);
+    let mut env = make_env(laps_wanted + 1);
     let mut rng = Env::rng(config.run.seed ^ 0xe7a1, version);
     env.reset(Spawn::Fixed, &mut rng);
     let mut eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(&config.observation));

@@ -2,8 +2,8 @@
 //!
 //! The library is the controller: [`mpcc`] (expert.md §1–§9), the RK4 prediction model with exact Jacobians
 //! ([`rk4`]), the not-a-knot track splines ([`spline`]), and closed-loop drives and the step-time benchmark
-//! ([`drive`]). The `expert-server` binary (feature `server`) is a thin zenoh shell over it. The PID expert lives
-//! in `cabc-sim` (`PidLaneFollower`).
+//! ([`drive`]: `drive`, `drive_from`, `bench`). The `expert-server` binary (feature `server`) is a thin zenoh
+//! shell over it. The PID expert lives in `cabc-sim` (`PidLaneFollower`).
 
 pub mod drive;
 pub mod mpcc;

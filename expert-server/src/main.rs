@@ -88,10 +88,15 @@ fn main() -> Result<()> {
                 },
             );
             if let Some(path) = &trace {
-                write_trace(&report, path).with_context(|| format!("writing {}", path.display()))?;
+                write_trace(&report, path)
+                    .with_context(|| format!("writing {}", path.display()))?;
             }
             if let Some(path) = &plot {
-                let line: Vec<(f64, f64)> = report.steps.iter().map(|s| (s.state[3], s.state[4])).collect();
+                let line: Vec<(f64, f64)> = report
+                    .steps
+                    .iter()
+                    .map(|s| (s.state[3], s.state[4]))
+                    .collect();
                 cabc_sim::map::render_track(mpcc.track(), 100.0, &line)
                     .write_png(path)
                     .with_context(|| format!("writing {}", path.display()))?;
@@ -119,7 +124,15 @@ fn summary(report: &DriveReport) -> serde_json::Value {
     };
     let n = report.lap_times.len() as f64;
     let mean = (n > 0.0).then(|| report.lap_times.iter().sum::<f64>() / n);
-    let std = mean.map(|m| (report.lap_times.iter().map(|t| (t - m).powi(2)).sum::<f64>() / n).sqrt());
+    let std = mean.map(|m| {
+        (report
+            .lap_times
+            .iter()
+            .map(|t| (t - m).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    });
     json!({
         "steps": report.steps.len(),
         "laps": report.lap_times.len(),
@@ -144,8 +157,23 @@ fn write_trace(report: &DriveReport, path: &std::path::Path) -> std::io::Result<
         writeln!(
             f,
             "{:.2},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4}",
-            s.t, q[0], q[1], q[2], q[3], q[4], q[5], s.frenet.s, s.frenet.x_tran, s.frenet.e_psi,
-            s.action[0], s.action[1], s.success, s.status, s.qp_iterations, s.solve_time * 1e3, s.step_time * 1e3
+            s.t,
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            q[4],
+            q[5],
+            s.frenet.s,
+            s.frenet.x_tran,
+            s.frenet.e_psi,
+            s.action[0],
+            s.action[1],
+            s.success,
+            s.status,
+            s.qp_iterations,
+            s.solve_time * 1e3,
+            s.step_time * 1e3
         )?;
     }
     f.flush()

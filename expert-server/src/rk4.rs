@@ -23,6 +23,11 @@ pub trait Ode {
     fn f(&self, q: &[f64; NQ], u: &[f64; NU]) -> [f64; NQ];
     /// `(∂f/∂q, ∂f/∂u)` at `(q, u)`.
     fn jac(&self, q: &[f64; NQ], u: &[f64; NU]) -> (JacQ, JacU);
+    /// `f` and its Jacobians together (override where they share work: the tyre forces).
+    fn f_and_jac(&self, q: &[f64; NQ], u: &[f64; NU]) -> ([f64; NQ], JacQ, JacU) {
+        let (a, b) = self.jac(q, u);
+        (self.f(q, u), a, b)
+    }
 }
 
 impl Ode for cabc_sim::vehicle::VehicleParams {
@@ -78,8 +83,7 @@ impl Rk4 {
         let mut su = JacU::zeros();
         // dk = Jq·(sq, su) + (0, Ju) for the stage evaluated at `qs` whose sensitivities are (sq, su).
         let stage = |qs: &[f64; NQ], sq: &JacQ, su: &JacU| {
-            let k = model.f(qs, u);
-            let (jq, ju) = model.jac(qs, u);
+            let (k, jq, ju) = model.f_and_jac(qs, u);
             (k, jq * sq, jq * su + ju)
         };
         for _ in 0..self.substeps {

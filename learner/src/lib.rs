@@ -4,16 +4,23 @@
 //! * [`autolabel`]: safety auto-labelling, eq. (20)-(21), over a k-d tree ([`kdtree`]) and an exact hull test
 //!   ([`hull`]);
 //! * [`train`]: the dynamics model, the critic and the policy with L_CA = L_clone + L_safety (eq. (15)-(17));
-//! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures.
+//! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
+//! * [`epoch`]: the epoch protocol; [`rundir`]: the run folder and checkpoints; [`plots`]: the run's plots;
+//!   `serve` (feature `server`): the learner process over zenoh.
 //!
-//! The library knows nothing of the bus; the `learner` binary's `run` subcommand connects it to zenoh.
+//! Apart from `serve` (behind the `server` feature), the library knows nothing of the bus.
 
 pub mod autolabel;
 pub mod bench;
 pub mod demo;
+pub mod epoch;
 pub mod hull;
 pub mod kdtree;
+pub mod plots;
 pub mod replay;
+pub mod rundir;
+#[cfg(feature = "server")]
+pub mod serve;
 pub mod train;
 
 pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};

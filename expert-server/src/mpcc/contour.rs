@@ -180,18 +180,16 @@ mod tests {
             fd(&|d| sp.errors(x, y + d, s)),
             fd(&|d| sp.errors(x, y, s + d)),
         ];
-        for j in 0..3 {
+        for (j, [dc, dl]) in d.into_iter().enumerate() {
             assert!(
-                (e.grad_c[j] - d[j][0]).abs() < 1e-6,
-                "c {j}: {} vs {}",
-                e.grad_c[j],
-                d[j][0]
+                (e.grad_c[j] - dc).abs() < 1e-6,
+                "c {j}: {} vs {dc}",
+                e.grad_c[j]
             );
             assert!(
-                (e.grad_l[j] - d[j][1]).abs() < 1e-6,
-                "l {j}: {} vs {}",
-                e.grad_l[j],
-                d[j][1]
+                (e.grad_l[j] - dl).abs() < 1e-6,
+                "l {j}: {} vs {dl}",
+                e.grad_l[j]
             );
         }
     }

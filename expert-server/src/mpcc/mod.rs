@@ -11,8 +11,8 @@
 //! * Transition k → k+1 is linearised at (q̄_k, w̄_{k−1}), the input stored with stage k, not the one applied on
 //!   the interval (the reference linearises the rate-augmented dynamics at zero rate).
 //! * Rate bounds and weights act on *scaled* rates r = T_w·Δw/dt (|Δδ| ≤ 0.196 rad per step, §6).
-//! * Track constraint is a soft slab with a quadratic-only penalty, linearised at the warm-start progress and kept
-//!   fixed over the iterations of a step; the reference point is the midpoint of the two tightened boundaries.
+//! * The track constraint is a soft slab with a quadratic-only penalty, linearised at the warm-start progress and
+//!   kept fixed over the iterations of a step; the reference point is the midpoint of the two tightened boundaries.
 //! * The applied action comes from the blended (damped) iterate; no line search, no convergence test.
 //! * On failure the shifted previous plan is replayed (its first input is applied) and `success = false`; start-up
 //!   failures only stop the start-up loop. w_prev is the expert's own previous output (not the applied action).
@@ -20,10 +20,20 @@
 //! * The first step after `start` uses w_prev = (1e−3, 1e−3, 0) (the reference never stores it at reset).
 //!
 //! # Deviations from the reference (and why)
-//! * **Clarabel instead of HPIPM** (the project's solver). Same QP; stage 0 is substituted into the right-hand
-//!   side instead of being fixed by lbx = ubx; the two one-sided slab slacks are one shared σ_k ≥ 0 (equivalent,
-//!   the slab has positive width); the inactive ±1e9 bounds on X, Y are dropped. Tolerances: gap (abs, rel) and
-//!   feasibility 1e−6, 200 iterations, as HPIPM's tol_stat/eq/ineq; HPIPM's tol_comp 1e−5 has no separate knob.
+//! * **Clarabel instead of HPIPM** (the project's solver); the QP has the same minimiser, posed differently:
+//!   - stage 0 is substituted into the right-hand side instead of being fixed by lbx = ubx;
+//!   - the input rates are eliminated (r_k = T_w(w_k − w_{k−1})/dt): their cost becomes a banded quadratic in w
+//!     and their boxes rows on w_k − w_{k−1} (HPIPM has them as stage inputs); a smaller KKT system;
+//!   - one free σ_k per stage relaxes both slab sides (HPIPM: σ_l, σ_u ≥ 0). Equivalent: for fixed (X, Y) the
+//!     minimiser of ½Zσ² over the relaxed slab is σ = max(0, violation), and at most one side is violated;
+//!   - the inactive ±1e9 bounds on X, Y are dropped;
+//!   - the QP is posed in the deviation Δ = z − z̄ from the iterate (Gauss–Newton expanded around the origin makes
+//!     the objective ~1e5, and Clarabel's *relative* gap tolerance then left slacks at ~6e−4 on a straight);
+//!   - tolerances: gap (abs, rel) and feasibility 1e−6, 200 iterations, as HPIPM's tol_stat/eq/ineq; HPIPM's
+//!     tol_comp 1e−5 has no separate knob. Clarabel's equilibration and iterative refinement are off by default
+//!     (HPIPM has neither; the reference's T-scaling conditions the problem): ~40 % fewer iterations and ~40 %
+//!     cheaper iterations, the same laps and the same random-spawn failure rate (`MpccConfig::equilibrate`,
+//!     `MpccConfig::iterative_refinement` turn them back on).
 //! * **success = Clarabel `Solved`**. `AlmostSolved` (reduced accuracy after a stall) counts as a failure by
 //!   default, matching HPIPM, which would stop at its iteration limit instead; `accept_almost_solved` flips it.
 //! * Exact RK4 Jacobians come from forward sensitivities with the simulator's hand-derived continuous Jacobians
@@ -32,11 +42,24 @@
 //! * Measurements that are not finite or farther than 0.85 m from the centreline return [`MpccError`] (the
 //!   reference raises from `global_to_local`); the stream is left unchanged.
 //! * The solver is cached per stream and refilled through Clarabel's data-update interface (the pattern is
-//!   fixed); the equilibration computed for the first QP of a stream is reused for its later QPs.
+//!   fixed). With equilibration on, a reused solver that fails is retried once with a fresh one (its
+//!   equilibration belongs to an earlier QP and was seen to cause spurious `NumericalError`s).
+//!
+//! # Known behaviour of the reference algorithm (kept, measured here)
+//! * From the fixed spawn: no failure, no truncation; flying laps 4.6–4.8 s (mean ≈ 4.71 s), first lap 5.5 s.
+//!   The env's logged `lap_time` adds one step (simulator.md §3.7): ≈ 4.81 s, the paper's 4.805 s.
+//! * From random spawns *in curves* the start-up QPs (all slabs at ŝ, an infinite strip along the tangent there)
+//!   plan to stop before leaving the strip; predicted speeds then fall below ≈ 0.36 m/s, where RK4 with
+//!   h = 0.01 s is unstable for the tyre dynamics (λ ≈ −2·B·C·D/(m v_x)), the Jacobians reach ~1e6, the QPs fail
+//!   (`NumericalError`), the fallback replays the braking plan and the car stalls (v_long < 0.25). About 40 % of
+//!   random spawns with |e_y|, |e_ψ| ≤ 0.5 end this way within 60 steps (`stress_random_spawns`). The model,
+//!   the slab linearisation and the fallback are the reference's, so this is expected of it too.
 
 mod config;
 mod contour;
+mod pattern;
 mod qp;
+mod status;
 
 use std::time::{Duration, Instant};
 

@@ -21,14 +21,14 @@
 
 use std::time::{Duration, Instant};
 
-use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
-    DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+    DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SupportedConeT,
 };
-use serde::{Deserialize, Serialize};
 
 use super::config::MpccConfig;
 use super::contour::{ContourErrors, Slab};
+use super::pattern::Pattern;
+pub use super::status::QpStatus;
 use crate::rk4::{JacQ, JacU, NQ};
 
 /// Variables per stage: x_k (7) and w_{k−1} (3).
@@ -68,145 +68,6 @@ fn a_structural(i: usize, j: usize) -> bool {
         0..=2 => true,
         3 | 4 => i == j,
         _ => matches!(i, 3..=5),
-    }
-}
-
-/// Solver outcome of one QP, or of a whole control step (the first failing QP, else the last one).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum QpStatus {
-    /// No QP was solved.
-    NotRun,
-    /// The assembled data contained NaN or ±∞ (diverged linearisation); the QP was not handed to the solver.
-    NonFiniteData,
-    /// Clarabel could not be set up with this data.
-    SetupFailed,
-    /// Clarabel's statuses.
-    Solved,
-    AlmostSolved,
-    PrimalInfeasible,
-    DualInfeasible,
-    AlmostPrimalInfeasible,
-    AlmostDualInfeasible,
-    MaxIterations,
-    MaxTime,
-    NumericalError,
-    InsufficientProgress,
-    CallbackTerminated,
-    Unsolved,
-}
-
-impl QpStatus {
-    /// The status name (Clarabel's spelling for Clarabel's statuses).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::NotRun => "NotRun",
-            Self::NonFiniteData => "NonFiniteData",
-            Self::SetupFailed => "SetupFailed",
-            Self::Solved => "Solved",
-            Self::AlmostSolved => "AlmostSolved",
-            Self::PrimalInfeasible => "PrimalInfeasible",
-            Self::DualInfeasible => "DualInfeasible",
-            Self::AlmostPrimalInfeasible => "AlmostPrimalInfeasible",
-            Self::AlmostDualInfeasible => "AlmostDualInfeasible",
-            Self::MaxIterations => "MaxIterations",
-            Self::MaxTime => "MaxTime",
-            Self::NumericalError => "NumericalError",
-            Self::InsufficientProgress => "InsufficientProgress",
-            Self::CallbackTerminated => "CallbackTerminated",
-            Self::Unsolved => "Unsolved",
-        }
-    }
-
-    /// Whether the solution may be used (expert.md §7: HPIPM status 0; `AlmostSolved` only if configured).
-    pub fn is_success(self, accept_almost_solved: bool) -> bool {
-        self == Self::Solved || (accept_almost_solved && self == Self::AlmostSolved)
-    }
-}
-
-impl From<SolverStatus> for QpStatus {
-    fn from(s: SolverStatus) -> Self {
-        match s {
-            SolverStatus::Unsolved => Self::Unsolved,
-            SolverStatus::Solved => Self::Solved,
-            SolverStatus::PrimalInfeasible => Self::PrimalInfeasible,
-            SolverStatus::DualInfeasible => Self::DualInfeasible,
-            SolverStatus::AlmostSolved => Self::AlmostSolved,
-            SolverStatus::AlmostPrimalInfeasible => Self::AlmostPrimalInfeasible,
-            SolverStatus::AlmostDualInfeasible => Self::AlmostDualInfeasible,
-            SolverStatus::MaxIterations => Self::MaxIterations,
-            SolverStatus::MaxTime => Self::MaxTime,
-            SolverStatus::NumericalError => Self::NumericalError,
-            SolverStatus::InsufficientProgress => Self::InsufficientProgress,
-            SolverStatus::CallbackTerminated => Self::CallbackTerminated,
-        }
-    }
-}
-
-impl std::fmt::Display for QpStatus {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// A fixed CSC pattern and the map from emission order to nonzero slot (duplicates are summed).
-#[derive(Debug, Clone)]
-struct Pattern {
-    m: usize,
-    n: usize,
-    colptr: Vec<usize>,
-    rowval: Vec<usize>,
-    slot: Vec<usize>,
-    entries: Vec<(usize, usize)>,
-}
-
-impl Pattern {
-    fn new(m: usize, n: usize, entries: &[(usize, usize, f64)]) -> Self {
-        let mut keys: Vec<(usize, usize)> = entries.iter().map(|&(r, c, _)| (c, r)).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        let mut colptr = vec![0; n + 1];
-        for &(c, _) in &keys {
-            colptr[c + 1] += 1;
-        }
-        for c in 0..n {
-            colptr[c + 1] += colptr[c];
-        }
-        let rowval = keys.iter().map(|&(_, r)| r).collect();
-        let slot = entries
-            .iter()
-            .map(|&(r, c, _)| keys.binary_search(&(c, r)).expect("entry in pattern"))
-            .collect();
-        Self {
-            m,
-            n,
-            colptr,
-            rowval,
-            slot,
-            entries: entries.iter().map(|&(r, c, _)| (r, c)).collect(),
-        }
-    }
-
-    fn scatter(&self, entries: &[(usize, usize, f64)], nz: &mut Vec<f64>) {
-        debug_assert_eq!(entries.len(), self.slot.len());
-        debug_assert!(entries
-            .iter()
-            .zip(&self.entries)
-            .all(|(&(r, c, _), &e)| (r, c) == e));
-        nz.clear();
-        nz.resize(self.rowval.len(), 0.0);
-        for (&(_, _, v), &k) in entries.iter().zip(&self.slot) {
-            nz[k] += v;
-        }
-    }
-
-    fn matrix(&self, nz: &[f64]) -> CscMatrix<f64> {
-        CscMatrix::new(
-            self.m,
-            self.n,
-            self.colptr.clone(),
-            self.rowval.clone(),
-            nz.to_vec(),
-        )
     }
 }
 
@@ -385,7 +246,7 @@ impl QpLayout {
 
     /// Nonzeros of (P, A).
     pub fn nnz(&self) -> (usize, usize) {
-        (self.p_pat.rowval.len(), self.a_pat.rowval.len())
+        (self.p_pat.nnz(), self.a_pat.nnz())
     }
 
     fn stage_var(&self, k: usize, j: usize) -> usize {

@@ -162,7 +162,8 @@ fn stress_random_spawns() {
             }
         }
         eprintln!(
-            "IR {ir} equilibrate {eq}: {steps} steps, {fails} failed, {trunc} truncated episodes, {:.1} IPM it/step, {statuses:?}",
+            "IR {ir} equilibrate {eq}: {steps} steps, {fails} failed, {trunc} truncated episodes, \
+             {:.1} IPM it/step, {statuses:?}",
             its as f64 / steps as f64
         );
     }
@@ -191,4 +192,26 @@ fn ten_laps_print() {
         "end {:?}; laps {:?}; flying mean {mean:.3} s; failures {}; max |e_y| {max_ey:.3}; max v_x {vmax:.2}",
         r.end, r.lap_times, r.failures
     );
+}
+
+#[test]
+fn streams_step_concurrently_like_sequentially() {
+    use rayon::prelude::*;
+    let mpcc = Mpcc::reference();
+    let starts: Vec<State> = [0.3, 1.5, 2.0, 13.0]
+        .iter()
+        .map(|&s| {
+            let p = mpcc.track().local_to_global(s, 0.1, 0.0);
+            [1.5, 0.0, 0.0, p.x, p.y, p.psi]
+        })
+        .collect();
+    let run = |q: &State| {
+        let mut stream = mpcc.start(q).unwrap();
+        (0..5)
+            .map(|_| mpcc.step(&mut stream, q).unwrap().action)
+            .collect::<Vec<_>>()
+    };
+    let seq: Vec<_> = starts.iter().map(run).collect();
+    let par: Vec<_> = starts.par_iter().map(run).collect();
+    assert_eq!(seq, par);
 }
