@@ -41,7 +41,11 @@ pub fn make_env(max_laps: u32) -> Env {
         max_laps,
         ..EnvConfig::default()
     };
-    Env::new(Arc::new(Track::l_track_barc()), VehicleParams::default(), env_config)
+    Env::new(
+        Arc::new(Track::l_track_barc()),
+        VehicleParams::default(),
+        env_config,
+    )
 }
 
 fn f32s<const N: usize>(x: &[f64; N]) -> [f32; N] {
@@ -68,14 +72,17 @@ impl Collector {
     /// `index` makes each actor's random streams distinct (actor k uses streams k*K .. k*K+K-1 of the run seed).
     pub fn new(actor: &str, index: u64, config: &RunConfig) -> Self {
         let k = config.actors.envs_per_actor as usize;
-        let envs: Vec<Env> = (0..k).map(|_| make_env(config.collection.max_laps)).collect();
+        let envs: Vec<Env> = (0..k)
+            .map(|_| make_env(config.collection.max_laps))
+            .collect();
         let rngs = (0..k)
             .map(|i| Env::rng(config.run.seed, index * k as u64 + i as u64))
             .collect();
         let segmenters = (0..k)
             .map(|i| Segmenter::new(actor, i as u32, config.expert.patience))
             .collect();
-        let eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(&config.observation));
+        let eyes = (config.observation.kind == ObservationKind::Camera)
+            .then(|| Eyes::new(&config.observation));
         let spawn = match config.collection.spawn {
             SpawnKind::Random => Spawn::Random,
             SpawnKind::Fixed => Spawn::Fixed,
@@ -204,7 +211,11 @@ impl Collector {
                 state: f32s(&before.state),
                 pose: f32s(&before.pose),
                 image,
-                expert_action: if expert_ok { f32s(&answer.action) } else { [0.0; 2] },
+                expert_action: if expert_ok {
+                    f32s(&answer.action)
+                } else {
+                    [0.0; 2]
+                },
                 applied_action: f32s(&applied),
                 next_state: f32s(&result.obs.state),
                 expert_ok,

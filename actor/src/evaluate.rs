@@ -22,7 +22,8 @@ pub fn evaluate(
     let mut env = make_env(laps_wanted + 1);
     let mut rng = Env::rng(config.run.seed ^ 0xe7a1, version);
     env.reset(Spawn::Fixed, &mut rng);
-    let mut eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(&config.observation));
+    let mut eyes = (config.observation.kind == ObservationKind::Camera)
+        .then(|| Eyes::new(&config.observation));
     let mut line: Vec<[f32; 2]> = Vec::new();
     let max_steps = STEPS_PER_LAP_LIMIT * laps_wanted.max(1) as u64;
     let mut steps = 0u64;
@@ -86,7 +87,11 @@ mod tests {
         .unwrap();
         assert_eq!(report.end_reason, EndReason::MaxLaps);
         assert_eq!(report.laps, 2);
-        assert!(report.lap_times.iter().all(|t| (17.0..19.5).contains(t)), "{:?}", report.lap_times);
+        assert!(
+            report.lap_times.iter().all(|t| (17.0..19.5).contains(t)),
+            "{:?}",
+            report.lap_times
+        );
     }
 
     #[test]

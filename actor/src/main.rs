@@ -13,7 +13,8 @@ use cabc_proto::codec;
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::{
-    EpochDone, ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, PolicyUpdate, Segment, Stop, TrajMessage,
+    EpochDone, ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, PolicyUpdate, Segment, Stop,
+    TrajMessage,
 };
 use clap::Parser;
 use serde_json::json;
@@ -24,7 +25,11 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 
 #[derive(Parser)]
-#[command(name = "actor", version, about = "The cabc actor: collects segments under the expert/policy mixture")]
+#[command(
+    name = "actor",
+    version,
+    about = "The cabc actor: collects segments under the expert/policy mixture"
+)]
 struct Cli {
     /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
     #[arg(long, short, default_value = "v-b")]
@@ -46,7 +51,8 @@ struct Cli {
 fn main() -> Result<()> {
     cabc_proto::telemetry::init();
     let cli = Cli::parse();
-    let mut config = RunConfig::load(&cli.config).with_context(|| format!("loading configuration {}", cli.config))?;
+    let mut config = RunConfig::load(&cli.config)
+        .with_context(|| format!("loading configuration {}", cli.config))?;
     cabc_proto::keys::check_chunk(&cli.id)?;
     if !cli.connect.is_empty() {
         config.bus.connect = cli.connect.clone();
@@ -83,7 +89,11 @@ struct Actor {
 
 async fn run(config: RunConfig, cli: Cli) -> Result<()> {
     let keys = Keys::new(&config.run.name)?;
-    let component = if cli.eval { format!("eval/{}", cli.id) } else { format!("actor/{}", cli.id) };
+    let component = if cli.eval {
+        format!("eval/{}", cli.id)
+    } else {
+        format!("actor/{}", cli.id)
+    };
     let bus = Bus::connect(&config.bus, Role::Connect, keys.clone(), &component)
         .await
         .context("joining the bus")?;
@@ -112,7 +122,10 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
         versions: 0,
     };
     let mut collector = Collector::new(&cli.id, index, &actor.config);
-    let mut pending = actor.fetch_latest_policy().await.map(|u| Next::Policy(Box::new(u)));
+    let mut pending = actor
+        .fetch_latest_policy()
+        .await
+        .map(|u| Next::Policy(Box::new(u)));
     loop {
         let next = match pending.take() {
             Some(next) => next,
@@ -135,7 +148,9 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
         actor.versions += 1;
         if cli.eval {
             let started = Instant::now();
-            let report = evaluate(&actor.id, update.version, &actor.config, |input| act(&policy, input))?;
+            let report = evaluate(&actor.id, update.version, &actor.config, |input| {
+                act(&policy, input)
+            })?;
             tracing::info!(
                 version = update.version,
                 laps = report.laps,
@@ -155,8 +170,17 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
 }
 
 fn trailing_number(id: &str) -> u64 {
-    let digits: String = id.chars().rev().take_while(|c| c.is_ascii_digit()).collect();
-    digits.chars().rev().collect::<String>().parse().unwrap_or(0)
+    let digits: String = id
+        .chars()
+        .rev()
+        .take_while(|c| c.is_ascii_digit())
+        .collect();
+    digits
+        .chars()
+        .rev()
+        .collect::<String>()
+        .parse()
+        .unwrap_or(0)
 }
 
 fn act(policy: &Policy, input: &PolicyInput) -> Result<Vec<[f32; 2]>> {
@@ -180,11 +204,18 @@ impl Actor {
     /// The learner's latest policy, if it is up (late joiners start at once).
     async fn fetch_latest_policy(&self) -> Option<PolicyUpdate> {
         let key = self.bus.keys.policy();
-        let replies = self.bus.session.get(&key).timeout(Duration::from_secs(3)).await.ok()?;
+        let replies = self
+            .bus
+            .session
+            .get(&key)
+            .timeout(Duration::from_secs(3))
+            .await
+            .ok()?;
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
                 let bytes = sample.payload().to_bytes();
-                if let Some(update) = decode_sample::<PolicyUpdate>(&key, &bytes, &self.bus.rejects) {
+                if let Some(update) = decode_sample::<PolicyUpdate>(&key, &bytes, &self.bus.rejects)
+                {
                     return Some(update);
                 }
             }
@@ -228,7 +259,9 @@ impl Actor {
     fn stop_requested(&mut self) -> Option<Next> {
         while let Ok(Some(sample)) = self.control_sub.try_recv() {
             let bytes = sample.payload().to_bytes();
-            if let Some(stop) = decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &self.bus.rejects) {
+            if let Some(stop) =
+                decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &self.bus.rejects)
+            {
                 return Some(Next::Stop(stop.reason));
             }
         }
@@ -315,7 +348,10 @@ impl Actor {
 
     /// Asks the expert server for a batch of labels, waiting and retrying while none answers; gives up only for a
     /// stop (returned as the error).
-    async fn relabel(&mut self, queries: Vec<ExpertQuery>) -> std::result::Result<Vec<ExpertAnswer>, Next> {
+    async fn relabel(
+        &mut self,
+        queries: Vec<ExpertQuery>,
+    ) -> std::result::Result<Vec<ExpertAnswer>, Next> {
         let key = self.bus.keys.expert(self.config.expert.kind.as_str());
         let started = Instant::now();
         self.request_id += 1;
@@ -357,7 +393,12 @@ impl Actor {
         }
     }
 
-    async fn ask(&self, key: &str, payload: &[u8], timeout: Duration) -> std::result::Result<ExpertReply, String> {
+    async fn ask(
+        &self,
+        key: &str,
+        payload: &[u8],
+        timeout: Duration,
+    ) -> std::result::Result<ExpertReply, String> {
         let replies = self
             .bus
             .session

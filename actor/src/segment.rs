@@ -69,7 +69,13 @@ impl Segmenter {
         self.staged.len()
     }
 
-    fn cut(&mut self, outcome: Outcome, steps: Vec<Step>, version: u64, seq: &mut SeqCounter) -> Segment {
+    fn cut(
+        &mut self,
+        outcome: Outcome,
+        steps: Vec<Step>,
+        version: u64,
+        seq: &mut SeqCounter,
+    ) -> Segment {
         Segment {
             actor: self.actor.clone(),
             env: self.env,
@@ -163,9 +169,21 @@ mod tests {
     fn a_lap_flushes_to_d_plus_with_the_lap_step() {
         let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
         for i in 0..5 {
-            assert_eq!(s.push(step(true, i as f32), StepEnd::Continue, 1, &mut seq, &mut out), None);
+            assert_eq!(
+                s.push(
+                    step(true, i as f32),
+                    StepEnd::Continue,
+                    1,
+                    &mut seq,
+                    &mut out
+                ),
+                None
+            );
         }
-        assert_eq!(s.push(step(true, 5.0), StepEnd::Lap, 1, &mut seq, &mut out), None);
+        assert_eq!(
+            s.push(step(true, 5.0), StepEnd::Lap, 1, &mut seq, &mut out),
+            None
+        );
         assert_eq!(out.len(), 1);
         assert_eq!(out[0].outcome, Outcome::Lap);
         assert_eq!(out[0].steps.len(), 6);
@@ -177,7 +195,13 @@ mod tests {
     fn a_truncation_flushes_to_d_uncertain_and_ends_the_episode() {
         let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
         s.push(step(true, 0.0), StepEnd::Continue, 1, &mut seq, &mut out);
-        let end = s.push(step(true, 1.0), StepEnd::Truncated(EndReason::OutOfTrack), 1, &mut seq, &mut out);
+        let end = s.push(
+            step(true, 1.0),
+            StepEnd::Truncated(EndReason::OutOfTrack),
+            1,
+            &mut seq,
+            &mut out,
+        );
         assert_eq!(end, Some(EndReason::OutOfTrack));
         assert_eq!(out[0].outcome, Outcome::Failure(EndReason::OutOfTrack));
         assert_eq!(out[0].steps.len(), 2);
@@ -188,7 +212,10 @@ mod tests {
     fn expert_failures_go_straight_to_d_uncertain_and_patience_truncates() {
         let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
         s.push(step(true, 0.0), StepEnd::Continue, 1, &mut seq, &mut out);
-        assert_eq!(s.push(step(false, 1.0), StepEnd::Continue, 1, &mut seq, &mut out), None);
+        assert_eq!(
+            s.push(step(false, 1.0), StepEnd::Continue, 1, &mut seq, &mut out),
+            None
+        );
         assert_eq!(out.len(), 1);
         assert_eq!(out[0].outcome, Outcome::ExpertFailure);
         // A success in between resets the count.

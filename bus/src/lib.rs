@@ -104,7 +104,12 @@ pub fn decode_sample<M: Message>(key: &str, bytes: &[u8], rejects: &Rejects) -> 
         Ok(m) => Some(m),
         Err(e) => {
             let n = rejects.bump();
-            tracing::warn!(key, bytes = bytes.len(), rejected = n, "refused a message: {e}");
+            tracing::warn!(
+                key,
+                bytes = bytes.len(),
+                rejected = n,
+                "refused a message: {e}"
+            );
             None
         }
     }
@@ -206,7 +211,9 @@ mod tests {
     fn rejects_are_counted() {
         let rejects = Rejects::default();
         assert!(decode_sample::<cabc_proto::messages::Stop>("k", b"junk", &rejects).is_none());
-        assert!(decode_sample::<cabc_proto::messages::Stop>("k", b"CABCxxxxxx", &rejects).is_none());
+        assert!(
+            decode_sample::<cabc_proto::messages::Stop>("k", b"CABCxxxxxx", &rejects).is_none()
+        );
         assert_eq!(rejects.count(), 2);
     }
 }

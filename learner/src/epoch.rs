@@ -34,7 +34,12 @@ pub struct EpochGate {
 
 impl EpochGate {
     /// Opens epoch `version`; `live` are the actors alive right now.
-    pub fn open(version: u64, timeout: Duration, live: impl IntoIterator<Item = String>, now: Instant) -> Self {
+    pub fn open(
+        version: u64,
+        timeout: Duration,
+        live: impl IntoIterator<Item = String>,
+        now: Instant,
+    ) -> Self {
         EpochGate {
             version,
             opened: now,
@@ -72,7 +77,11 @@ impl EpochGate {
 
     /// Live actors not yet done.
     pub fn missing(&self) -> Vec<String> {
-        self.live.iter().filter(|a| !self.done.contains_key(*a)).cloned().collect()
+        self.live
+            .iter()
+            .filter(|a| !self.done.contains_key(*a))
+            .cloned()
+            .collect()
     }
 
     /// Whether the epoch can close now.

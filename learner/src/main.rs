@@ -12,7 +12,8 @@ use std::path::PathBuf;
 #[derive(Parser)]
 #[command(
     name = "learner",
-    about = "cabc learner: replay, safety auto-labelling, constraint-aware training"
+    version,
+    about = "cabc learner: replay, safety auto-labelling, constraint-aware training, the distributed run"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -100,7 +101,8 @@ fn main() -> anyhow::Result<()> {
                 config.bus.listen = listen;
             }
             let dir = run_dir.unwrap_or_else(|| default_run_dir(&config));
-            let run_dir = RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            let run_dir =
+                RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
             if fresh {
                 let _ = std::fs::remove_dir_all(run_dir.checkpoint());
             }
@@ -110,7 +112,8 @@ fn main() -> anyhow::Result<()> {
         Command::Prepare { config, baseline } => {
             let config = load(&config, baseline)?;
             let dir = default_run_dir(&config);
-            let run_dir = RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            let run_dir =
+                RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
             run_dir.write_config(&config)?;
             println!("{}", dir.display());
             Ok(())
@@ -166,7 +169,8 @@ fn demo(rho: &[f64], out: &std::path::Path, json: bool, seed: u64) -> anyhow::Re
 
 /// Loads a configuration; the baseline is the same run with lambda = 0 under its own name.
 fn load(name: &str, baseline: bool) -> anyhow::Result<RunConfig> {
-    let mut config = RunConfig::load(name).with_context(|| format!("loading configuration {name}"))?;
+    let mut config =
+        RunConfig::load(name).with_context(|| format!("loading configuration {name}"))?;
     if baseline && config.algorithm.lambda != 0.0 {
         config.algorithm.lambda = 0.0;
         config.run.name = format!("{}-baseline", config.run.name);

@@ -12,10 +12,19 @@ type PlotResult = Result<(), Box<dyn std::error::Error>>;
 const SIZE: (u32, u32) = (900, 500);
 
 /// Draws every plot into `dir`. Errors are returned, not fatal: a run goes on without a picture.
-pub fn draw_all(dir: &Path, state: &LearnerState, last_eval: Option<&EvalReport>, eval_laps: u32) -> PlotResult {
+pub fn draw_all(
+    dir: &Path,
+    state: &LearnerState,
+    last_eval: Option<&EvalReport>,
+    eval_laps: u32,
+) -> PlotResult {
     laps(&dir.join("laps.png"), &state.evals, eval_laps)?;
     losses(&dir.join("losses.png"), state)?;
-    lap_times(&dir.join("lap_times.png"), &state.evals, &state.expert_lap_times)?;
+    lap_times(
+        &dir.join("lap_times.png"),
+        &state.evals,
+        &state.expert_lap_times,
+    )?;
     if let Some(report) = last_eval {
         line(&dir.join("line.png"), report)?;
     }
@@ -27,7 +36,10 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
     root.fill(&WHITE)?;
     let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
     let mut chart = ChartBuilder::on(&root)
-        .caption("Completed laps at evaluation (fixed spawn, policy alone)", ("sans-serif", 22))
+        .caption(
+            "Completed laps at evaluation (fixed spawn, policy alone)",
+            ("sans-serif", 22),
+        )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
@@ -39,7 +51,10 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
         .draw()?;
     chart.draw_series(evals.iter().map(|e| {
         let colour = if e.laps >= eval_laps { GREEN } else { BLUE };
-        Rectangle::new([(e.version, 0), (e.version + 1, e.laps)], colour.mix(0.7).filled())
+        Rectangle::new(
+            [(e.version, 0), (e.version + 1, e.laps)],
+            colour.mix(0.7).filled(),
+        )
     }))?;
     chart
         .draw_series(LineSeries::new(
@@ -58,13 +73,23 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
     root.fill(&WHITE)?;
     let rows = &state.rows;
     let max_e = rows.iter().map(|r| r.epoch).max().unwrap_or(1).max(1);
-    let positive = |v: f64| if v.is_finite() && v > 0.0 { Some(v) } else { None };
+    let positive = |v: f64| {
+        if v.is_finite() && v > 0.0 {
+            Some(v)
+        } else {
+            None
+        }
+    };
     let values: Vec<f64> = rows
         .iter()
         .flat_map(|r| [r.imitation_loss, r.safety_loss])
         .filter_map(positive)
         .collect();
-    let lo = values.iter().copied().fold(f64::INFINITY, f64::min).min(1e-3);
+    let lo = values
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .min(1e-3);
     let hi = values.iter().copied().fold(0.0, f64::max).max(1e-2);
     let mut chart = ChartBuilder::on(&root)
         .caption("Training losses per epoch", ("sans-serif", 22))
@@ -72,9 +97,17 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(0u64..max_e + 1, (lo * 0.5..hi * 2.0).log_scale())?;
-    chart.configure_mesh().x_desc("epoch").y_desc("loss").draw()?;
+    chart
+        .configure_mesh()
+        .x_desc("epoch")
+        .y_desc("loss")
+        .draw()?;
     for (name, colour, get) in [
-        ("imitation (L_clone)", BLUE, (|r| r.imitation_loss) as fn(&crate::rundir::EpochRow) -> f64),
+        (
+            "imitation (L_clone)",
+            BLUE,
+            (|r| r.imitation_loss) as fn(&crate::rundir::EpochRow) -> f64,
+        ),
         ("safety (L_safety)", RED, |r| r.safety_loss),
     ] {
         let points: Vec<(u64, f64)> = rows
@@ -103,7 +136,10 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
         .chain(expert_ms.map(|m| m.0 + m.1))
         .fold(1.0, f64::max);
     let mut chart = ChartBuilder::on(&root)
-        .caption("Lap time at evaluation: mean ± std, min–max", ("sans-serif", 22))
+        .caption(
+            "Lap time at evaluation: mean ± std, min–max",
+            ("sans-serif", 22),
+        )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
@@ -121,13 +157,23 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
     chart
         .draw_series(with_laps.iter().filter_map(|e| {
             let (m, s) = (e.lap_mean?, e.lap_std?);
-            Some(ErrorBar::new_vertical(e.version as f64, m - s, m, m + s, BLUE.filled(), 6))
+            Some(ErrorBar::new_vertical(
+                e.version as f64,
+                m - s,
+                m,
+                m + s,
+                BLUE.filled(),
+                6,
+            ))
         }))?
         .label("policy")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
     if let Some((m, s)) = expert_ms {
         let x1 = (max_v + 1) as f64;
-        chart.draw_series([Rectangle::new([(0.0, m - s), (x1, m + s)], GREEN.mix(0.15).filled())])?;
+        chart.draw_series([Rectangle::new(
+            [(0.0, m - s), (x1, m + s)],
+            GREEN.mix(0.15).filled(),
+        )])?;
         chart
             .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
             .label(format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len()))
@@ -164,7 +210,11 @@ fn line(path: &Path, report: &EvalReport) -> PlotResult {
         .x_label_area_size(30)
         .y_label_area_size(40)
         .build_cartesian_2d(x0..x1, y0..y1)?;
-    chart.configure_mesh().x_desc("X (m)").y_desc("Y (m)").draw()?;
+    chart
+        .configure_mesh()
+        .x_desc("X (m)")
+        .y_desc("Y (m)")
+        .draw()?;
     let half = track.half_width();
     chart.draw_series(LineSeries::new(edge(0.0), BLACK.mix(0.3)))?;
     for e in [half, -half] {

@@ -44,9 +44,10 @@ pub struct EpochRow {
     pub rho: f64,
     pub imitation_loss: f64,
     pub safety_loss: f64,
-    pub dynamics_loss: f64,
-    pub critic_loss: f64,
-    pub critic_accuracy: f64,
+    /// None in epochs where the network did not train.
+    pub dynamics_loss: Option<f64>,
+    pub critic_loss: Option<f64>,
+    pub critic_accuracy: Option<f64>,
     pub collect_s: f64,
     pub train_s: f64,
     pub epoch_s: f64,
@@ -60,8 +61,9 @@ const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segment
 impl EpochRow {
     fn csv(&self) -> String {
         let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
+        let optf = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         format!(
-            "{},{:.6},{},{},{},{},{},{},{},{},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.3},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
             self.epoch,
             self.beta,
             self.steps_collected,
@@ -74,9 +76,9 @@ impl EpochRow {
             self.rho,
             self.imitation_loss,
             self.safety_loss,
-            self.dynamics_loss,
-            self.critic_loss,
-            self.critic_accuracy,
+            optf(self.dynamics_loss),
+            optf(self.critic_loss),
+            optf(self.critic_accuracy),
             self.collect_s,
             self.train_s,
             self.epoch_s,
@@ -236,7 +238,8 @@ impl RunDir {
         }
         write_atomic(&path, text.as_bytes())?;
         let path = self.root.join("evals.csv");
-        let mut text = String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        let mut text =
+            String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
         let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
         for e in &state.evals {
             text.push_str(&format!(
@@ -288,15 +291,21 @@ mod tests {
             next_epoch: 3,
             ..Default::default()
         };
-        run.save_checkpoint(&state, |p| std::fs::write(p.join("x"), b"1").map_err(|e| e.to_string()))
-            .unwrap();
+        run.save_checkpoint(&state, |p| {
+            std::fs::write(p.join("x"), b"1").map_err(|e| e.to_string())
+        })
+        .unwrap();
         state.next_epoch = 4;
-        run.save_checkpoint(&state, |p| std::fs::write(p.join("x"), b"2").map_err(|e| e.to_string()))
-            .unwrap();
+        run.save_checkpoint(&state, |p| {
+            std::fs::write(p.join("x"), b"2").map_err(|e| e.to_string())
+        })
+        .unwrap();
         assert_eq!(run.load_state().unwrap().next_epoch, 4);
         assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
         // A failing fill leaves the last checkpoint untouched.
-        assert!(run.save_checkpoint(&state, |_| Err("disk full".into())).is_err());
+        assert!(run
+            .save_checkpoint(&state, |_| Err("disk full".into()))
+            .is_err());
         assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
     }
 
@@ -325,8 +334,14 @@ mod tests {
         let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
         assert_eq!(metrics.lines().count(), 2);
         let header_cols = metrics.lines().next().unwrap().split(',').count();
-        assert_eq!(metrics.lines().nth(1).unwrap().split(',').count(), header_cols);
+        assert_eq!(
+            metrics.lines().nth(1).unwrap().split(',').count(),
+            header_cols
+        );
         let evals = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
-        assert!(evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"), "{evals}");
+        assert!(
+            evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"),
+            "{evals}"
+        );
     }
 }

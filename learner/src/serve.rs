@@ -60,11 +60,16 @@ async fn run_async(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<(
                 run_dir.path().display()
             );
         }
-        let state = run_dir.load_state().context("reading the checkpoint's state")?;
+        let state = run_dir
+            .load_state()
+            .context("reading the checkpoint's state")?;
         let ck = run_dir.checkpoint();
         let mut trainer = Trainer::with_device(&config, device);
-        trainer.load(&ck).context("loading the networks of the checkpoint")?;
-        let replay = Replay::load(&ck.join("replay.bin")).context("loading the replay of the checkpoint")?;
+        trainer
+            .load(&ck)
+            .context("loading the networks of the checkpoint")?;
+        let replay =
+            Replay::load(&ck.join("replay.bin")).context("loading the replay of the checkpoint")?;
         tracing::info!(
             epoch = state.next_epoch,
             d_plus = replay.len_plus(),
@@ -74,7 +79,11 @@ async fn run_async(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<(
         );
         (trainer, replay, state)
     } else {
-        (Trainer::with_device(&config, device), Replay::from_config(&config), LearnerState::default())
+        (
+            Trainer::with_device(&config, device),
+            Replay::from_config(&config),
+            LearnerState::default(),
+        )
     };
     let bar = ProgressBar::new(config.run.max_epochs);
     bar.set_style(
@@ -143,7 +152,9 @@ impl Learner {
         let keys = Keys::new(&self.config.run.name)?;
         let bus = Bus::connect(&self.config.bus, Role::Listen, keys.clone(), "learner")
             .await
-            .context("opening the bus (is another learner already listening on the same endpoint?)")?;
+            .context(
+                "opening the bus (is another learner already listening on the same endpoint?)",
+            )?;
         let zerr = |what: String| move |e: zenoh::Error| anyhow!("{what}: {e}");
         let traj = bus
             .session
@@ -151,7 +162,11 @@ impl Learner {
             .with(zenoh::handlers::FifoChannel::new(1 << 16))
             .await
             .map_err(zerr(keys.traj_all()))?;
-        let eval = bus.session.declare_subscriber(keys.eval_all()).await.map_err(zerr(keys.eval_all()))?;
+        let eval = bus
+            .session
+            .declare_subscriber(keys.eval_all())
+            .await
+            .map_err(zerr(keys.eval_all()))?;
         let alive = bus
             .session
             .liveliness()
@@ -159,7 +174,11 @@ impl Learner {
             .history(true)
             .await
             .map_err(zerr(keys.alive("actor/*")))?;
-        let policy = bus.session.declare_queryable(keys.policy()).await.map_err(zerr(keys.policy()))?;
+        let policy = bus
+            .session
+            .declare_queryable(keys.policy())
+            .await
+            .map_err(zerr(keys.policy()))?;
         let mut wires = Wires {
             bus,
             traj,
@@ -192,7 +211,10 @@ impl Learner {
         let reason = if interrupted {
             "interrupted".to_string()
         } else if let Some(v) = self.early_stop {
-            format!("early stop: policy version {v} completed {} laps twice", self.config.collection.eval_laps)
+            format!(
+                "early stop: policy version {v} completed {} laps twice",
+                self.config.collection.eval_laps
+            )
         } else {
             format!("max_epochs {} reached", self.config.run.max_epochs)
         };
@@ -201,7 +223,15 @@ impl Learner {
         if !interrupted {
             self.state.stopped = Some(reason.clone());
             let control = wires.bus.keys.control();
-            wires.bus.put(&control, &Stop { reason: reason.clone() }).await?;
+            wires
+                .bus
+                .put(
+                    &control,
+                    &Stop {
+                        reason: reason.clone(),
+                    },
+                )
+                .await?;
             self.write_outputs(true)?;
         }
         let summary = self.summary(&reason, &wires);
@@ -221,7 +251,10 @@ impl Learner {
         tick: &mut tokio::time::Interval,
     ) -> Result<bool> {
         let epoch_start = Instant::now();
-        let trainer = self.trainer.as_ref().expect("trainer present between epochs");
+        let trainer = self
+            .trainer
+            .as_ref()
+            .expect("trainer present between epochs");
         let weights = trainer.policy_bytes();
         let update = PolicyUpdate {
             version: epoch,
@@ -269,7 +302,11 @@ impl Learner {
             }
         };
         if let Closed::Timeout { missing } = &closed {
-            tracing::warn!(epoch, ?missing, "epoch closed by the timeout without these actors");
+            tracing::warn!(
+                epoch,
+                ?missing,
+                "epoch closed by the timeout without these actors"
+            );
         }
         let steps_published: u64 = gate.markers().map(|m| m.steps).sum();
         let collect_s = epoch_start.elapsed().as_secs_f64();
@@ -339,9 +376,9 @@ impl Learner {
             rho,
             imitation_loss: losses.imitation,
             safety_loss: losses.safety,
-            dynamics_loss: losses.dynamics.unwrap_or(f64::NAN),
-            critic_loss: losses.critic.unwrap_or(f64::NAN),
-            critic_accuracy: losses.critic_accuracy.unwrap_or(f64::NAN),
+            dynamics_loss: losses.dynamics,
+            critic_loss: losses.critic,
+            critic_accuracy: losses.critic_accuracy,
             collect_s,
             train_s,
             epoch_s: epoch_start.elapsed().as_secs_f64(),
@@ -397,17 +434,23 @@ impl Learner {
         late: Option<&mut Vec<Segment>>,
     ) -> Option<cabc_proto::messages::EpochDone> {
         let bytes = sample.payload().to_bytes();
-        match decode_sample::<TrajMessage>(sample.key_expr().as_str(), &bytes, &wires.bus.rejects)? {
+        match decode_sample::<TrajMessage>(sample.key_expr().as_str(), &bytes, &wires.bus.rejects)?
+        {
             TrajMessage::EpochDone(marker) => Some(marker),
             TrajMessage::Segment(segment) => {
                 if !self.state.ledger.admit(&segment) {
-                    tracing::warn!(actor = segment.actor, seq = segment.seq, "duplicate segment dropped");
+                    tracing::warn!(
+                        actor = segment.actor,
+                        seq = segment.seq,
+                        "duplicate segment dropped"
+                    );
                     return None;
                 }
                 match late {
                     Some(late) => late.push(segment),
                     None => {
-                        let mut replay = self.replay.take().expect("replay present while collecting");
+                        let mut replay =
+                            self.replay.take().expect("replay present while collecting");
                         self.store(&mut replay, &segment);
                         self.replay = Some(replay);
                     }
@@ -420,21 +463,32 @@ impl Learner {
     fn store(&mut self, replay: &mut Replay, segment: &Segment) {
         // Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
         // episode after its first starts at the start line.
-        if segment.outcome == Outcome::Lap && segment.policy_version == 0 && self.config.beta(0) >= 1.0 {
+        if segment.outcome == Outcome::Lap
+            && segment.policy_version == 0
+            && self.config.beta(0) >= 1.0
+        {
             let stream = (segment.actor.clone(), segment.env, segment.episode);
             if !self.expert_streams.insert(stream) {
-                self.state.expert_lap_times.push(segment.steps.len() as f64 * 0.1);
+                self.state
+                    .expert_lap_times
+                    .push(segment.steps.len() as f64 * 0.1);
             }
         }
         if let Err(e) = replay.add_segment(segment) {
             self.failed_segments += 1;
-            tracing::warn!(actor = segment.actor, seq = segment.seq, "segment not stored: {e}");
+            tracing::warn!(
+                actor = segment.actor,
+                seq = segment.seq,
+                "segment not stored: {e}"
+            );
         }
     }
 
     fn on_eval(&mut self, sample: &zenoh::sample::Sample, wires: &Wires) {
         let bytes = sample.payload().to_bytes();
-        let Some(report) = decode_sample::<EvalReport>(sample.key_expr().as_str(), &bytes, &wires.bus.rejects) else {
+        let Some(report) =
+            decode_sample::<EvalReport>(sample.key_expr().as_str(), &bytes, &wires.bus.rejects)
+        else {
             return;
         };
         let summary = EvalSummary::of(&report);
@@ -447,7 +501,9 @@ impl Learner {
         );
         if report.laps >= self.config.collection.eval_laps {
             self.state.successes += 1;
-            if self.state.successes >= self.config.collection.early_stop_successes && self.early_stop.is_none() {
+            if self.state.successes >= self.config.collection.early_stop_successes
+                && self.early_stop.is_none()
+            {
                 self.early_stop = Some(report.version);
                 if let Some(weights) = self.history.get(&report.version) {
                     if let Err(e) = self.run_dir.write_file("best-policy.safetensors", weights) {
@@ -488,7 +544,9 @@ impl Learner {
         self.run_dir
             .save_checkpoint(&self.state, |dir| {
                 trainer.save(dir).map_err(|e| e.to_string())?;
-                replay.save(&dir.join("replay.bin")).map_err(|e| e.to_string())
+                replay
+                    .save(&dir.join("replay.bin"))
+                    .map_err(|e| e.to_string())
             })
             .context("writing the checkpoint")?;
         Ok(())
@@ -506,7 +564,8 @@ impl Learner {
         }
         if final_ {
             if let Some(trainer) = &self.trainer {
-                self.run_dir.write_file("final-policy.safetensors", &trainer.policy_bytes())?;
+                self.run_dir
+                    .write_file("final-policy.safetensors", &trainer.policy_bytes())?;
             }
         }
         Ok(())
@@ -519,7 +578,11 @@ impl Learner {
             .iter()
             .find(|e| e.laps >= self.config.collection.eval_laps)
             .map(|e| e.version);
-        let best = self.state.evals.iter().max_by_key(|e| (e.laps, std::cmp::Reverse(e.version)));
+        let best = self
+            .state
+            .evals
+            .iter()
+            .max_by_key(|e| (e.laps, std::cmp::Reverse(e.version)));
         let expert = crate::rundir::mean_std(&self.state.expert_lap_times);
         let epochs = self.state.rows.len();
         let mean_epoch_s = if epochs > 0 {
@@ -571,7 +634,10 @@ mod tests {
 
     #[test]
     fn actor_tokens_are_recognised() {
-        assert_eq!(actor_of_token("cabc/r/alive/actor/actor-1").as_deref(), Some("actor-1"));
+        assert_eq!(
+            actor_of_token("cabc/r/alive/actor/actor-1").as_deref(),
+            Some("actor-1")
+        );
         assert_eq!(actor_of_token("cabc/r/alive/eval/e"), None);
         assert_eq!(actor_of_token("cabc/r/alive/learner"), None);
     }

@@ -85,8 +85,8 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
         });
     }
     let body = &bytes[HEADER_LEN..];
-    let (message, used): (M, usize) = bincode::serde::decode_from_slice(body, config())
-        .map_err(|e| DecodeError::Malformed {
+    let (message, used): (M, usize) =
+        bincode::serde::decode_from_slice(body, config()).map_err(|e| DecodeError::Malformed {
             message: M::NAME,
             reason: e.to_string(),
         })?;

@@ -447,7 +447,11 @@ impl RunConfig {
             );
         }
         if !(self.algorithm.rho > 0.0 && self.algorithm.rho.is_finite()) {
-            return invalid("algorithm.rho", self.algorithm.rho.to_string(), "must be > 0");
+            return invalid(
+                "algorithm.rho",
+                self.algorithm.rho.to_string(),
+                "must be > 0",
+            );
         }
         if !(0.0..=1.0).contains(&self.algorithm.beta_decay) {
             return invalid(
@@ -498,14 +502,20 @@ impl RunConfig {
             );
         }
         if self.bus.listen.is_empty() || self.bus.connect.is_empty() {
-            return invalid("bus.listen / bus.connect", "[]".into(), "need at least one endpoint");
+            return invalid(
+                "bus.listen / bus.connect",
+                "[]".into(),
+                "need at least one endpoint",
+            );
         }
         Ok(())
     }
 
     /// beta_j of Algorithm 1.
     pub fn beta(&self, epoch: u64) -> f64 {
-        self.algorithm.beta_decay.powi(epoch.min(i32::MAX as u64) as i32)
+        self.algorithm
+            .beta_decay
+            .powi(epoch.min(i32::MAX as u64) as i32)
     }
 
     /// Environment steps of epoch `epoch`, all actors together.
@@ -551,8 +561,20 @@ mod tests {
     fn defaults_are_the_reference_values() {
         let c = RunConfig::default();
         assert_eq!(c.replay.capacity, 102_400);
-        assert_eq!(c.networks.policy, MlpSize { layers: 3, width: 128 });
-        assert_eq!(c.networks.critic, MlpSize { layers: 4, width: 256 });
+        assert_eq!(
+            c.networks.policy,
+            MlpSize {
+                layers: 3,
+                width: 128
+            }
+        );
+        assert_eq!(
+            c.networks.critic,
+            MlpSize {
+                layers: 4,
+                width: 256
+            }
+        );
         assert_eq!(c.training.batch_size, 64);
         assert!((c.training.lr_gamma.powi(100) - 0.1).abs() < 1e-12);
         assert_eq!(c.collection.steps_per_epoch, 1024);

@@ -97,7 +97,10 @@ mod tests {
         assert_eq!(k.policy(), "cabc/vb-1/policy");
         assert_eq!(k.traj("actor-0"), "cabc/vb-1/traj/actor-0");
         assert_eq!(k.expert("mpcc"), "cabc/vb-1/expert/mpcc");
-        assert_eq!(k.metrics("expert-server/0"), "cabc/vb-1/metrics/expert-server/0");
+        assert_eq!(
+            k.metrics("expert-server/0"),
+            "cabc/vb-1/metrics/expert-server/0"
+        );
         assert_eq!(k.alive_all(), "cabc/vb-1/alive/**");
         assert_eq!(Keys::last_chunk("cabc/vb-1/traj/actor-0"), "actor-0");
     }

@@ -13,8 +13,14 @@ use std::time::{Duration, Instant};
 /// The folder of the release binaries: next to this test's own executable (`target/release/deps/..`).
 pub fn bin_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe.parent().and_then(Path::parent).expect("target/<profile>");
-    let release = dir.parent().map(|t| t.join("release")).unwrap_or_else(|| dir.to_path_buf());
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target/<profile>");
+    let release = dir
+        .parent()
+        .map(|t| t.join("release"))
+        .unwrap_or_else(|| dir.to_path_buf());
     if release.join("learner").exists() {
         release
     } else {
@@ -26,7 +32,10 @@ pub fn bin_dir() -> PathBuf {
 pub fn bin(name: &str) -> Result<PathBuf> {
     let path = bin_dir().join(name);
     if !path.exists() {
-        bail!("{} is missing: run `cargo build --release --bins` first (deploy/test.sh does)", path.display());
+        bail!(
+            "{} is missing: run `cargo build --release --bins` first (deploy/test.sh does)",
+            path.display()
+        );
     }
     Ok(path)
 }
@@ -97,12 +106,20 @@ impl Cluster {
             learner.push("--resume");
         }
         self.start("learner", "learner", &learner)?;
-        self.start("expert-server", "expert-server", &["--config", &config, "serve", "--id", "0"])?;
+        self.start(
+            "expert-server",
+            "expert-server",
+            &["--config", &config, "serve", "--id", "0"],
+        )?;
         for i in 0..actors {
             let id = format!("actor-{i}");
             self.start(&id, "actor", &["--config", &config, "--id", &id])?;
         }
-        self.start("eval", "actor", &["--config", &config, "--id", "eval", "--eval"])
+        self.start(
+            "eval",
+            "actor",
+            &["--config", &config, "--id", "eval", "--eval"],
+        )
     }
 
     /// Kills one child (as a crash would).
@@ -118,7 +135,11 @@ impl Cluster {
     }
 
     /// Waits for a child to exit; returns its status and stdout.
-    pub fn wait(&mut self, label: &str, timeout: Duration) -> Result<(std::process::ExitStatus, String)> {
+    pub fn wait(
+        &mut self,
+        label: &str,
+        timeout: Duration,
+    ) -> Result<(std::process::ExitStatus, String)> {
         let start = Instant::now();
         let index = self
             .children
@@ -136,7 +157,10 @@ impl Cluster {
                 return Ok((status, out));
             }
             if start.elapsed() > timeout {
-                bail!("{label} still running after {timeout:?}; logs in {}", self.dir.display());
+                bail!(
+                    "{label} still running after {timeout:?}; logs in {}",
+                    self.dir.display()
+                );
             }
             std::thread::sleep(Duration::from_millis(200));
         }
@@ -144,7 +168,8 @@ impl Cluster {
 
     /// The last lines of a child's log (for failure messages).
     pub fn log_tail(&self, label: &str) -> String {
-        let text = std::fs::read_to_string(self.dir.join(format!("{label}.log"))).unwrap_or_default();
+        let text =
+            std::fs::read_to_string(self.dir.join(format!("{label}.log"))).unwrap_or_default();
         let lines: Vec<&str> = text.lines().collect();
         lines[lines.len().saturating_sub(30)..].join("\n")
     }

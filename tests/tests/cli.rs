@@ -4,7 +4,10 @@ use cabc_tests::bin;
 use std::process::Command;
 
 fn run(binary: &str, args: &[&str]) -> (bool, String) {
-    let out = Command::new(bin(binary).unwrap()).args(args).output().unwrap();
+    let out = Command::new(bin(binary).unwrap())
+        .args(args)
+        .output()
+        .unwrap();
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
@@ -21,7 +24,10 @@ fn every_binary_answers_help_and_version() {
         assert!(text.contains("Usage"), "{binary} --help: {text}");
         let (ok, text) = run(binary, &["--version"]);
         assert!(ok, "{binary} --version failed: {text}");
-        assert!(text.contains(env!("CARGO_PKG_VERSION")), "{binary} --version: {text}");
+        assert!(
+            text.contains(env!("CARGO_PKG_VERSION")),
+            "{binary} --version: {text}"
+        );
     }
 }
 
@@ -38,7 +44,10 @@ fn a_bad_configuration_is_refused_with_key_and_line() {
     ] {
         let (ok, text) = run(binary, &args);
         assert!(!ok, "{binary} accepted a bad configuration");
-        assert!(text.contains("lamda") && text.contains("line 5"), "{binary}: {text}");
+        assert!(
+            text.contains("lamda") && text.contains("line 5"),
+            "{binary}: {text}"
+        );
     }
 }
 
