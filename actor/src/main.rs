@@ -83,6 +83,10 @@ struct Actor {
     /// Seconds spent waiting on the expert, and collecting, since start.
     expert_wait: Duration,
     collecting: Duration,
+    /// Time on the wire: expert round trips less the server's batch time, plus publishing segments.
+    transport: Duration,
+    /// Broadcast latencies of policy updates received by subscription (ms).
+    policy_latency_ms: Vec<f64>,
     steps: u64,
     versions: u64,
 }
@@ -118,6 +122,8 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
         request_id: 0,
         expert_wait: Duration::ZERO,
         collecting: Duration::ZERO,
+        transport: Duration::ZERO,
+        policy_latency_ms: Vec::new(),
         steps: 0,
         versions: 0,
     };
@@ -250,9 +256,16 @@ impl Actor {
         }
     }
 
-    fn decode_policy(&self, sample: &Sample) -> Option<PolicyUpdate> {
+    fn decode_policy(&mut self, sample: &Sample) -> Option<PolicyUpdate> {
         let bytes = sample.payload().to_bytes();
-        decode_sample::<PolicyUpdate>(sample.key_expr().as_str(), &bytes, &self.bus.rejects)
+        let update =
+            decode_sample::<PolicyUpdate>(sample.key_expr().as_str(), &bytes, &self.bus.rejects)?;
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        self.policy_latency_ms
+            .push(now.saturating_sub(update.published_unix_ms) as f64);
+        Some(update)
     }
 
     /// A stop that arrived meanwhile.
@@ -336,13 +349,15 @@ impl Actor {
         Ok(interrupted)
     }
 
-    async fn publish(&self, out: &mut Vec<Segment>) -> Result<u64> {
+    async fn publish(&mut self, out: &mut Vec<Segment>) -> Result<u64> {
+        let started = Instant::now();
         let key = self.bus.keys.traj(&self.id);
         let mut steps = 0;
         for segment in out.drain(..) {
             steps += segment.steps.len() as u64;
             self.bus.put(&key, &TrajMessage::Segment(segment)).await?;
         }
+        self.transport += started.elapsed();
         Ok(steps)
     }
 
@@ -367,7 +382,10 @@ impl Actor {
             attempt += 1;
             match self.ask(&key, &payload, timeout).await {
                 Ok(reply) if reply.request_id == request.request_id && reply.answers.len() == n => {
-                    self.expert_wait += started.elapsed();
+                    let waited = started.elapsed();
+                    self.expert_wait += waited;
+                    self.transport +=
+                        waited.saturating_sub(Duration::from_micros(reply.batch_time_us));
                     if attempt > 1 {
                         tracing::info!(%key, attempt, "expert answered again");
                     }
@@ -381,7 +399,7 @@ impl Actor {
                     request.request_id
                 ),
                 Err(why) => {
-                    if attempt == 1 || attempt % 10 == 0 {
+                    if attempt == 1 || attempt.is_multiple_of(10) {
                         tracing::warn!(%key, attempt, "waiting for an expert server: {why}");
                     }
                 }
@@ -432,6 +450,11 @@ impl Actor {
             "steps": self.steps,
             "steps_per_s": if collecting > 0.0 { self.steps as f64 / collecting } else { 0.0 },
             "expert_wait_share": if collecting > 0.0 { self.expert_wait.as_secs_f64() / collecting } else { 0.0 },
+            "transport_share": if collecting > 0.0 { self.transport.as_secs_f64() / collecting } else { 0.0 },
+            "policy_latency_ms_last": self.policy_latency_ms.last(),
+            "policy_latency_ms_mean": if self.policy_latency_ms.is_empty() { None } else {
+                Some(self.policy_latency_ms.iter().sum::<f64>() / self.policy_latency_ms.len() as f64)
+            },
             "rejected_messages": self.bus.rejects.count(),
         });
         if let Err(e) = self.bus.metrics(&value).await {

@@ -45,7 +45,7 @@ pub enum RelabelError {
 
 enum StreamState {
     Mpcc(Box<MpccStream>),
-    Pid(PidLaneFollower),
+    Pid(Box<PidLaneFollower>),
 }
 
 struct Cache {
@@ -129,6 +129,7 @@ impl Relabeller {
         &self,
         request: &ExpertRequest,
     ) -> Result<(ExpertReply, BatchStats), RelabelError> {
+        let started = Instant::now();
         let n = request.queries.len();
         if n > self.max_batch {
             return Err(RelabelError::Oversized {
@@ -172,6 +173,7 @@ impl Relabeller {
             ExpertReply {
                 request_id: request.request_id,
                 answers,
+                batch_time_us: started.elapsed().as_micros() as u64,
             },
             stats,
         ))
@@ -204,7 +206,7 @@ impl Relabeller {
                 let cold = !matches!(state, Some(StreamState::Pid(_)));
                 let mut pid = match state {
                     Some(StreamState::Pid(p)) => p,
-                    _ => PidLaneFollower::new(*target_speed),
+                    _ => Box::new(PidLaneFollower::new(*target_speed)),
                 };
                 let [v_long, _, _, _, x_tran, e_psi] = query.frenet;
                 let u = pid.action(v_long, x_tran, e_psi);

@@ -262,6 +262,7 @@ impl Learner {
             architecture: trainer.policy_architecture(),
             weights: weights.clone(),
             steps_per_actor: self.config.steps_per_actor(epoch),
+            published_unix_ms: unix_ms(),
         };
         self.history.insert(epoch, weights);
         while self.history.len() > 8 {
@@ -612,6 +613,12 @@ impl Learner {
             "d_uncertain": self.replay.as_ref().map(|r| r.len_uncertain()),
         })
     }
+}
+
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 async fn reply_policy(query: zenoh::query::Query, latest: &[u8]) {

@@ -286,6 +286,7 @@ mod tests {
             architecture: "mlp-6-3x128-2".into(),
             weights: vec![0, 1, 2, 255],
             steps_per_actor: 512,
+            published_unix_ms: 1_790_000_000_000,
         });
         round_trip(ExpertRequest {
             request_id: 5,
@@ -309,6 +310,7 @@ mod tests {
                 iterations: 12,
                 solve_time_us: 800,
             }],
+            batch_time_us: 900,
         });
         round_trip(EvalReport {
             actor: "eval".into(),

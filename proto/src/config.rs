@@ -99,7 +99,8 @@ pub struct ExpertSection {
     pub pid_target_speed: f64,
     /// Consecutive expert failures after which a rollout is truncated (PATIENCE).
     pub patience: u32,
-    /// Warm starts the MPCC server keeps (least-recently-used eviction).
+    /// Warm starts the MPCC server keeps (least-recently-used eviction). Each holds a QP solver (~0.5 MB); the
+    /// streams in use at once are actors x environments, so a few hundred is plenty.
     pub max_streams: usize,
     /// Largest batch a server answers.
     pub max_batch: usize,
@@ -113,7 +114,7 @@ impl Default for ExpertSection {
             kind: ExpertKind::Mpcc,
             pid_target_speed: 1.0,
             patience: 2,
-            max_streams: 4096,
+            max_streams: 256,
             max_batch: 1024,
             timeout_s: 10.0,
         }

@@ -137,6 +137,8 @@ pub struct PolicyUpdate {
     pub weights: Vec<u8>,
     /// Environment steps each actor collects with this version (the epoch budget).
     pub steps_per_actor: u64,
+    /// When the learner published it (ms since the Unix epoch), for the broadcast latency.
+    pub published_unix_ms: u64,
 }
 
 /// Identifies a stream of expert queries (one environment's episode), for the MPCC warm start.
@@ -182,6 +184,8 @@ pub struct ExpertAnswer {
 pub struct ExpertReply {
     pub request_id: u64,
     pub answers: Vec<ExpertAnswer>,
+    /// Wall time the server spent on the whole batch (µs), so a client can tell transport from solving.
+    pub batch_time_us: u64,
 }
 
 /// The result of one evaluation of a policy version (fixed spawn, beta = 0).
