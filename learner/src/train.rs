@@ -19,6 +19,7 @@
 //! epoch counter and RNG, and Adam's moments restart on resume.
 
 use crate::replay::{Replay, Store};
+use cabc_models::Network;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Policy, PolicyArch, PolicyInput};
 use cabc_proto::config::{RunConfig, ScheduleKind};
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};

@@ -2,7 +2,8 @@
 //! binary cross-entropy, eq. (17). The input dimension is free (6 for the state, 2 in the Fig. 3 example).
 
 use crate::init::{kaiming_normal, Fan};
-use crate::{weights, Mlp, ModelError};
+use crate::weights::Network;
+use crate::Mlp;
 use cabc_proto::config::MlpSize;
 use tch::{nn, nn::Module, Device, Tensor};
 
@@ -27,14 +28,6 @@ impl Critic {
         }
     }
 
-    /// e.g. `critic-6-mlp-4x256`.
-    pub fn architecture(&self) -> String {
-        format!(
-            "critic-{}-mlp-{}x{}",
-            self.in_dim, self.size.layers, self.size.width
-        )
-    }
-
     /// Logits [N] for states [N, d].
     pub fn logits(&self, x: &Tensor) -> Tensor {
         self.mlp.forward(x).squeeze_dim(1)
@@ -48,25 +41,22 @@ impl Critic {
     pub fn in_dim(&self) -> usize {
         self.in_dim
     }
+}
 
-    pub fn device(&self) -> Device {
-        self.vs.device()
-    }
-
-    pub fn var_store(&self) -> &nn::VarStore {
+impl Network for Critic {
+    fn var_store(&self) -> &nn::VarStore {
         &self.vs
     }
 
-    pub fn var_store_mut(&mut self) -> &mut nn::VarStore {
+    fn var_store_mut(&mut self) -> &mut nn::VarStore {
         &mut self.vs
     }
 
-    pub fn to_bytes(&self) -> Vec<u8> {
-        weights::to_bytes(&self.vs, &self.architecture())
-    }
-
-    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), ModelError> {
-        let name = self.architecture();
-        weights::load_bytes(&mut self.vs, &name, bytes)
+    /// e.g. `critic-6-mlp-4x256`.
+    fn architecture(&self) -> String {
+        format!(
+            "critic-{}-mlp-{}x{}",
+            self.in_dim, self.size.layers, self.size.width
+        )
     }
 }

@@ -1,7 +1,8 @@
 //! The learned one-step dynamics f_hat(x, u) = x + MLP([x, u]) (algorithm.md 1, residual), trained by eq. (16).
 
 use crate::init::{kaiming_normal, Fan};
-use crate::{weights, Mlp, ModelError};
+use crate::weights::Network;
+use crate::Mlp;
 use cabc_proto::config::MlpSize;
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
 use tch::{nn, nn::Module, Device, Tensor};
@@ -26,37 +27,26 @@ impl Dynamics {
         Dynamics { vs, size, mlp }
     }
 
-    /// e.g. `dynamics-residual-mlp-3x64`.
-    pub fn architecture(&self) -> String {
-        format!(
-            "dynamics-residual-mlp-{}x{}",
-            self.size.layers, self.size.width
-        )
-    }
-
     /// x' = x + MLP([x, u]); x [N, 6], u [N, 2].
     pub fn forward(&self, x: &Tensor, u: &Tensor) -> Tensor {
         x + self.mlp.forward(&Tensor::cat(&[x, u], 1))
     }
+}
 
-    pub fn device(&self) -> Device {
-        self.vs.device()
-    }
-
-    pub fn var_store(&self) -> &nn::VarStore {
+impl Network for Dynamics {
+    fn var_store(&self) -> &nn::VarStore {
         &self.vs
     }
 
-    pub fn var_store_mut(&mut self) -> &mut nn::VarStore {
+    fn var_store_mut(&mut self) -> &mut nn::VarStore {
         &mut self.vs
     }
 
-    pub fn to_bytes(&self) -> Vec<u8> {
-        weights::to_bytes(&self.vs, &self.architecture())
-    }
-
-    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), ModelError> {
-        let name = self.architecture();
-        weights::load_bytes(&mut self.vs, &name, bytes)
+    /// e.g. `dynamics-residual-mlp-3x64`.
+    fn architecture(&self) -> String {
+        format!(
+            "dynamics-residual-mlp-{}x{}",
+            self.size.layers, self.size.width
+        )
     }
 }

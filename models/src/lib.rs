@@ -25,3 +25,4 @@ pub use dynamics::Dynamics;
 pub use error::ModelError;
 pub use mlp::Mlp;
 pub use policy::{Observation, Policy, PolicyArch, PolicyInput};
+pub use weights::Network;

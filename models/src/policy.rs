@@ -5,6 +5,7 @@
 
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
+use crate::weights::Network;
 use crate::{weights, Mlp, ModelError};
 use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, VisionTrunk};
 use cabc_proto::messages::{Image, ACTION_DIM, STATE_DIM};
@@ -172,34 +173,6 @@ impl Policy {
         self.arch
     }
 
-    /// The architecture's name (`PolicyUpdate.architecture`).
-    pub fn architecture(&self) -> String {
-        self.arch.to_string()
-    }
-
-    pub fn device(&self) -> Device {
-        self.vs.device()
-    }
-
-    pub fn var_store(&self) -> &nn::VarStore {
-        &self.vs
-    }
-
-    pub fn var_store_mut(&mut self) -> &mut nn::VarStore {
-        &mut self.vs
-    }
-
-    /// safetensors bytes with the architecture's name in the metadata.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        weights::to_bytes(&self.vs, &self.architecture())
-    }
-
-    /// Replaces the weights; weights of another architecture are refused ([`ModelError::ArchitectureMismatch`]).
-    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), ModelError> {
-        let name = self.architecture();
-        weights::load_bytes(&mut self.vs, &name, bytes)
-    }
-
     /// Actions [N, 2] (training: `train` = true updates batch-norm statistics of the ResNet trunk).
     pub fn forward_t(&self, input: &PolicyInput, train: bool) -> Tensor {
         let device = self.device();
@@ -293,5 +266,20 @@ impl Policy {
                 })
             }
         }
+    }
+}
+
+impl Network for Policy {
+    fn var_store(&self) -> &nn::VarStore {
+        &self.vs
+    }
+
+    fn var_store_mut(&mut self) -> &mut nn::VarStore {
+        &mut self.vs
+    }
+
+    /// The architecture's name (`PolicyUpdate.architecture`).
+    fn architecture(&self) -> String {
+        self.arch.to_string()
     }
 }

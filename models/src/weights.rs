@@ -14,6 +14,29 @@ use tch::{nn, Device, Kind, Tensor};
 pub const ARCHITECTURE_KEY: &str = "architecture";
 
 /// Serialises every variable of `vs` (trainable or not, e.g. batch-norm statistics) as f32.
+/// A network with named weights: the policy, the dynamics model and the critic share their weight handling here.
+pub trait Network {
+    fn var_store(&self) -> &nn::VarStore;
+    fn var_store_mut(&mut self) -> &mut nn::VarStore;
+    /// The architecture's name, stored in the weights' metadata (`PolicyUpdate.architecture` for the policy).
+    fn architecture(&self) -> String;
+
+    fn device(&self) -> Device {
+        self.var_store().device()
+    }
+
+    /// safetensors bytes with the architecture's name in the metadata.
+    fn to_bytes(&self) -> Vec<u8> {
+        to_bytes(self.var_store(), &self.architecture())
+    }
+
+    /// Replaces the weights; weights of another architecture are refused ([`ModelError::ArchitectureMismatch`]).
+    fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), ModelError> {
+        let name = self.architecture();
+        load_bytes(self.var_store_mut(), &name, bytes)
+    }
+}
+
 pub fn to_bytes(vs: &nn::VarStore, architecture: &str) -> Vec<u8> {
     let named: BTreeMap<String, Tensor> = vs.variables().into_iter().collect();
     let mut header = Map::new();

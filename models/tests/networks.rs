@@ -1,5 +1,6 @@
 //! Shapes, weights round trips and the architecture check of the three networks.
 
+use cabc_models::Network;
 use cabc_models::{Critic, Dynamics, ModelError, Observation, Policy, PolicyArch, PolicyInput};
 use cabc_proto::config::{MlpSize, NetworksSection, VisionTrunk};
 use cabc_proto::messages::Image;
