@@ -54,7 +54,8 @@ cleanup() {
 }
 trap cleanup INT TERM EXIT
 
-"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> "$logs/learner.log" &
+# The learner's log also goes to this terminal: one line per epoch and per evaluation.
+"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee "$logs/learner.log" >&2) &
 learner_pid=$!
 pids+=("$learner_pid")
 sleep 1

@@ -5,7 +5,7 @@ mod server;
 
 use anyhow::{bail, Context, Result};
 use cabc_expert::drive::{bench, drive, DriveOptions, DriveReport};
-use cabc_expert::relabel::Expert;
+use cabc_expert::relabel::{Expert, Relabeller};
 use cabc_expert::{Mpcc, MpccConfig};
 use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_sim::track::Track;
@@ -108,11 +108,79 @@ fn main() -> Result<()> {
             if steps < 10 {
                 bail!("--steps must be at least 10");
             }
-            let report = bench(&mpcc()?, &VehicleParams::default(), steps)?;
-            println!("{}", serde_json::to_string_pretty(&report)?);
+            let mpcc = Arc::new(mpcc()?);
+            let report = bench(&mpcc, &VehicleParams::default(), steps)?;
+            let scaling = batch_throughput(&mpcc, steps)?;
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&json!({
+                    "single_stream": {
+                        "steps": report.steps,
+                        "failures": report.failures,
+                        "step_ms_p50": ms(report.p50),
+                        "step_ms_p99": ms(report.p99),
+                        "step_ms_mean": ms(report.mean),
+                        "step_ms_max": ms(report.max),
+                        "solve_ms_p50": ms(report.solve_p50),
+                        "clarabel_iterations_p50": report.iterations_p50,
+                    },
+                    "batch_throughput": scaling
+                }))?
+            );
             Ok(())
         }
     }
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Solves per second of the relabelling service on batches of 8 streams replaying a closed-loop drive, with 1 thread
+/// and with every core: the server's scaling with its cores.
+fn batch_throughput(mpcc: &Arc<Mpcc>, steps: usize) -> Result<serde_json::Value> {
+    use cabc_proto::messages::{ExpertQuery, ExpertRequest, StreamId};
+    const STREAMS: usize = 8;
+    let drive = drive(
+        mpcc,
+        &VehicleParams::default(),
+        &DriveOptions {
+            laps: 100,
+            max_steps: steps,
+            stop_on_failure: false,
+        },
+    );
+    let states: Vec<_> = drive.steps.iter().map(|s| (s.state, s.frenet)).collect();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut rows = Vec::new();
+    for threads in [1, cores] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .context("building a thread pool")?;
+        let service = Relabeller::new(Expert::Mpcc(mpcc.clone()), 64, 64);
+        let started = std::time::Instant::now();
+        let mut solved = 0usize;
+        for (k, _) in states.iter().enumerate() {
+            let queries = (0..STREAMS)
+                .map(|i| {
+                    let (q, f) = states[(k + i * 7) % states.len()];
+                    ExpertQuery {
+                        stream: StreamId { actor: "bench".into(), env: i as u32, episode: 0 },
+                        start: k == 0,
+                        vehicle: q,
+                        frenet: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
+                    }
+                })
+                .collect();
+            let request = ExpertRequest { request_id: k as u64, queries };
+            let answered = pool.install(|| service.answer(&request))?;
+            solved += answered.0.answers.len();
+        }
+        let secs = started.elapsed().as_secs_f64();
+        rows.push(json!({ "threads": threads, "solves_per_s": solved as f64 / secs, "batch": STREAMS }));
+    }
+    Ok(json!(rows))
 }
 
 /// The JSON summary of a drive: laps, lap times, failures, truncation, max |x_tran|, solve-time percentiles.
