@@ -63,6 +63,17 @@ pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusEr
         Role::Listen => {
             set(&mut config, "mode", "\"router\"".into())?;
             set(&mut config, "listen/endpoints", endpoints(&bus.listen))?;
+            // A standalone zenohd (runs over several machines): join it through the connect endpoints that are
+            // not this process's own listeners.
+            let routers: Vec<String> = bus
+                .connect
+                .iter()
+                .filter(|e| !bus.listen.contains(e))
+                .cloned()
+                .collect();
+            if !routers.is_empty() {
+                set(&mut config, "connect/endpoints", endpoints(&routers))?;
+            }
         }
         Role::Connect => {
             set(&mut config, "mode", "\"client\"".into())?;
@@ -195,6 +206,23 @@ mod tests {
         let bus = BusSection::default();
         zenoh_config(&bus, Role::Listen).unwrap();
         zenoh_config(&bus, Role::Connect).unwrap();
+    }
+
+    #[test]
+    fn the_listener_joins_a_router_but_never_itself() {
+        let bus = BusSection {
+            listen: vec!["tcp/127.0.0.1:7448".into()],
+            connect: vec!["tcp/10.0.0.1:7447".into()],
+            ..BusSection::default()
+        };
+        let config = zenoh_config(&bus, Role::Listen).unwrap();
+        let json = config.get_json("connect/endpoints").unwrap();
+        assert!(json.contains("tcp/10.0.0.1:7447"), "{json}");
+        let json = zenoh_config(&BusSection::default(), Role::Listen)
+            .unwrap()
+            .get_json("connect/endpoints")
+            .unwrap();
+        assert!(!json.contains("7447"), "{json}");
     }
 
     #[test]

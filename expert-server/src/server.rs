@@ -130,6 +130,9 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
                 let metrics = metrics.clone();
                 let rejects = bus.rejects.clone();
                 tokio::spawn(async move {
+                    // Residence time in this server, from receipt to reply: what the client subtracts from its
+                    // round trip to get the time on the wire.
+                    let received = Instant::now();
                     let bytes = query.payload().map(|p| p.to_bytes().to_vec()).unwrap_or_default();
                     let Some(request) = decode_sample::<ExpertRequest>(query.key_expr().as_str(), &bytes, &rejects) else {
                         let why = match codec::decode::<ExpertRequest>(&bytes) {
@@ -145,8 +148,9 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
                     let started = Instant::now();
                     let answered = tokio::task::spawn_blocking(move || relabeller.answer(&request)).await;
                     match answered {
-                        Ok(Ok((reply, stats))) => {
+                        Ok(Ok((mut reply, stats))) => {
                             metrics.lock().unwrap_or_else(|e| e.into_inner()).record(&stats);
+                            reply.batch_time_us = received.elapsed().as_micros() as u64;
                             tracing::debug!(items = stats.items, ms = started.elapsed().as_secs_f64() * 1e3, "answered");
                             let key = query.key_expr().clone();
                             if let Err(e) = query

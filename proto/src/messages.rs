@@ -184,7 +184,8 @@ pub struct ExpertAnswer {
 pub struct ExpertReply {
     pub request_id: u64,
     pub answers: Vec<ExpertAnswer>,
-    /// Wall time the server spent on the whole batch (µs), so a client can tell transport from solving.
+    /// Wall time the request spent in the server, from receipt to reply (µs), so that a client can tell the time on
+    /// the wire from the time spent solving (and queueing for the server's cores).
     pub batch_time_us: u64,
 }
 
