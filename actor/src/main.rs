@@ -128,6 +128,7 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
         versions: 0,
     };
     let mut collector = Collector::new(&cli.id, index, &actor.config);
+    let mut last_update: Option<PolicyUpdate> = None;
     let mut pending = actor
         .fetch_latest_policy()
         .await
@@ -170,6 +171,10 @@ async fn run(config: RunConfig, cli: Cli) -> Result<()> {
             pending = actor.collect(&mut collector, &update, &policy).await?;
         }
         actor.publish_metrics(&update).await;
+        last_update = Some(update);
+    }
+    if let Some(update) = &last_update {
+        tracing::info!("final metrics: {}", actor.metrics(update));
     }
     actor.bus.close().await?;
     Ok(())
@@ -442,8 +447,16 @@ impl Actor {
     }
 
     async fn publish_metrics(&self, update: &PolicyUpdate) {
+        let value = self.metrics(update);
+        if let Err(e) = self.bus.metrics(&value).await {
+            tracing::warn!("publishing metrics: {e}");
+        }
+    }
+
+    /// Collection figures since start (published on `metrics/actor/<id>` after every epoch, logged at exit).
+    fn metrics(&self, update: &PolicyUpdate) -> serde_json::Value {
         let collecting = self.collecting.as_secs_f64();
-        let value = json!({
+        json!({
             "version": update.version,
             "beta": update.beta,
             "versions_seen": self.versions,
@@ -456,9 +469,6 @@ impl Actor {
                 Some(self.policy_latency_ms.iter().sum::<f64>() / self.policy_latency_ms.len() as f64)
             },
             "rejected_messages": self.bus.rejects.count(),
-        });
-        if let Err(e) = self.bus.metrics(&value).await {
-            tracing::warn!("publishing metrics: {e}");
-        }
+        })
     }
 }

@@ -166,19 +166,28 @@ fn batch_throughput(mpcc: &Arc<Mpcc>, steps: usize) -> Result<serde_json::Value>
                 .map(|i| {
                     let (q, f) = states[(k + i * 7) % states.len()];
                     ExpertQuery {
-                        stream: StreamId { actor: "bench".into(), env: i as u32, episode: 0 },
+                        stream: StreamId {
+                            actor: "bench".into(),
+                            env: i as u32,
+                            episode: 0,
+                        },
                         start: k == 0,
                         vehicle: q,
                         frenet: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
                     }
                 })
                 .collect();
-            let request = ExpertRequest { request_id: k as u64, queries };
+            let request = ExpertRequest {
+                request_id: k as u64,
+                queries,
+            };
             let answered = pool.install(|| service.answer(&request))?;
             solved += answered.0.answers.len();
         }
         let secs = started.elapsed().as_secs_f64();
-        rows.push(json!({ "threads": threads, "solves_per_s": solved as f64 / secs, "batch": STREAMS }));
+        rows.push(
+            json!({ "threads": threads, "solves_per_s": solved as f64 / secs, "batch": STREAMS }),
+        );
     }
     Ok(json!(rows))
 }
