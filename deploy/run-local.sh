@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # README command 1: a local multi-process training run on loopback.
 #
-#   deploy/run-local.sh [--baseline] [PRESET|CONFIG.toml] [-- extra learner args]
+#   deploy/run-local.sh [--baseline] [--resume|--fresh] [PRESET|CONFIG.toml] [-- extra learner args]
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
 # eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
 # Default preset: v-b (MPCC expert, full state, lambda 10, rho 1). --baseline runs the same with lambda = 0.
+# A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -17,7 +18,8 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --baseline) baseline=1 ;;
     --resume) learner_args+=(--resume) ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    --fresh) learner_args+=(--fresh) ;;
+    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
