@@ -37,6 +37,9 @@ impl Ode for cabc_sim::vehicle::VehicleParams {
     fn jac(&self, q: &[f64; NQ], u: &[f64; NU]) -> (JacQ, JacU) {
         self.jacobians(q, u)
     }
+    fn f_and_jac(&self, q: &[f64; NQ], u: &[f64; NU]) -> ([f64; NQ], JacQ, JacU) {
+        self.derivatives_and_jacobians(q, u)
+    }
 }
 
 /// The RK4 map over `dt` in `substeps` equal sub-steps, input held constant.

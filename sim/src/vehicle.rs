@@ -171,14 +171,35 @@ impl VehicleParams {
     /// Analytic Jacobians (∂f/∂q, ∂f/∂u) of [`Self::derivatives`]. At standstill the slip angles' 0/0
     /// derivative terms are taken as 0.
     pub fn jacobians(&self, q: &State, u: &Input) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>) {
+        let (_, jq, ju) = self.derivatives_and_jacobians(q, u);
+        (jq, ju)
+    }
+
+    /// [`Self::derivatives`] and [`Self::jacobians`] together: they share the tyre forces, the costly part (the
+    /// MPC's linearisation evaluates both at every RK4 stage).
+    pub fn derivatives_and_jacobians(
+        &self,
+        q: &State,
+        u: &Input,
+    ) -> (State, SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>) {
         let (vx, vy, w, psi) = (q[0], q[1], q[2], q[5]);
         let (a, delta) = (u[0], u[1]);
         let t = self.tyres(q, u, true);
         let (fyf, dfyf) = Self::pacejka(self.df(), self.cf, self.bf, t.alpha_f);
-        let (_, dfyr) = Self::pacejka(self.dr(), self.cr, self.br, t.alpha_r);
+        let (fyr, dfyr) = Self::pacejka(self.dr(), self.cr, self.br, t.alpha_r);
         let (sd, cd) = delta.sin_cos();
         let (sp, cp) = psi.sin_cos();
         let m = self.m;
+        let ax = a / 2.0 + (a / 2.0) * cd - fyf * sd / m;
+        let ay = (a / 2.0) * sd + (fyf * cd + fyr) / m;
+        let f = [
+            ax + w * vy,
+            ay - w * vx,
+            (self.lf * fyf * cd - self.lr * fyr) / self.iz,
+            vx * cp - vy * sp,
+            vx * sp + vy * cp,
+            w,
+        ];
         // ∂F_yf/∂(v_x, v_y, ω, δ) and ∂F_yr/∂(v_x, v_y, ω).
         let ff: [f64; 4] = std::array::from_fn(|k| dfyf * t.dalpha_f[k]);
         let fr: [f64; 3] = std::array::from_fn(|k| dfyr * t.dalpha_r[k]);
@@ -209,7 +230,7 @@ impl VehicleParams {
         ju[(1, 0)] = 0.5 * sd;
         ju[(1, 1)] = (a / 2.0) * cd + (ffd * cd - fyf * sd) / m;
         ju[(2, 1)] = self.lf * (ffd * cd - fyf * sd) / self.iz;
-        (jq, ju)
+        (f, jq, ju)
     }
 
     /// One classic fourth-order Runge–Kutta step of length `h` (s) with u held constant.

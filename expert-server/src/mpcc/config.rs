@@ -71,7 +71,7 @@ pub struct MpccConfig {
 
     /// Clarabel iteration limit.
     pub max_iter: u32,
-    /// Clarabel absolute and relative gap tolerance.
+    /// Clarabel absolute and relative gap tolerance (1e-5: HPIPM's tol_comp in the reference).
     pub tol_gap: f64,
     /// Clarabel feasibility tolerance.
     pub tol_feas: f64,
@@ -121,7 +121,7 @@ impl Default for MpccConfig {
             start_damping: 0.5,
             start_input: 1e-3,
             max_iter: 200,
-            tol_gap: 1e-6,
+            tol_gap: 1e-5,
             tol_feas: 1e-6,
             accept_almost_solved: false,
             iterative_refinement: false,
