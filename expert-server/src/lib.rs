@@ -15,4 +15,4 @@ pub use drive::{
     bench, drive, drive_from, fixed_spawn, BenchReport, DriveEnd, DriveOptions, DriveReport,
     DriveStep,
 };
-pub use mpcc::{Mpcc, MpccConfig, MpccError, MpccStep, MpccStream, QpStatus};
+pub use mpcc::{Mpcc, MpccConfig, MpccError, MpccStep, MpccStream, Prediction, QpStatus};

@@ -74,6 +74,31 @@ impl Default for VehicleParams {
     }
 }
 
+/// An input held constant over an integration interval (zero-order hold), with the steering angle's sine and
+/// cosine computed once for all the RK4 stages that share it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeldInput {
+    /// Longitudinal acceleration command a (m/s²).
+    pub a: f64,
+    /// Steering angle δ (rad).
+    pub delta: f64,
+    sin_delta: f64,
+    cos_delta: f64,
+}
+
+impl HeldInput {
+    /// Hold `u` = [a, δ].
+    pub fn new(u: &Input) -> Self {
+        let (sin_delta, cos_delta) = u[1].sin_cos();
+        Self {
+            a: u[0],
+            delta: u[1],
+            sin_delta,
+            cos_delta,
+        }
+    }
+}
+
 /// Tyre quantities shared by `derivatives` and `jacobians`.
 struct Tyres {
     /// Front slip angle and its gradient w.r.t. (v_x, v_y, ω, δ).
@@ -106,9 +131,9 @@ impl VehicleParams {
         self.mu * self.m * self.g * self.lf / (self.lf + self.lr)
     }
 
-    fn tyres(&self, q: &State, u: &Input, with_grad: bool) -> Tyres {
+    fn tyres(&self, q: &State, u: &HeldInput, with_grad: bool) -> Tyres {
         let (vx, vy, w) = (q[0], q[1], q[2]);
-        let (sd, cd) = u[1].sin_cos();
+        let (sd, cd) = (u.sin_delta, u.cos_delta);
         let vyf = vy + self.lf * w;
         let nf = vyf * cd - vx * sd;
         let df = vx * cd + vyf * sd;
@@ -143,18 +168,28 @@ impl VehicleParams {
     #[inline]
     fn pacejka(d: f64, c: f64, b: f64, alpha: f64) -> (f64, f64) {
         let ba = b * alpha;
-        let arg = c * ba.atan();
-        (d * arg.sin(), d * arg.cos() * c * b / (1.0 + ba * ba))
+        let (sin, cos) = (c * ba.atan()).sin_cos();
+        (d * sin, d * cos * c * b / (1.0 + ba * ba))
+    }
+
+    /// Pacejka lateral force alone.
+    #[inline]
+    fn pacejka_force(d: f64, c: f64, b: f64, alpha: f64) -> f64 {
+        d * (c * (b * alpha).atan()).sin()
     }
 
     /// Continuous dynamics q̇ = f(q, u), simulator.md §1.3 exactly.
     pub fn derivatives(&self, q: &State, u: &Input) -> State {
+        self.derivatives_held(q, &HeldInput::new(u))
+    }
+
+    /// [`Self::derivatives`] for an input whose trigonometry is already computed (RK4 stages share it).
+    pub fn derivatives_held(&self, q: &State, u: &HeldInput) -> State {
         let (vx, vy, w, psi) = (q[0], q[1], q[2], q[5]);
-        let (a, delta) = (u[0], u[1]);
         let t = self.tyres(q, u, false);
-        let (fyf, _) = Self::pacejka(self.df(), self.cf, self.bf, t.alpha_f);
-        let (fyr, _) = Self::pacejka(self.dr(), self.cr, self.br, t.alpha_r);
-        let (sd, cd) = delta.sin_cos();
+        let fyf = Self::pacejka_force(self.df(), self.cf, self.bf, t.alpha_f);
+        let fyr = Self::pacejka_force(self.dr(), self.cr, self.br, t.alpha_r);
+        let (a, sd, cd) = (u.a, u.sin_delta, u.cos_delta);
         let (sp, cp) = psi.sin_cos();
         let ax = a / 2.0 + (a / 2.0) * cd - fyf * sd / self.m;
         let ay = (a / 2.0) * sd + (fyf * cd + fyr) / self.m;
@@ -182,12 +217,23 @@ impl VehicleParams {
         q: &State,
         u: &Input,
     ) -> (State, SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>) {
+        self.derivatives_and_jacobians_held(q, &HeldInput::new(u))
+    }
+
+    /// [`Self::derivatives_and_jacobians`] for an input whose trigonometry is already computed.
+    ///
+    /// Structure (relied on by the MPC's linearisation and checked by the tests): f depends on neither X nor Y,
+    /// and (v̇_x, v̇_y, ω̇) do not depend on ψ.
+    pub fn derivatives_and_jacobians_held(
+        &self,
+        q: &State,
+        u: &HeldInput,
+    ) -> (State, SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>) {
         let (vx, vy, w, psi) = (q[0], q[1], q[2], q[5]);
-        let (a, delta) = (u[0], u[1]);
         let t = self.tyres(q, u, true);
         let (fyf, dfyf) = Self::pacejka(self.df(), self.cf, self.bf, t.alpha_f);
         let (fyr, dfyr) = Self::pacejka(self.dr(), self.cr, self.br, t.alpha_r);
-        let (sd, cd) = delta.sin_cos();
+        let (a, sd, cd) = (u.a, u.sin_delta, u.cos_delta);
         let (sp, cp) = psi.sin_cos();
         let m = self.m;
         let ax = a / 2.0 + (a / 2.0) * cd - fyf * sd / m;
@@ -235,12 +281,17 @@ impl VehicleParams {
 
     /// One classic fourth-order Runge–Kutta step of length `h` (s) with u held constant.
     pub fn rk4(&self, q: &State, u: &Input, h: f64) -> State {
+        self.rk4_held(q, &HeldInput::new(u), h)
+    }
+
+    /// [`Self::rk4`] for a held input.
+    pub fn rk4_held(&self, q: &State, u: &HeldInput, h: f64) -> State {
         let add =
             |a: &State, k: &State, c: f64| -> State { std::array::from_fn(|i| a[i] + c * k[i]) };
-        let k1 = self.derivatives(q, u);
-        let k2 = self.derivatives(&add(q, &k1, h / 2.0), u);
-        let k3 = self.derivatives(&add(q, &k2, h / 2.0), u);
-        let k4 = self.derivatives(&add(q, &k3, h), u);
+        let k1 = self.derivatives_held(q, u);
+        let k2 = self.derivatives_held(&add(q, &k1, h / 2.0), u);
+        let k3 = self.derivatives_held(&add(q, &k2, h / 2.0), u);
+        let k4 = self.derivatives_held(&add(q, &k3, h), u);
         std::array::from_fn(|i| q[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
     }
 
@@ -248,9 +299,10 @@ impl VehicleParams {
     pub fn step(&self, q: &State, u: &Input, dt: f64, substeps: usize) -> State {
         let n = substeps.max(1);
         let h = dt / n as f64;
+        let held = HeldInput::new(u);
         let mut x = *q;
         for _ in 0..n {
-            x = self.rk4(&x, u, h);
+            x = self.rk4_held(&x, &held, h);
         }
         x
     }

@@ -40,6 +40,8 @@
 //! * Exact RK4 Jacobians come from forward sensitivities with the simulator's hand-derived continuous Jacobians
 //!   instead of CasADi AD (equal to round-off; tested against central differences).
 //! * A QP whose assembled data is not finite is not handed to the solver: status `NonFiniteData`, a failure.
+//! * q_pred, the nonlinear rollout of the plan (§7.5, "for prediction output only"), is computed on demand by
+//!   [`Mpcc::predict`] instead of inside every step: neither the control loop nor the relabelling service uses it.
 //! * Measurements that are not finite or farther than 0.85 m from the centreline return [`MpccError`] (the
 //!   reference raises from `global_to_local`); the stream is left unchanged.
 //! * The solver is cached per stream and refilled through Clarabel's data-update interface (the pattern is
@@ -141,14 +143,21 @@ pub struct MpccStep {
     pub qp_iterations: u32,
     /// Wall time spent inside Clarabel (setup or data update, and solve), summed over the QPs.
     pub solve_time: Duration,
-    /// Wall time of the whole step (rollouts, linearisation, assembly, solves).
+    /// Wall time of the whole step (rollout, linearisation, assembly, solves).
     pub step_time: Duration,
-    /// Nonlinear rollout of the plan from (q̂, ŝ): N+1 states (ψ continues from ψ̂ = ψ mod 2π).
-    pub predicted: Vec<State>,
-    /// Progress s along the prediction (N+1 values, not wrapped).
-    pub predicted_s: Vec<f64>,
+    /// The measurement (q̂ with ψ mod 2π, ŝ) the step started from.
+    pub measured: [f64; 7],
     /// The plan w_pred (N rows of (a, δ, v_s)); `plan[0]` holds the action.
     pub plan: Vec<[f64; 3]>,
+}
+
+/// The predicted trajectory q_pred of a step (expert.md §7.5): the nonlinear rollout of its plan.
+#[derive(Debug, Clone)]
+pub struct Prediction {
+    /// N+1 states from q̂ (ψ continues from ψ̂ = ψ mod 2π).
+    pub states: Vec<State>,
+    /// Progress s along them (N+1 values, not wrapped).
+    pub s: Vec<f64>,
 }
 
 /// Outcome of the QP loop around one warm start.
@@ -336,7 +345,6 @@ impl Mpcc {
         } else {
             stream.w_ws[1..].to_vec()
         };
-        let xs = self.rollout(&x0, &plan);
         // Shift: w̄_ws ← [w_pred[0..N], w_pred[N−1]], w_prev ← w_pred[0].
         stream.w_ws.clear();
         stream.w_ws.extend_from_slice(&plan);
@@ -351,10 +359,20 @@ impl Mpcc {
             qp_iterations: out.iterations,
             solve_time: out.solve_time,
             step_time: t0.elapsed(),
-            predicted: xs.iter().map(|x| std::array::from_fn(|i| x[i])).collect(),
-            predicted_s: xs.iter().map(|x| x[S]).collect(),
+            measured: x0,
             plan,
         })
+    }
+
+    /// The predicted trajectory of `step`: its plan rolled out with the nonlinear model from its measurement.
+    /// The reference computes it inside every step "for prediction output only"; nothing in the control loop or
+    /// the relabelling service uses it, so it is computed on demand (it costs 20 more RK4 intervals).
+    pub fn predict(&self, step: &MpccStep) -> Prediction {
+        let xs = self.rollout(&step.measured, &step.plan);
+        Prediction {
+            states: xs.iter().map(|x| std::array::from_fn(|i| x[i])).collect(),
+            s: xs.iter().map(|x| x[S]).collect(),
+        }
     }
 
     /// Build and solve a single QP around the warm start of `stream` at `q` without changing the stream

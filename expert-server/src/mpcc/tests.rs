@@ -51,6 +51,75 @@ fn qp_at_a_straight_line_state() {
     );
 }
 
+/// Leaving out the rate rows that can never bind (the acceleration's, after stage 1) must not change the QP's
+/// minimiser: solve the QPs of a closed-loop lap with and without them.
+#[test]
+fn pruned_rows_do_not_change_the_qp_solution() {
+    let mpcc = Mpcc::reference();
+    let mut full = mpcc.clone();
+    full.layout = QpLayout::build(mpcc.config(), mpcc.track().length(), false);
+    assert!(full.layout.m() > mpcc.layout.m());
+    let r = drive(
+        &mpcc,
+        &VehicleParams::default(),
+        &DriveOptions {
+            laps: 1,
+            max_steps: 60,
+            stop_on_failure: true,
+        },
+    );
+    let mut stream = mpcc.start(&r.steps[0].state).unwrap();
+    let mut worst: f64 = 0.0;
+    for (k, step) in r.steps.iter().enumerate() {
+        let (a, b) = (
+            mpcc.probe_qp(&stream, &step.state).unwrap(),
+            full.probe_qp(&stream, &step.state).unwrap(),
+        );
+        assert_eq!(a.status, QpStatus::Solved, "step {k}");
+        assert_eq!(b.status, QpStatus::Solved, "step {k}");
+        for (za, zb) in a.stages.iter().zip(&b.stages) {
+            for j in 0..NZ {
+                worst = worst.max((za[j] - zb[j]).abs() / mpcc.layout.scale[j]);
+            }
+        }
+        mpcc.step(&mut stream, &step.state).unwrap();
+    }
+    // Both are interior-point solutions to 1e-5/1e-6 tolerances of the same QP.
+    assert!(worst < 2e-3, "largest scaled difference {worst:e}");
+    eprintln!("largest scaled difference between pruned and full QPs: {worst:e}");
+}
+
+/// The prediction is the plan rolled out from the measurement; in the nominal plant (the prediction model itself)
+/// its first transition is exactly where the car goes when the step's action is applied.
+#[test]
+fn prediction_starts_where_the_plant_goes() {
+    let mpcc = Mpcc::reference();
+    let plant = VehicleParams::default();
+    let q = crate::drive::fixed_spawn(mpcc.track());
+    let mut stream = mpcc.start(&q).unwrap();
+    let step = mpcc.step(&mut stream, &q).unwrap();
+    assert!(step.success);
+    let p = mpcc.predict(&step);
+    let n = mpcc.config().horizon;
+    assert_eq!((p.states.len(), p.s.len()), (n + 1, n + 1));
+    assert_eq!(p.s[0], step.measured[S]);
+    let next = plant.step(&q, &step.action, 0.1, 10);
+    for i in 0..6 {
+        let expected = if i == 5 {
+            next[5] - q[5] + step.measured[5]
+        } else {
+            next[i]
+        };
+        assert!(
+            (p.states[1][i] - expected).abs() < 1e-9,
+            "component {i}: {} vs {expected}",
+            p.states[1][i]
+        );
+    }
+    // Progress advances by dt·v_s of the plan.
+    assert!((p.s[1] - p.s[0] - 0.1 * step.plan[0][2]).abs() < 1e-12);
+}
+
 #[test]
 fn rejects_bad_states_without_panicking() {
     let mpcc = Mpcc::reference();
