@@ -26,7 +26,8 @@
 //!     and their boxes rows on w_k − w_{k−1} (HPIPM has them as stage inputs); a smaller KKT system;
 //!   - one free σ_k per stage relaxes both slab sides (HPIPM: σ_l, σ_u ≥ 0). Equivalent: for fixed (X, Y) the
 //!     minimiser of ½Zσ² over the relaxed slab is σ = max(0, violation), and at most one side is violated;
-//!   - the inactive ±1e9 bounds on X, Y are dropped;
+//!   - the inactive ±1e9 bounds on X, Y are dropped, and so are the acceleration's rate rows after stage 1, which
+//!     can never bind (its box is narrower than its rate bound allows; see the `qp` module docs);
 //!   - the QP is posed in the deviation Δ = z − z̄ from the iterate (Gauss–Newton expanded around the origin makes
 //!     the objective ~1e5, and Clarabel's *relative* gap tolerance then left slacks at ~6e−4 on a straight);
 //!   - tolerances: feasibility 1e−6 as HPIPM's tol_eq/ineq, gap (abs, rel) 1e−5 as HPIPM's tol_comp (the duality
@@ -49,7 +50,7 @@
 //!   equilibration belongs to an earlier QP and was seen to cause spurious `NumericalError`s).
 //!
 //! # Known behaviour of the reference algorithm (kept, measured here)
-//! * From the fixed spawn: no failure, no truncation; flying laps 4.6–4.8 s (mean ≈ 4.71 s), first lap 5.5 s.
+//! * From the fixed spawn: no failure, no truncation; flying laps 4.6–4.8 s (mean 4.70 s), first lap 5.5 s.
 //!   The env's logged `lap_time` adds one step (simulator.md §3.7): ≈ 4.81 s, the paper's 4.805 s.
 //! * From random spawns *in curves* the start-up QPs (all slabs at ŝ, an infinite strip along the tangent there)
 //!   plan to stop before leaving the strip; predicted speeds then fall below ≈ 0.36 m/s, where RK4 with
