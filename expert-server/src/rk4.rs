@@ -69,13 +69,7 @@ fn stage_sens(jq: &JacQ, ju: &JacU, s: &Sens) -> Sens {
 impl Rk4 {
     /// `f_d(q, u)`.
     pub fn map(&self, model: &VehicleParams, q: &[f64; NQ], u: &[f64; NU]) -> [f64; NQ] {
-        let h = self.dt / self.substeps as f64;
-        let u = HeldInput::new(u);
-        let mut q = *q;
-        for _ in 0..self.substeps {
-            q = model.rk4_held(&q, &u, h);
-        }
-        q
+        model.step(q, u, self.dt, self.substeps)
     }
 
     /// `f_d(q, u)` with its exact Jacobians `A_d = ∂f_d/∂q`, `B_d = ∂f_d/∂u`.

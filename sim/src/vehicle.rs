@@ -185,12 +185,17 @@ impl VehicleParams {
 
     /// [`Self::derivatives`] for an input whose trigonometry is already computed (RK4 stages share it).
     pub fn derivatives_held(&self, q: &State, u: &HeldInput) -> State {
-        let (vx, vy, w, psi) = (q[0], q[1], q[2], q[5]);
         let t = self.tyres(q, u, false);
         let fyf = Self::pacejka_force(self.df(), self.cf, self.bf, t.alpha_f);
         let fyr = Self::pacejka_force(self.dr(), self.cr, self.br, t.alpha_r);
+        self.rates(q, u, q[5].sin_cos(), fyf, fyr)
+    }
+
+    /// q̇ from the state, the held input, (sin ψ, cos ψ) and the lateral tyre forces (simulator.md §1.3).
+    #[inline]
+    fn rates(&self, q: &State, u: &HeldInput, (sp, cp): (f64, f64), fyf: f64, fyr: f64) -> State {
+        let (vx, vy, w) = (q[0], q[1], q[2]);
         let (a, sd, cd) = (u.a, u.sin_delta, u.cos_delta);
-        let (sp, cp) = psi.sin_cos();
         let ax = a / 2.0 + (a / 2.0) * cd - fyf * sd / self.m;
         let ay = (a / 2.0) * sd + (fyf * cd + fyr) / self.m;
         [
@@ -236,16 +241,7 @@ impl VehicleParams {
         let (a, sd, cd) = (u.a, u.sin_delta, u.cos_delta);
         let (sp, cp) = psi.sin_cos();
         let m = self.m;
-        let ax = a / 2.0 + (a / 2.0) * cd - fyf * sd / m;
-        let ay = (a / 2.0) * sd + (fyf * cd + fyr) / m;
-        let f = [
-            ax + w * vy,
-            ay - w * vx,
-            (self.lf * fyf * cd - self.lr * fyr) / self.iz,
-            vx * cp - vy * sp,
-            vx * sp + vy * cp,
-            w,
-        ];
+        let f = self.rates(q, u, (sp, cp), fyf, fyr);
         // ∂F_yf/∂(v_x, v_y, ω, δ) and ∂F_yr/∂(v_x, v_y, ω).
         let ff: [f64; 4] = std::array::from_fn(|k| dfyf * t.dalpha_f[k]);
         let fr: [f64; 3] = std::array::from_fn(|k| dfyr * t.dalpha_r[k]);

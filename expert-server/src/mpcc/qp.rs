@@ -113,8 +113,6 @@ pub struct QpLayout {
     ub: [f64; NZ],
     /// Whether input j has rate rows at stages k ≥ 2.
     rate_rows: [bool; 3],
-    /// Inequality rows per stage: stage 1, then every later stage.
-    ineq_rows: [usize; 2],
     cfg: MpccConfig,
     p_pat: Pattern,
     a_pat: Pattern,
@@ -198,11 +196,6 @@ impl QpLayout {
         let rate_rows: [bool; 3] = std::array::from_fn(|j| {
             !prune || (ub[7 + j] - lb[7 + j]) / scale[7 + j] > cfg.dt * cfg.rate_bound[j]
         });
-        let later_rates = rate_rows.iter().filter(|&&r| r).count();
-        let ineq_rows = [
-            2 * BOXED.len() + 6 + 2,
-            2 * BOXED.len() + 2 * later_rates + 2,
-        ];
         let mut layout = Self {
             horizon: cfg.horizon,
             dt: cfg.dt,
@@ -210,7 +203,6 @@ impl QpLayout {
             lb,
             ub,
             rate_rows,
-            ineq_rows,
             cfg: cfg.clone(),
             p_pat: Pattern::new(0, 0, &[]),
             a_pat: Pattern::new(0, 0, &[]),
@@ -269,7 +261,10 @@ impl QpLayout {
 
     /// Number of rows.
     pub fn m(&self) -> usize {
-        self.m_eq() + self.ineq_rows[0] + self.ineq_rows[1] * (self.horizon - 1)
+        // Per stage: the box rows, the rate rows (all three inputs at stage 1), the two slab rows.
+        let later_rates = self.rate_rows.iter().filter(|&&r| r).count();
+        let stage = |rates: usize| 2 * BOXED.len() + 2 * rates + 2;
+        self.m_eq() + stage(3) + stage(later_rates) * (self.horizon - 1)
     }
 
     /// Nonzeros of (P, A).
