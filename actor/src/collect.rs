@@ -102,6 +102,11 @@ impl Collector {
         }
     }
 
+    /// The actor's name (the `actor` of its segments).
+    pub fn actor(&self) -> &str {
+        &self.actor
+    }
+
     pub fn len(&self) -> usize {
         self.envs.len()
     }

@@ -1,8 +1,11 @@
-//! cabc-actor: the actor of Algorithm 1: K simulators stepped in lockstep under the expert/policy mixture, their
-//! streams cut into segments, and the evaluation of each new policy. Zenoh-free; the `actor` binary is the thin
-//! shell that wires it to the bus, so tests drive the same code in-process.
+//! cabc-actor: the actor of Algorithm 1: K simulators stepped in lockstep under the expert/policy mixture
+//! ([`collect`]), their streams cut into segments ([`segment`]), the evaluation of each new policy ([`evaluate`]),
+//! and the actor's loop over its ports ([`run`]). Zenoh-free: the `actor` binary wires [`run`] to the bus, and
+//! [`local`] runs the same code in-process as the learner's `Rollouts` port.
 
 pub mod collect;
 pub mod evaluate;
 pub mod eyes;
+pub mod local;
+pub mod run;
 pub mod segment;

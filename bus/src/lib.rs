@@ -4,9 +4,17 @@
 //!   connect; multicast scouting off unless asked for, so a loopback run never meets strangers);
 //! * [`Bus`]: typed publishing over the codec (every payload carries its zenoh encoding), JSON metrics, a
 //!   liveliness token, and the [`Rejects`] counter of refused messages;
-//! * [`decode_sample`]: decode an incoming payload, counting and logging it when it is foreign or malformed.
+//! * [`decode_sample`]: decode an incoming payload, counting and logging it when it is foreign or malformed;
+//! * [`ports`]: the actor's ports of Algorithm 1 over zenoh (policy source, expert client, segment and evaluation
+//!   sinks); [`rollouts`]: the learner's port, the actors over zenoh, with the epoch protocol's [`gate`];
+//! * [`interrupt`]: Ctrl-C as a flag that the blocking loops poll.
 //!
 //! Only binaries open sessions (architecture.md); libraries stay free of zenoh.
+
+pub mod gate;
+pub mod interrupt;
+pub mod ports;
+pub mod rollouts;
 
 use cabc_proto::codec::{self, Message};
 use cabc_proto::config::BusSection;
@@ -16,7 +24,7 @@ use std::sync::Arc;
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::qos::CongestionControl;
-use zenoh::Session;
+use zenoh::{Session, Wait};
 
 /// How a process joins the bus.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -165,6 +173,56 @@ impl Bus {
             component: component.to_string(),
             _alive: alive,
         })
+    }
+
+    /// [`Bus::connect`] for a blocking caller (no async runtime needed).
+    pub fn join(
+        bus: &BusSection,
+        role: Role,
+        keys: Keys,
+        component: &str,
+    ) -> Result<Bus, BusError> {
+        let session = zenoh::open(zenoh_config(bus, role)?).wait().map_err(zerr)?;
+        let alive = session
+            .liveliness()
+            .declare_token(keys.alive(component))
+            .wait()
+            .map_err(zerr)?;
+        Ok(Bus {
+            session,
+            keys,
+            rejects: Rejects::default(),
+            component: component.to_string(),
+            _alive: alive,
+        })
+    }
+
+    /// [`Bus::put`], blocking.
+    pub fn put_blocking<M: Message>(&self, key: &str, message: &M) -> Result<(), BusError> {
+        self.session
+            .put(key, codec::encode(message))
+            .encoding(encoding_of::<M>())
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(zerr)
+    }
+
+    /// [`Bus::metrics`], blocking; a failure is logged, never fatal.
+    pub fn metrics_blocking(&self, value: &str) {
+        let put = self
+            .session
+            .put(self.keys.metrics(&self.component), value.to_string())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Drop)
+            .wait();
+        if let Err(e) = put {
+            tracing::warn!("publishing metrics: {e}");
+        }
+    }
+
+    /// [`Bus::close`], blocking.
+    pub fn close_blocking(self) -> Result<(), BusError> {
+        self.session.close().wait().map_err(zerr)
     }
 
     pub fn component(&self) -> &str {

@@ -13,6 +13,7 @@
 use crate::mpcc::{Mpcc, MpccStream};
 use cabc_proto::config::ExpertKind;
 use cabc_proto::messages::{ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, StreamId};
+use cabc_proto::ports::{ExpertClient, PortError};
 use cabc_sim::pid::PidLaneFollower;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -248,6 +249,20 @@ impl Relabeller {
 
 fn micros(since: Instant) -> u32 {
     since.elapsed().as_micros().min(u32::MAX as u128) as u32
+}
+
+/// The in-process expert client: the relabelling of Algorithm 1 answered directly, without a bus (tests, one-process
+/// runs). The `expert-server` binary puts the same service behind a zenoh queryable.
+impl ExpertClient for Relabeller {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        let request = ExpertRequest {
+            request_id: 0,
+            queries,
+        };
+        self.answer(&request)
+            .map(|(reply, _)| reply.answers)
+            .map_err(|e| PortError::Transport(e.to_string()))
+    }
 }
 
 #[cfg(test)]

@@ -88,6 +88,23 @@ pub fn in_polygon(p: (f64, f64), poly: &[(f64, f64)]) -> bool {
     inside
 }
 
+impl DemoReport {
+    /// Logs one line per panel and where the figure went.
+    pub fn log(&self) {
+        for p in &self.panels {
+            tracing::info!(
+                rho = p.rho,
+                removed_correctly = p.removed_correctly,
+                removed_wrongly = p.removed_wrongly,
+                kept = p.kept,
+                accuracy = p.accuracy,
+                "panel"
+            );
+        }
+        tracing::info!(png = %self.png, "written");
+    }
+}
+
 /// Runs the example for each rho, draws one panel per rho into `out_png`, and reports the counts.
 pub fn autolabel_demo(rhos: &[f64], seed: u64, out_png: &Path) -> Result<DemoReport, DemoError> {
     let config = RunConfig::default();

@@ -10,15 +10,18 @@
 //!
 //! Apart from `serve` (behind the `server` feature), the library knows nothing of the bus.
 
+pub mod algorithm;
 pub mod autolabel;
 pub mod bench;
 pub mod demo;
-pub mod epoch;
 pub mod hull;
 pub mod kdtree;
+pub mod learner;
+pub mod ledger;
 pub mod plots;
 pub mod replay;
 pub mod rundir;
+pub mod schedule;
 #[cfg(feature = "server")]
 pub mod serve;
 pub mod train;

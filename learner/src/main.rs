@@ -100,35 +100,23 @@ fn main() -> anyhow::Result<()> {
             if !listen.is_empty() {
                 config.bus.listen = listen;
             }
-            let dir = run_dir.unwrap_or_else(|| default_run_dir(&config));
             let run_dir =
-                RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
-            if fresh {
-                let _ = std::fs::remove_dir_all(run_dir.checkpoint());
-            }
-            run_dir.write_config(&config)?;
+                RunDir::prepare(&config, run_dir, fresh).context("preparing the run folder")?;
             cabc_learner::serve::run(config, run_dir, resume)
         }
         Command::Prepare { config, baseline } => {
             let config = load(&config, baseline)?;
-            let dir = default_run_dir(&config);
             let run_dir =
-                RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
-            run_dir.write_config(&config)?;
-            println!("{}", dir.display());
+                RunDir::prepare(&config, None, false).context("preparing the run folder")?;
+            println!("{}", run_dir.path().display());
             Ok(())
         }
         Command::Show { config, key } => {
-            let config = RunConfig::load(&config)?;
-            let value: toml::Value = toml::from_str(&config.to_toml())?;
-            let found = key
-                .split('.')
-                .try_fold(&value, |v, k| v.get(k))
-                .with_context(|| format!("no key {key} in the configuration"))?;
-            match found {
-                toml::Value::String(s) => println!("{s}"),
-                other => println!("{other}"),
-            }
+            let value = load(&config, false)?.show(&key);
+            println!(
+                "{}",
+                value.with_context(|| format!("no key {key} in the configuration"))?
+            );
             Ok(())
         }
         Command::AutolabelDemo {
@@ -136,68 +124,37 @@ fn main() -> anyhow::Result<()> {
             out,
             json,
             seed,
-        } => demo(&rho, &out, json, seed),
+        } => {
+            let report = autolabel_demo(&rho, seed, &out).context("auto-labelling demo")?;
+            match json {
+                true => println!("{}", serde_json::to_string_pretty(&report)?),
+                false => report.log(),
+            }
+            Ok(())
+        }
         Command::Bench {
             plus,
             uncertain,
             train,
             cpu_only,
             json,
-        } => bench(plus, uncertain, train, !cpu_only, json),
-    }
-}
-
-fn demo(rho: &[f64], out: &std::path::Path, json: bool, seed: u64) -> anyhow::Result<()> {
-    let report = autolabel_demo(rho, seed, out).context("auto-labelling demo")?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        for p in &report.panels {
-            tracing::info!(
-                rho = p.rho,
-                removed_correctly = p.removed_correctly,
-                removed_wrongly = p.removed_wrongly,
-                kept = p.kept,
-                accuracy = p.accuracy,
-                "panel"
-            );
+        } => {
+            let options = BenchOptions {
+                n_plus: plus,
+                n_uncertain: uncertain,
+                n_train: train,
+                cuda: !cpu_only,
+                ..Default::default()
+            };
+            let report = run_bench(&options);
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            }
+            Ok(())
         }
-        tracing::info!(png = %report.png, "written");
     }
-    Ok(())
 }
 
-/// Loads a configuration; the baseline is the same run with lambda = 0 under its own name.
 fn load(name: &str, baseline: bool) -> anyhow::Result<RunConfig> {
-    let mut config =
-        RunConfig::load(name).with_context(|| format!("loading configuration {name}"))?;
-    if baseline && config.algorithm.lambda != 0.0 {
-        config.algorithm.lambda = 0.0;
-        config.run.name = format!("{}-baseline", config.run.name);
-    }
-    Ok(config)
-}
-
-fn default_run_dir(config: &RunConfig) -> PathBuf {
-    PathBuf::from(&config.run.runs_dir).join(&config.run.name)
-}
-
-fn bench(
-    plus: usize,
-    uncertain: usize,
-    train: usize,
-    cuda: bool,
-    json: bool,
-) -> anyhow::Result<()> {
-    let report = run_bench(&BenchOptions {
-        n_plus: plus,
-        n_uncertain: uncertain,
-        n_train: train,
-        cuda,
-        ..Default::default()
-    });
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    }
-    Ok(())
+    RunConfig::load_variant(name, baseline).with_context(|| format!("loading configuration {name}"))
 }

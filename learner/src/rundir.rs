@@ -30,6 +30,7 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
 
 /// One row of `metrics.csv` (per epoch).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct EpochRow {
     pub epoch: u64,
     pub beta: f64,
@@ -39,6 +40,8 @@ pub struct EpochRow {
     pub segments: u64,
     pub d_plus: usize,
     pub d_uncertain: usize,
+    /// D-: what the last auto-labelling left in D? (the critic's negatives), held until the next labelling.
+    pub d_minus: usize,
     pub dynamics_only: usize,
     pub autolabel_removed: usize,
     pub rho: f64,
@@ -48,6 +51,8 @@ pub struct EpochRow {
     pub dynamics_loss: Option<f64>,
     pub critic_loss: Option<f64>,
     pub critic_accuracy: Option<f64>,
+    /// The critic's training set, |D+| + |D-|, in epochs where it trained.
+    pub critic_points: Option<usize>,
     pub collect_s: f64,
     pub train_s: f64,
     pub epoch_s: f64,
@@ -56,14 +61,14 @@ pub struct EpochRow {
     pub eval_laps: Option<u32>,
 }
 
-const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,d_plus,d_uncertain,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
+const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
 
 impl EpochRow {
     fn csv(&self) -> String {
         let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
         let optf = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         format!(
-            "{},{:.6},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
             self.epoch,
             self.beta,
             self.steps_collected,
@@ -71,6 +76,7 @@ impl EpochRow {
             self.segments,
             self.d_plus,
             self.d_uncertain,
+            self.d_minus,
             self.dynamics_only,
             self.autolabel_removed,
             self.rho,
@@ -79,6 +85,7 @@ impl EpochRow {
             optf(self.dynamics_loss),
             optf(self.critic_loss),
             optf(self.critic_accuracy),
+            opt(self.critic_points.map(|n| n as u64)),
             self.collect_s,
             self.train_s,
             self.epoch_s,
@@ -98,7 +105,7 @@ pub struct LearnerState {
     pub evals: Vec<EvalSummary>,
     /// Evaluations that completed the wanted laps.
     pub successes: u32,
-    pub ledger: crate::epoch::Ledger,
+    pub ledger: crate::ledger::Ledger,
     /// Lap times of the expert seen in the data (complete laps collected with beta = 1).
     pub expert_lap_times: Vec<f64>,
     pub stopped: Option<String>,
@@ -160,6 +167,18 @@ impl RunDir {
             std::fs::create_dir_all(&p).map_err(io(&p))?;
         }
         Ok(RunDir { root })
+    }
+
+    /// The run folder of `config` (`<runs_dir>/<run name>`, or `dir`), created, with `config.toml` written into it.
+    /// With `fresh`, its checkpoint is discarded.
+    pub fn prepare(config: &RunConfig, dir: Option<PathBuf>, fresh: bool) -> Result<Self, RunDirError> {
+        let dir = dir.unwrap_or_else(|| PathBuf::from(&config.run.runs_dir).join(&config.run.name));
+        let run_dir = RunDir::create(dir)?;
+        if fresh {
+            let _ = std::fs::remove_dir_all(run_dir.checkpoint());
+        }
+        run_dir.write_config(config)?;
+        Ok(run_dir)
     }
 
     pub fn path(&self) -> &Path {

@@ -418,6 +418,26 @@ impl RunConfig {
         Self::from_toml(&text, &path.display().to_string())
     }
 
+    /// [`RunConfig::load`], or with `baseline` the behaviour-cloning baseline of the same run: lambda = 0, under the
+    /// run name suffixed with `-baseline`.
+    pub fn load_variant(name_or_path: &str, baseline: bool) -> Result<Self, ConfigError> {
+        let mut config = Self::load(name_or_path)?;
+        if baseline && config.algorithm.lambda != 0.0 {
+            config.algorithm.lambda = 0.0;
+            config.run.name = format!("{}-baseline", config.run.name);
+        }
+        Ok(config)
+    }
+
+    /// One value of the configuration by its dotted key (e.g. `actors.count`), as text.
+    pub fn show(&self, key: &str) -> Option<String> {
+        let value: toml::Value = toml::from_str(&self.to_toml()).ok()?;
+        match key.split('.').try_fold(&value, |v, k| v.get(k))? {
+            toml::Value::String(s) => Some(s.clone()),
+            other => Some(other.to_string()),
+        }
+    }
+
     /// Writes the configuration as TOML (for the run folder).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("a RunConfig always serialises")

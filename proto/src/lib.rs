@@ -6,6 +6,8 @@
 //! * [`codec`]: `encode` / `decode` with a header (magic + schema version + message kind), so a stale or foreign
 //!   payload is refused with a typed error, never half-read;
 //! * [`config`]: the run configuration (TOML), the one place for every number that defines an experiment;
+//! * [`ports`]: the narrow interfaces between the parts of Algorithm 1 (expert client, policy source, segment
+//!   sink, evaluation sink; the actors as the learner sees them);
 //! * [`telemetry`]: `tracing` set up the same way in every binary.
 //!
 //! This crate knows nothing of zenoh or tch.
@@ -14,6 +16,7 @@ pub mod codec;
 pub mod config;
 pub mod keys;
 pub mod messages;
+pub mod ports;
 pub mod telemetry;
 
 pub use codec::{decode, encode, DecodeError, Message};

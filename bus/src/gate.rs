@@ -1,16 +1,12 @@
-//! The epoch protocol (architecture.md), zenoh-free so that tests drive it directly.
+//! The epoch protocol over the bus (architecture.md): when is an epoch's collection over?
 //!
-//! 1. The learner publishes PolicyUpdate j; actors collect their share of the epoch's steps with it, publish their
-//!    segments and then an [`EpochDone`] marker.
-//! 2. [`EpochGate`] closes epoch j once every live actor (liveliness) has said it is done with j, or once
-//!    `timeout` has passed since the epoch opened and at least one actor is done: a dead or stuck actor never
-//!    stalls the run.
-//! 3. [`Ledger`] makes delivery exactly-once: a segment is identified by (actor, seq); a duplicate is dropped and
-//!    counted, and segments of older versions that arrive late are still stored.
+//! The learner publishes PolicyUpdate j; actors collect their share of the epoch's steps with it, publish their
+//! segments and then an [`EpochDone`] marker. [`EpochGate`] closes epoch j once every live actor (liveliness) has
+//! said it is done with j, or once `timeout` has passed since the epoch opened and at least one actor is done: a
+//! dead or stuck actor never stalls the run. Pure logic, tested without zenoh.
 
-use cabc_proto::messages::{EpochDone, Segment};
-use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use cabc_proto::messages::EpochDone;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 /// Why an epoch closed.
@@ -100,42 +96,9 @@ impl EpochGate {
     }
 }
 
-/// Which segments were stored, so that each one is stored exactly once (saved with the checkpoint).
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-pub struct Ledger {
-    seen: HashMap<String, HashSet<u64>>,
-    pub duplicates: u64,
-    pub stored_segments: u64,
-    pub stored_steps: u64,
-}
-
-impl Ledger {
-    /// True the first time a segment is offered.
-    pub fn admit(&mut self, segment: &Segment) -> bool {
-        let fresh = self
-            .seen
-            .entry(segment.actor.clone())
-            .or_default()
-            .insert(segment.seq);
-        if fresh {
-            self.stored_segments += 1;
-            self.stored_steps += segment.steps.len() as u64;
-        } else {
-            self.duplicates += 1;
-        }
-        fresh
-    }
-
-    /// Segments stored from one actor.
-    pub fn segments_of(&self, actor: &str) -> usize {
-        self.seen.get(actor).map_or(0, |s| s.len())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cabc_proto::messages::Outcome;
 
     fn marker(actor: &str, version: u64) -> EpochDone {
         EpochDone {
@@ -197,25 +160,5 @@ mod tests {
         g.done(marker("a", 0));
         assert_eq!(g.closed(t0), None);
         assert_eq!(g.missing(), vec!["c".to_string()]);
-    }
-
-    #[test]
-    fn the_ledger_admits_each_segment_once() {
-        let seg = |actor: &str, seq| Segment {
-            actor: actor.into(),
-            env: 0,
-            episode: 0,
-            seq,
-            policy_version: 0,
-            outcome: Outcome::Lap,
-            steps: vec![],
-        };
-        let mut l = Ledger::default();
-        assert!(l.admit(&seg("a", 0)));
-        assert!(l.admit(&seg("a", 1)));
-        assert!(l.admit(&seg("b", 0)));
-        assert!(!l.admit(&seg("a", 1)));
-        assert_eq!((l.stored_segments, l.duplicates), (3, 1));
-        assert_eq!(l.segments_of("a"), 2);
     }
 }

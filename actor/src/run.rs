@@ -1,0 +1,203 @@
+//! The actor's loop over its ports (Acme's environment loop): follow the [`PolicySource`], collect each version's
+//! share of the epoch under the mixture pi_collect = beta_j pi_beta + (1 - beta_j) pi_theta, hand the segments to the
+//! [`SegmentSink`]; or, as the evaluator, drive each version alone and report it to the [`EvalSink`].
+//!
+//! The same functions run in the `actor` binary over zenoh and in-process in a test ([`crate::local`]).
+
+use crate::collect::{Collector, PolicyInput};
+use crate::evaluate::evaluate;
+use cabc_models::{ModelError, Observation, Policy};
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::{EpochDone, PolicyUpdate, Segment, TrajMessage};
+use cabc_proto::ports::{EvalSink, ExpertClient, Next, PolicySource, PortError, SegmentSink};
+use std::time::{Duration, Instant};
+use tch::Device;
+
+/// Errors that end an actor.
+#[derive(Debug, thiserror::Error)]
+pub enum ActorError {
+    #[error(transparent)]
+    Port(#[from] PortError),
+    #[error("running the policy: {0}")]
+    Model(#[from] ModelError),
+    #[error("evaluating: {0}")]
+    Evaluate(anyhow::Error),
+}
+
+/// What an actor has done since it started.
+#[derive(Clone, Debug, Default)]
+pub struct ActorStats {
+    /// Policy versions followed.
+    pub versions: u64,
+    /// Steps published.
+    pub steps: u64,
+    /// Time spent collecting (or evaluating).
+    pub busy: Duration,
+}
+
+/// pi_theta(y) for a batch of observations (states, or images with the velocities).
+pub fn act(policy: &Policy, input: &PolicyInput) -> Result<Vec<[f32; 2]>, ModelError> {
+    let observations: Vec<Observation> = if input.images.is_empty() {
+        input.states.iter().map(Observation::State).collect()
+    } else {
+        input
+            .states
+            .iter()
+            .zip(input.images)
+            .map(|(s, image)| Observation::Camera {
+                image,
+                velocity: [s[0], s[1], s[2]],
+            })
+            .collect()
+    };
+    policy.act(&observations)
+}
+
+/// The policy of an update (weights for CPU inference); a bad one is logged and skipped.
+fn policy_of(update: &PolicyUpdate) -> Option<Policy> {
+    match Policy::from_bytes(&update.weights, Device::Cpu) {
+        Ok(policy) => Some(policy),
+        Err(e) => {
+            tracing::error!(version = update.version, "refusing policy weights: {e}");
+            None
+        }
+    }
+}
+
+/// Collects this actor's share of epoch `update.version` (`update.steps_per_actor` steps), sends every segment and
+/// then the "done with j" marker to `sink`. Returns the steps published and a newer version or a stop that
+/// interrupted the epoch.
+pub fn collect_epoch(
+    collector: &mut Collector,
+    update: &PolicyUpdate,
+    policy: &Policy,
+    expert: &mut dyn ExpertClient,
+    source: &mut dyn PolicySource,
+    sink: &mut dyn SegmentSink,
+) -> Result<(u64, Option<Next>), ActorError> {
+    let budget = update.steps_per_actor;
+    let first_seq = collector.segments_cut();
+    collector.begin_epoch();
+    let mut out: Vec<Segment> = Vec::new();
+    let mut interrupted = None;
+    let mut published = 0u64;
+    while collector.taken() < budget {
+        if let Some(next) = source.interrupted() {
+            interrupted = Some(next);
+            break;
+        }
+        let active = collector.active(budget);
+        let answers = match expert.relabel(collector.queries(active)) {
+            Ok(answers) => answers,
+            Err(PortError::Stopped(reason)) => {
+                interrupted = Some(Next::Stop(reason));
+                break;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let actions = act(policy, &collector.observations(active))?;
+        collector.step(&answers, &actions, update.beta, update.version, &mut out);
+        published += publish(&mut out, sink)?;
+    }
+    collector.end_epoch(update.version, &mut out);
+    published += publish(&mut out, sink)?;
+    sink.put(TrajMessage::EpochDone(EpochDone {
+        actor: collector.actor().to_string(),
+        version: update.version,
+        segments: collector.segments_cut() - first_seq,
+        steps: published,
+    }))?;
+    Ok((published, interrupted))
+}
+
+fn publish(out: &mut Vec<Segment>, sink: &mut dyn SegmentSink) -> Result<u64, PortError> {
+    let mut steps = 0;
+    for segment in out.drain(..) {
+        steps += segment.steps.len() as u64;
+        sink.put(TrajMessage::Segment(segment))?;
+    }
+    Ok(steps)
+}
+
+/// A collecting actor: follows `source` until a stop, collecting each version's share. `after_epoch` runs after
+/// each version (metrics).
+pub fn run_actor(
+    collector: &mut Collector,
+    source: &mut dyn PolicySource,
+    expert: &mut dyn ExpertClient,
+    sink: &mut dyn SegmentSink,
+    mut after_epoch: impl FnMut(&PolicyUpdate, &ActorStats),
+) -> Result<ActorStats, ActorError> {
+    let mut stats = ActorStats::default();
+    let mut pending = None;
+    loop {
+        let next = match pending.take() {
+            Some(next) => next,
+            None => source.next()?,
+        };
+        let update = match next {
+            Next::Stop(reason) => {
+                tracing::info!("stop: {reason}");
+                return Ok(stats);
+            }
+            Next::Policy(update) => *update,
+        };
+        let Some(policy) = policy_of(&update) else {
+            continue;
+        };
+        stats.versions += 1;
+        let started = Instant::now();
+        let (steps, interrupted) =
+            collect_epoch(collector, &update, &policy, expert, source, sink)?;
+        stats.steps += steps;
+        stats.busy += started.elapsed();
+        tracing::info!(
+            version = update.version,
+            steps,
+            secs = started.elapsed().as_secs_f64(),
+            "epoch collected"
+        );
+        pending = interrupted;
+        after_epoch(&update, &stats);
+    }
+}
+
+/// The evaluator: drives each new version alone from the fixed spawn and reports it, until a stop.
+pub fn run_evaluator(
+    id: &str,
+    config: &RunConfig,
+    source: &mut dyn PolicySource,
+    sink: &mut dyn EvalSink,
+    mut after_epoch: impl FnMut(&PolicyUpdate, &ActorStats),
+) -> Result<ActorStats, ActorError> {
+    let mut stats = ActorStats::default();
+    loop {
+        let update = match source.next()? {
+            Next::Stop(reason) => {
+                tracing::info!("stop: {reason}");
+                return Ok(stats);
+            }
+            Next::Policy(update) => *update,
+        };
+        let Some(policy) = policy_of(&update) else {
+            continue;
+        };
+        stats.versions += 1;
+        let started = Instant::now();
+        let report = evaluate(id, update.version, config, |input| {
+            Ok(act(&policy, input)?)
+        })
+        .map_err(ActorError::Evaluate)?;
+        stats.steps += report.steps;
+        stats.busy += started.elapsed();
+        tracing::info!(
+            version = update.version,
+            laps = report.laps,
+            end = %report.end_reason,
+            secs = started.elapsed().as_secs_f64(),
+            "evaluated"
+        );
+        sink.report(report)?;
+        after_epoch(&update, &stats);
+    }
+}

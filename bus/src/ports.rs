@@ -1,0 +1,329 @@
+//! The actor's ports of Algorithm 1 over zenoh (blocking; no async runtime in the caller):
+//!
+//! * [`ZenohPolicySource`]: the learner's latest version on start (its queryable), then `policy` updates, and
+//!   `control` stops;
+//! * [`ZenohExpert`]: a batch query on `expert/<kind>`, waiting and retrying while no server answers;
+//! * [`ZenohSegments`], [`ZenohEvals`]: reliable puts on `traj/<id>` and `eval/<id>`.
+//!
+//! [`WireStats`] adds up the time spent waiting on the expert and the time on the wire, for the actor's metrics.
+
+use crate::interrupt::Interrupt;
+use crate::{decode_sample, encoding_of, Bus};
+use cabc_proto::codec;
+use cabc_proto::messages::{
+    EvalReport, ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, PolicyUpdate, Stop,
+    TrajMessage,
+};
+use cabc_proto::ports::{EvalSink, ExpertClient, Next, PolicySource, PortError, SegmentSink};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+use zenoh::Wait;
+
+/// How long a blocking wait lasts before the loops look at the interrupt flag again.
+const POLL: Duration = Duration::from_millis(200);
+
+fn transport(e: impl std::fmt::Display) -> PortError {
+    PortError::Transport(e.to_string())
+}
+
+/// Time figures of an actor's traffic since start.
+#[derive(Clone, Debug, Default)]
+pub struct WireStats {
+    /// Waiting on the expert: whole round trips.
+    pub expert_wait: Duration,
+    /// On the wire: expert round trips less the server's residence time, plus publishing segments.
+    pub transport: Duration,
+    /// Broadcast latencies of the policy updates received by subscription (ms).
+    pub policy_latency_ms: Vec<f64>,
+}
+
+/// Shared between the ports and the metrics.
+pub type SharedStats = Arc<Mutex<WireStats>>;
+
+fn with_stats(stats: &SharedStats, f: impl FnOnce(&mut WireStats)) {
+    f(&mut stats.lock().unwrap_or_else(|e| e.into_inner()));
+}
+
+/// A stop on `control`, or Ctrl-C.
+struct Stops {
+    control: Subscriber<FifoChannelHandler<Sample>>,
+    interrupt: Interrupt,
+}
+
+impl Stops {
+    fn new(bus: &Bus, interrupt: &Interrupt) -> Result<Stops, PortError> {
+        let control = bus
+            .session
+            .declare_subscriber(bus.keys.control())
+            .wait()
+            .map_err(transport)?;
+        Ok(Stops {
+            control,
+            interrupt: interrupt.clone(),
+        })
+    }
+
+    fn requested(&self, bus: &Bus) -> Option<String> {
+        if self.interrupt.is_set() {
+            return Some("interrupted".into());
+        }
+        while let Ok(Some(sample)) = self.control.try_recv() {
+            let bytes = sample.payload().to_bytes();
+            if let Some(stop) = decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &bus.rejects)
+            {
+                return Some(stop.reason);
+            }
+        }
+        None
+    }
+}
+
+/// The learner's policy versions, over zenoh.
+pub struct ZenohPolicySource<'a> {
+    bus: &'a Bus,
+    updates: Subscriber<FifoChannelHandler<Sample>>,
+    stops: Stops,
+    asked_latest: bool,
+    stats: SharedStats,
+}
+
+impl<'a> ZenohPolicySource<'a> {
+    pub fn new(bus: &'a Bus, interrupt: &Interrupt, stats: SharedStats) -> Result<Self, PortError> {
+        let updates = bus
+            .session
+            .declare_subscriber(bus.keys.policy())
+            .wait()
+            .map_err(transport)?;
+        Ok(ZenohPolicySource {
+            bus,
+            updates,
+            stops: Stops::new(bus, interrupt)?,
+            asked_latest: false,
+            stats,
+        })
+    }
+
+    /// The learner's latest version, if it is up (late joiners start at once).
+    fn latest(&self) -> Option<PolicyUpdate> {
+        let key = self.bus.keys.policy();
+        let replies = self
+            .bus
+            .session
+            .get(&key)
+            .timeout(Duration::from_secs(3))
+            .wait()
+            .ok()?;
+        while let Ok(reply) = replies.recv() {
+            if let Ok(sample) = reply.result() {
+                let bytes = sample.payload().to_bytes();
+                if let Some(update) = decode_sample::<PolicyUpdate>(&key, &bytes, &self.bus.rejects)
+                {
+                    return Some(update);
+                }
+            }
+        }
+        None
+    }
+
+    fn decode(&self, sample: &Sample) -> Option<PolicyUpdate> {
+        let bytes = sample.payload().to_bytes();
+        let update =
+            decode_sample::<PolicyUpdate>(sample.key_expr().as_str(), &bytes, &self.bus.rejects)?;
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        let latency = now.saturating_sub(update.published_unix_ms) as f64;
+        with_stats(&self.stats, |s| s.policy_latency_ms.push(latency));
+        Some(update)
+    }
+
+    /// The newest update already received, if any.
+    fn newest(&self) -> Option<PolicyUpdate> {
+        let mut newest = None;
+        while let Ok(Some(sample)) = self.updates.try_recv() {
+            if let Some(update) = self.decode(&sample) {
+                newest = Some(update);
+            }
+        }
+        newest
+    }
+}
+
+impl PolicySource for ZenohPolicySource<'_> {
+    fn next(&mut self) -> Result<Next, PortError> {
+        if !self.asked_latest {
+            self.asked_latest = true;
+            if let Some(update) = self.latest() {
+                return Ok(Next::Policy(Box::new(update)));
+            }
+        }
+        loop {
+            if let Some(reason) = self.stops.requested(self.bus) {
+                return Ok(Next::Stop(reason));
+            }
+            let sample = self.updates.recv_timeout(POLL).map_err(transport)?;
+            if let Some(update) = sample.and_then(|s| self.decode(&s)) {
+                let update = self.newest().unwrap_or(update);
+                return Ok(Next::Policy(Box::new(update)));
+            }
+        }
+    }
+
+    fn interrupted(&mut self) -> Option<Next> {
+        if let Some(reason) = self.stops.requested(self.bus) {
+            return Some(Next::Stop(reason));
+        }
+        self.newest().map(|u| Next::Policy(Box::new(u)))
+    }
+}
+
+/// The expert servers, over zenoh.
+pub struct ZenohExpert<'a> {
+    bus: &'a Bus,
+    key: String,
+    timeout: Duration,
+    request_id: u64,
+    stops: Stops,
+    stats: SharedStats,
+}
+
+impl<'a> ZenohExpert<'a> {
+    /// Queries `expert/<kind>` with `timeout` per attempt.
+    pub fn new(
+        bus: &'a Bus,
+        kind: &str,
+        timeout: Duration,
+        interrupt: &Interrupt,
+        stats: SharedStats,
+    ) -> Result<Self, PortError> {
+        Ok(ZenohExpert {
+            bus,
+            key: bus.keys.expert(kind),
+            timeout,
+            request_id: 0,
+            stops: Stops::new(bus, interrupt)?,
+            stats,
+        })
+    }
+
+    fn ask(&self, payload: &[u8]) -> Result<ExpertReply, String> {
+        let replies = self
+            .bus
+            .session
+            .get(&self.key)
+            .payload(payload.to_vec())
+            .encoding(encoding_of::<ExpertRequest>())
+            .timeout(self.timeout)
+            .wait()
+            .map_err(|e| e.to_string())?;
+        match replies.recv() {
+            Ok(reply) => match reply.result() {
+                Ok(sample) => {
+                    codec::decode::<ExpertReply>(&sample.payload().to_bytes()).map_err(|e| e.to_string())
+                }
+                Err(err) => Err(format!(
+                    "the server refused the request: {}",
+                    String::from_utf8_lossy(&err.payload().to_bytes())
+                )),
+            },
+            Err(_) => Err("no expert server answered".into()),
+        }
+    }
+}
+
+impl ExpertClient for ZenohExpert<'_> {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        let started = Instant::now();
+        self.request_id += 1;
+        let n = queries.len();
+        let request = ExpertRequest {
+            request_id: self.request_id,
+            queries,
+        };
+        let payload = codec::encode(&request);
+        let mut attempt = 0u32;
+        loop {
+            attempt += 1;
+            match self.ask(&payload) {
+                Ok(reply) if reply.request_id == request.request_id && reply.answers.len() == n => {
+                    let waited = started.elapsed();
+                    let on_wire = waited.saturating_sub(Duration::from_micros(reply.batch_time_us));
+                    with_stats(&self.stats, |s| {
+                        s.expert_wait += waited;
+                        s.transport += on_wire;
+                    });
+                    if attempt > 1 {
+                        tracing::info!(key = self.key, attempt, "expert answered again");
+                    }
+                    return Ok(reply.answers);
+                }
+                Ok(reply) => tracing::warn!(
+                    key = self.key,
+                    "expert reply does not match the request ({} answers for {n} queries, id {} for {})",
+                    reply.answers.len(),
+                    reply.request_id,
+                    request.request_id
+                ),
+                Err(why) => {
+                    if attempt == 1 || attempt.is_multiple_of(10) {
+                        tracing::warn!(key = self.key, attempt, "waiting for an expert server: {why}");
+                    }
+                }
+            }
+            if let Some(reason) = self.stops.requested(self.bus) {
+                return Err(PortError::Stopped(reason));
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    }
+}
+
+/// An actor's segments and markers on `traj/<id>`.
+pub struct ZenohSegments<'a> {
+    bus: &'a Bus,
+    key: String,
+    stats: SharedStats,
+}
+
+impl<'a> ZenohSegments<'a> {
+    pub fn new(bus: &'a Bus, actor: &str, stats: SharedStats) -> Self {
+        ZenohSegments {
+            bus,
+            key: bus.keys.traj(actor),
+            stats,
+        }
+    }
+}
+
+impl SegmentSink for ZenohSegments<'_> {
+    fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
+        let started = Instant::now();
+        self.bus.put_blocking(&self.key, &message).map_err(transport)?;
+        with_stats(&self.stats, |s| s.transport += started.elapsed());
+        Ok(())
+    }
+}
+
+/// An evaluator's reports on `eval/<id>`.
+pub struct ZenohEvals<'a> {
+    bus: &'a Bus,
+    key: String,
+}
+
+impl<'a> ZenohEvals<'a> {
+    pub fn new(bus: &'a Bus, evaluator: &str) -> Self {
+        ZenohEvals {
+            bus,
+            key: bus.keys.eval(evaluator),
+        }
+    }
+}
+
+impl EvalSink for ZenohEvals<'_> {
+    fn report(&mut self, report: EvalReport) -> Result<(), PortError> {
+        self.bus.put_blocking(&self.key, &report).map_err(transport)
+    }
+}

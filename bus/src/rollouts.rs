@@ -1,0 +1,244 @@
+//! The learner's port over zenoh: [`ZenohActors`] publishes each policy version on `policy` (and answers late
+//! joiners from a queryable on the same key), takes segments from `traj/*` until the epoch's [`EpochGate`] closes,
+//! follows the actors' liveliness, and keeps the evaluation reports of `eval/*` until the learner asks for them.
+//! What arrives while the learner trains waits in the subscriptions' queues: nothing is dropped.
+
+use crate::gate::{Closed, EpochGate};
+use crate::interrupt::Interrupt;
+use crate::{decode_sample, encoding_of, Bus};
+use cabc_proto::codec;
+use cabc_proto::messages::{EvalReport, PolicyUpdate, Segment, TrajMessage};
+use cabc_proto::ports::{Collected, PortError, Rollouts};
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use zenoh::handlers::{FifoChannel, FifoChannelHandler};
+use zenoh::pubsub::Subscriber;
+use zenoh::query::Queryable;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::Wait;
+
+/// Segments (and markers) that may wait while the learner trains.
+const TRAJ_QUEUE: usize = 1 << 16;
+/// How long one wait for a segment lasts before the gate and the interrupt are looked at again.
+const POLL: Duration = Duration::from_millis(250);
+
+fn transport(e: impl std::fmt::Display) -> PortError {
+    PortError::Transport(e.to_string())
+}
+
+/// The component name of an actor's liveliness token `.../alive/actor/<id>`.
+pub fn actor_of_token(key: &str) -> Option<String> {
+    let (_, rest) = key.split_once("/alive/actor/")?;
+    Some(rest.to_string())
+}
+
+/// The actors of a run, as the learner sees them over zenoh.
+pub struct ZenohActors {
+    bus: Bus,
+    traj: Subscriber<FifoChannelHandler<Sample>>,
+    eval: Subscriber<FifoChannelHandler<Sample>>,
+    alive: Subscriber<FifoChannelHandler<Sample>>,
+    _policy: Queryable<()>,
+    latest: Arc<Mutex<Vec<u8>>>,
+    live: BTreeSet<String>,
+    epoch_timeout: Duration,
+    interrupt: Interrupt,
+}
+
+impl ZenohActors {
+    /// Subscribes to the actors' keys of `bus`'s run; an epoch without every live actor's marker closes after
+    /// `epoch_timeout`.
+    pub fn new(bus: Bus, epoch_timeout: Duration, interrupt: Interrupt) -> Result<Self, PortError> {
+        let keys = bus.keys.clone();
+        let traj = bus
+            .session
+            .declare_subscriber(keys.traj_all())
+            .with(FifoChannel::new(TRAJ_QUEUE))
+            .wait()
+            .map_err(transport)?;
+        let eval = bus
+            .session
+            .declare_subscriber(keys.eval_all())
+            .wait()
+            .map_err(transport)?;
+        let alive = bus
+            .session
+            .liveliness()
+            .declare_subscriber(keys.alive("actor/*"))
+            .history(true)
+            .wait()
+            .map_err(transport)?;
+        let latest: Arc<Mutex<Vec<u8>>> = Arc::default();
+        let answer = latest.clone();
+        let policy = bus
+            .session
+            .declare_queryable(keys.policy())
+            .callback(move |query| {
+                let latest = answer.lock().unwrap_or_else(|e| e.into_inner()).clone();
+                if latest.is_empty() {
+                    return;
+                }
+                let key = query.key_expr().clone();
+                if let Err(e) = query
+                    .reply(key, latest)
+                    .encoding(encoding_of::<PolicyUpdate>())
+                    .wait()
+                {
+                    tracing::warn!("answering a policy query: {e}");
+                }
+            })
+            .wait()
+            .map_err(transport)?;
+        Ok(ZenohActors {
+            bus,
+            traj,
+            eval,
+            alive,
+            _policy: policy,
+            latest,
+            live: BTreeSet::new(),
+            epoch_timeout,
+            interrupt,
+        })
+    }
+
+    /// The bus, to close it at the end.
+    pub fn into_bus(self) -> Bus {
+        self.bus
+    }
+
+    /// Applies the liveliness changes that arrived (to the gate too, when an epoch is open).
+    fn follow_liveliness(&mut self, mut gate: Option<&mut EpochGate>) {
+        while let Ok(Some(sample)) = self.alive.try_recv() {
+            let Some(actor) = actor_of_token(sample.key_expr().as_str()) else {
+                continue;
+            };
+            match sample.kind() {
+                SampleKind::Put => {
+                    tracing::info!(actor, "actor joined");
+                    if let Some(g) = gate.as_deref_mut() {
+                        g.alive(&actor);
+                    }
+                    self.live.insert(actor);
+                }
+                SampleKind::Delete => {
+                    tracing::warn!(actor, "actor left");
+                    if let Some(g) = gate.as_deref_mut() {
+                        g.gone(&actor);
+                    }
+                    self.live.remove(&actor);
+                }
+            }
+        }
+    }
+}
+
+impl Rollouts for ZenohActors {
+    fn collect(
+        &mut self,
+        update: &PolicyUpdate,
+        store: &mut dyn FnMut(Segment),
+    ) -> Result<Option<Collected>, PortError> {
+        *self.latest.lock().unwrap_or_else(|e| e.into_inner()) = codec::encode(update);
+        self.bus
+            .put_blocking(&self.bus.keys.policy(), update)
+            .map_err(transport)?;
+        self.follow_liveliness(None);
+        let mut gate = EpochGate::open(
+            update.version,
+            self.epoch_timeout,
+            self.live.iter().cloned(),
+            Instant::now(),
+        );
+        let mut last_wait_log = Instant::now();
+        let closed = loop {
+            if self.interrupt.is_set() {
+                return Ok(None);
+            }
+            self.follow_liveliness(Some(&mut gate));
+            if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
+                let bytes = sample.payload().to_bytes();
+                let key = sample.key_expr().as_str();
+                match decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects) {
+                    Some(TrajMessage::Segment(segment)) => store(segment),
+                    Some(TrajMessage::EpochDone(marker)) => {
+                        gate.done(marker);
+                    }
+                    None => {}
+                }
+            }
+            if let Some(closed) = gate.closed(Instant::now()) {
+                break closed;
+            }
+            if last_wait_log.elapsed() > Duration::from_secs(30) {
+                last_wait_log = Instant::now();
+                tracing::info!(epoch = update.version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
+            }
+        };
+        let missing = match closed {
+            Closed::AllDone => Vec::new(),
+            Closed::Timeout { missing } => {
+                tracing::warn!(
+                    epoch = update.version,
+                    ?missing,
+                    "epoch closed by the timeout without these actors"
+                );
+                missing
+            }
+        };
+        Ok(Some(Collected {
+            steps_published: gate.markers().map(|m| m.steps).sum(),
+            missing,
+            live: self.live.iter().cloned().collect(),
+        }))
+    }
+
+    fn evaluations(&mut self) -> Vec<EvalReport> {
+        let mut reports = Vec::new();
+        while let Ok(Some(sample)) = self.eval.try_recv() {
+            let bytes = sample.payload().to_bytes();
+            let key = sample.key_expr().as_str();
+            if let Some(report) = decode_sample::<EvalReport>(key, &bytes, &self.bus.rejects) {
+                reports.push(report);
+            }
+        }
+        reports
+    }
+
+    fn interrupted(&self) -> bool {
+        self.interrupt.is_set()
+    }
+
+    fn metrics(&mut self, json: &str) {
+        self.bus.metrics_blocking(json);
+    }
+
+    fn stop(&mut self, reason: &str) -> Result<(), PortError> {
+        let stop = cabc_proto::messages::Stop {
+            reason: reason.to_string(),
+        };
+        self.bus
+            .put_blocking(&self.bus.keys.control(), &stop)
+            .map_err(transport)
+    }
+
+    fn rejected(&self) -> u64 {
+        self.bus.rejects.count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn actor_tokens_are_recognised() {
+        assert_eq!(
+            actor_of_token("cabc/r/alive/actor/actor-1").as_deref(),
+            Some("actor-1")
+        );
+        assert_eq!(actor_of_token("cabc/r/alive/eval/e"), None);
+        assert_eq!(actor_of_token("cabc/r/alive/learner"), None);
+    }
+}

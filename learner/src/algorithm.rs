@@ -1,0 +1,73 @@
+//! Algorithm 1 of the paper, "Constraint-aware Behavior Cloning", one epoch j per turn of the loop.
+//!
+//! The actors are a port ([`Rollouts`]): over zenoh in a distributed run (`cabc_bus::rollouts`), in-process in a
+//! test (`cabc_actor::local`). Everything the learner holds (D+, D?, D-, the three networks, the run folder) is in
+//! [`Learner`]; the schedule (k_f, k_p, the auto-labelling period, the passes) in [`Schedule`].
+
+use crate::learner::{Fits, Learner, LearnerError};
+use crate::schedule::Schedule;
+use cabc_proto::ports::Rollouts;
+use std::time::Instant;
+
+/// Why a run ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Ending {
+    /// The second evaluation that completed `eval_laps` laps: this policy version is kept (early stopping).
+    EarlyStop(u64),
+    /// `run.max_epochs` epochs done.
+    MaxEpochs,
+    /// Ctrl-C: the last checkpoint stays, `--resume` continues.
+    Interrupted,
+}
+
+/// Runs Algorithm 1 from the learner's next epoch until early stop, `max_epochs` or an interrupt.
+pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, LearnerError> {
+    let schedule = Schedule::from_config(&learner.config);
+    for j in learner.state.next_epoch..learner.config.run.max_epochs {
+        let started = Instant::now();
+        // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j).
+        let update = learner.policy_update(j);
+        // Rollout pi_collect to collect D_new; partition it into D+' and D?' as it arrives: D+ <- D+ u D+',
+        // D? <- D? u D?' (a segment that ends in a lap is D+, a failed one D?).
+        let before = learner.counts();
+        let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))? else {
+            return Ok(Ending::Interrupted);
+        };
+        let collect_s = started.elapsed().as_secs_f64();
+        // Safety auto-labelling (eq. (19)), every `autolabel_every` epochs: remove from D? every x inside the convex
+        // hull of its D+ neighbours within rho; what D? then holds is D-, until the next labelling.
+        let labelled = schedule.autolabel_due(j).then(|| learner.autolabel(j)).flatten();
+        // ComputeGradient and Update: phi_f every k_f epochs (eq. (15)), phi_p every k_p epochs (eq. (16), D+ against
+        // D-), theta every epoch (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat).
+        learner.progress(j, "training");
+        let trained = Instant::now();
+        let (trainer, replay) = (&mut learner.trainer, &learner.replay);
+        let fits = Fits {
+            dynamics: schedule
+                .dynamics_due(j)
+                .then(|| trainer.fit_dynamics(replay, schedule.aux_passes(j)))
+                .flatten(),
+            critic: schedule
+                .critic_due(j)
+                .then(|| trainer.fit_critic(replay, schedule.aux_passes(j)))
+                .flatten(),
+            policy: trainer.fit_policy(replay, schedule.policy_passes(j))?,
+        };
+        let train_s = trained.elapsed().as_secs_f64();
+        // Evaluate: the evaluator drives pi_j alone from the fixed spawn; the second evaluation that completes
+        // `eval_laps` laps stops the run and keeps that version.
+        for report in actors.evaluations() {
+            learner.on_eval(report);
+        }
+        let row = learner.row(j, &update, before, &collected, labelled, &fits, [collect_s, train_s]);
+        learner.end_epoch(row, started.elapsed().as_secs_f64())?;
+        actors.metrics(&learner.metrics_json(j, &collected, actors.rejected()));
+        if actors.interrupted() {
+            return Ok(Ending::Interrupted);
+        }
+        if let Some(version) = learner.early_stop {
+            return Ok(Ending::EarlyStop(version));
+        }
+    }
+    Ok(Ending::MaxEpochs)
+}

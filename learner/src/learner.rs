@@ -1,0 +1,370 @@
+//! What the learner holds between epochs of Algorithm 1 ([`crate::algorithm`]): D+, D? and D- (the replay), the
+//! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations and early stopping,
+//! and the run folder it writes (checkpoint, `metrics.csv`, `evals.csv`, plots, summary).
+
+use crate::autolabel::{autolabel_replay, AutolabelOptions};
+use crate::plots;
+use crate::replay::Replay;
+use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
+use crate::train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};
+use cabc_models::device::parse_device;
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment};
+use cabc_proto::ports::{Collected, PortError};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::collections::{BTreeMap, HashSet};
+
+/// Errors that end the learner.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    #[error("the actors' port: {0}")]
+    Port(#[from] PortError),
+    #[error("training: {0}")]
+    Train(#[from] TrainError),
+    #[error("the run folder: {0}")]
+    RunDir(#[from] RunDirError),
+    #[error("{0}")]
+    Checkpoint(String),
+}
+
+/// Policy versions whose weights are kept (the early stop keeps the one that succeeded).
+const HISTORY: usize = 8;
+
+/// The fits of one epoch (None: the network did not train this epoch).
+#[derive(Debug)]
+pub struct Fits {
+    pub dynamics: Option<Fit>,
+    pub critic: Option<CriticFit>,
+    pub policy: PolicyFit,
+}
+
+/// Everything the learner holds.
+pub struct Learner {
+    pub config: RunConfig,
+    pub run_dir: RunDir,
+    pub trainer: Trainer,
+    /// D+, D?, D- and the dynamics-only store.
+    pub replay: Replay,
+    pub state: LearnerState,
+    /// The version that stopped the run early, once decided.
+    pub early_stop: Option<u64>,
+    history: BTreeMap<u64, Vec<u8>>,
+    last_eval: Option<EvalReport>,
+    expert_streams: HashSet<(String, u32, u64)>,
+    failed_segments: u64,
+    bar: ProgressBar,
+}
+
+impl Learner {
+    /// A fresh learner for `config` writing into `run_dir`, or the one of its checkpoint with `resume` (refused
+    /// without `resume` when a checkpoint exists).
+    pub fn open(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Self, LearnerError> {
+        let device = parse_device(&config.training.device).map_err(TrainError::from)?;
+        let (trainer, replay, state) = if run_dir.has_checkpoint() {
+            if !resume {
+                return Err(LearnerError::Checkpoint(format!(
+                    "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
+                    run_dir.path().display()
+                )));
+            }
+            let state = run_dir.load_state()?;
+            let ck = run_dir.checkpoint();
+            let mut trainer = Trainer::with_device(&config, device);
+            trainer.load(&ck)?;
+            let replay = Replay::load(&ck.join("replay.bin"))
+                .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))?;
+            tracing::info!(
+                epoch = state.next_epoch,
+                d_plus = replay.len_plus(),
+                d_uncertain = replay.len_uncertain(),
+                "resumed from {}",
+                ck.display()
+            );
+            (trainer, replay, state)
+        } else {
+            let replay = Replay::from_config(&config);
+            (Trainer::with_device(&config, device), replay, LearnerState::default())
+        };
+        let bar = ProgressBar::new(config.run.max_epochs);
+        bar.set_style(
+            ProgressStyle::with_template("{elapsed_precise} epoch {pos}/{len} {bar:30} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.set_position(state.next_epoch);
+        Ok(Learner {
+            config,
+            run_dir,
+            trainer,
+            replay,
+            state,
+            early_stop: None,
+            history: BTreeMap::new(),
+            last_eval: None,
+            expert_streams: HashSet::new(),
+            failed_segments: 0,
+            bar,
+        })
+    }
+
+    /// (pi_j, beta_j) as the actors receive it, with each actor's step budget for the epoch.
+    pub fn policy_update(&mut self, epoch: u64) -> PolicyUpdate {
+        let weights = self.trainer.policy_bytes();
+        self.history.insert(epoch, weights.clone());
+        while self.history.len() > HISTORY {
+            self.history.pop_first();
+        }
+        self.progress(epoch, "collecting");
+        PolicyUpdate {
+            version: epoch,
+            beta: self.config.beta(epoch),
+            architecture: self.trainer.policy_architecture(),
+            weights,
+            steps_per_actor: self.config.steps_per_actor(epoch),
+            published_unix_ms: unix_ms(),
+        }
+    }
+
+    /// Stored steps and segments so far (an epoch's row reports the difference).
+    pub fn counts(&self) -> (u64, u64) {
+        (self.state.ledger.stored_steps, self.state.ledger.stored_segments)
+    }
+
+    /// Stores a segment exactly once: a lap in D+, anything else in D? (or the dynamics-only store).
+    pub fn store(&mut self, segment: Segment) {
+        if !self.state.ledger.admit(&segment) {
+            tracing::warn!(actor = segment.actor, seq = segment.seq, "duplicate segment dropped");
+            return;
+        }
+        // Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
+        // episode after its first starts at the start line.
+        if segment.outcome == Outcome::Lap && segment.policy_version == 0 && self.config.beta(0) >= 1.0 {
+            let stream = (segment.actor.clone(), segment.env, segment.episode);
+            if !self.expert_streams.insert(stream) {
+                let dt = cabc_sim::env::EnvConfig::default().dt;
+                self.state.expert_lap_times.push(segment.steps.len() as f64 * dt);
+            }
+        }
+        if let Err(e) = self.replay.add_segment(&segment) {
+            self.failed_segments += 1;
+            tracing::warn!(actor = segment.actor, seq = segment.seq, "segment not stored: {e}");
+        }
+    }
+
+    /// Auto-labels D? (eq. (19)) and makes what stays in it D-. Returns (points removed, rho used); None when D? is
+    /// empty.
+    pub fn autolabel(&mut self, epoch: u64) -> Option<(usize, f64)> {
+        if self.replay.len_uncertain() == 0 {
+            return None;
+        }
+        self.progress(epoch, "auto-labelling");
+        let report = autolabel_replay(&self.replay, &AutolabelOptions::from_config(&self.config));
+        self.replay.apply_labels(&report);
+        let removed = report.removed.len();
+        tracing::info!(
+            epoch,
+            removed,
+            queried = report.queries,
+            secs = report.seconds,
+            d_minus = self.replay.len_minus(),
+            "auto-labelling removed {removed} likely-safe states from D?"
+        );
+        Some((removed, report.rho))
+    }
+
+    /// An evaluation report: counts toward early stopping when it completed `eval_laps` laps.
+    pub fn on_eval(&mut self, report: EvalReport) {
+        let summary = EvalSummary::of(&report);
+        tracing::info!(
+            version = report.version,
+            laps = report.laps,
+            end = %report.end_reason,
+            lap_mean = ?summary.lap_mean,
+            "evaluation"
+        );
+        if report.laps >= self.config.collection.eval_laps {
+            self.state.successes += 1;
+            if self.state.successes >= self.config.collection.early_stop_successes
+                && self.early_stop.is_none()
+            {
+                self.early_stop = Some(report.version);
+                if let Some(weights) = self.history.get(&report.version) {
+                    if let Err(e) = self.run_dir.write_file("best-policy.safetensors", weights) {
+                        tracing::warn!("saving the early-stopped policy: {e}");
+                    }
+                }
+            }
+        }
+        self.state.evals.push(summary);
+        self.last_eval = Some(report);
+    }
+
+    /// The epoch's row of `metrics.csv`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn row(
+        &self,
+        epoch: u64,
+        update: &PolicyUpdate,
+        (steps_before, segments_before): (u64, u64),
+        collected: &Collected,
+        labelled: Option<(usize, f64)>,
+        fits: &Fits,
+        [collect_s, train_s]: [f64; 2],
+    ) -> EpochRow {
+        EpochRow {
+            epoch,
+            beta: update.beta,
+            steps_collected: self.state.ledger.stored_steps - steps_before,
+            steps_published: collected.steps_published,
+            segments: self.state.ledger.stored_segments - segments_before,
+            d_plus: self.replay.len_plus(),
+            d_uncertain: self.replay.len_uncertain(),
+            d_minus: self.replay.len_minus(),
+            dynamics_only: self.replay.len_dynamics_only(),
+            autolabel_removed: labelled.map_or(0, |(removed, _)| removed),
+            rho: labelled.map_or(self.config.algorithm.rho, |(_, rho)| rho),
+            imitation_loss: fits.policy.imitation,
+            safety_loss: fits.policy.safety,
+            dynamics_loss: fits.dynamics.as_ref().map(|f| f.loss),
+            critic_loss: fits.critic.as_ref().map(|f| f.loss),
+            critic_accuracy: fits.critic.as_ref().map(|f| f.accuracy),
+            critic_points: fits.critic.as_ref().map(|f| f.points),
+            collect_s,
+            train_s,
+            epoch_s: 0.0,
+            closed_by_timeout: !collected.missing.is_empty(),
+            eval_version: self.last_eval.as_ref().map(|e| e.version),
+            eval_laps: self.last_eval.as_ref().map(|e| e.laps),
+        }
+    }
+
+    /// Closes an epoch: its row, the checkpoint, the tables and plots.
+    pub fn end_epoch(&mut self, mut row: EpochRow, epoch_s: f64) -> Result<(), LearnerError> {
+        row.epoch_s = epoch_s;
+        tracing::info!(
+            epoch = row.epoch,
+            beta = format!("{:.3}", row.beta),
+            d_plus = row.d_plus,
+            d_uncertain = row.d_uncertain,
+            imitation = format!("{:.5}", row.imitation_loss),
+            safety = format!("{:.5}", row.safety_loss),
+            collect_s = format!("{:.2}", row.collect_s),
+            train_s = format!("{:.2}", row.train_s),
+            "epoch done"
+        );
+        self.state.next_epoch = row.epoch + 1;
+        self.state.rows.push(row);
+        self.checkpoint()?;
+        self.write_outputs(false)?;
+        self.bar.set_position(self.state.next_epoch);
+        Ok(())
+    }
+
+    /// The learner's metrics after epoch `epoch` (JSON on `metrics/learner`).
+    pub fn metrics_json(&self, epoch: u64, collected: &Collected, rejected: u64) -> String {
+        json!({
+            "epoch": epoch,
+            "row": self.state.rows.last(),
+            "live_actors": collected.live,
+            "rejected_messages": rejected,
+        })
+        .to_string()
+    }
+
+    /// Shows the phase of epoch `epoch` on the progress bar.
+    pub fn progress(&self, epoch: u64, phase: &str) {
+        let eval = self
+            .last_eval
+            .as_ref()
+            .map(|e| format!("v{}: {} laps", e.version, e.laps))
+            .unwrap_or_else(|| "none".into());
+        self.bar.set_message(format!(
+            "{phase} | beta {:.3} | D+ {} D? {} D- {} | last eval {eval}",
+            self.config.beta(epoch),
+            self.replay.len_plus(),
+            self.replay.len_uncertain(),
+            self.replay.len_minus(),
+        ));
+    }
+
+    fn checkpoint(&self) -> Result<(), LearnerError> {
+        let (trainer, replay) = (&self.trainer, &self.replay);
+        self.run_dir
+            .save_checkpoint(&self.state, |dir| {
+                trainer.save(dir).map_err(|e| e.to_string())?;
+                replay.save(&dir.join("replay.bin")).map_err(|e| e.to_string())
+            })
+            .map_err(|e| LearnerError::Checkpoint(format!("writing the checkpoint: {e}")))
+    }
+
+    fn write_outputs(&self, final_: bool) -> Result<(), LearnerError> {
+        self.run_dir.write_tables(&self.state)?;
+        if let Err(e) = plots::draw_all(
+            &self.run_dir.plots(),
+            &self.state,
+            self.last_eval.as_ref(),
+            self.config.collection.eval_laps,
+        ) {
+            tracing::warn!("drawing plots: {e}");
+        }
+        if final_ {
+            self.run_dir
+                .write_file("final-policy.safetensors", &self.trainer.policy_bytes())?;
+        }
+        Ok(())
+    }
+
+    /// Ends the run: the final outputs (unless interrupted) and `summary.json`, which is returned.
+    pub fn finish(&mut self, reason: &str, interrupted: bool, rejected: u64) -> Result<serde_json::Value, LearnerError> {
+        self.bar.finish_and_clear();
+        tracing::info!("run ends: {reason}");
+        if !interrupted {
+            self.state.stopped = Some(reason.to_string());
+            self.write_outputs(true)?;
+        }
+        let summary = self.summary(reason, rejected);
+        self.run_dir.write_summary(&summary)?;
+        Ok(summary)
+    }
+
+    fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
+        let eval_laps = self.config.collection.eval_laps;
+        let first_50 = self.state.evals.iter().find(|e| e.laps >= eval_laps).map(|e| e.version);
+        let best = self
+            .state
+            .evals
+            .iter()
+            .max_by_key(|e| (e.laps, std::cmp::Reverse(e.version)));
+        let expert = crate::rundir::mean_std(&self.state.expert_lap_times);
+        let epochs = self.state.rows.len();
+        let epoch_s: Vec<f64> = self.state.rows.iter().map(|r| r.epoch_s).collect();
+        json!({
+            "run": self.config.run.name,
+            "experiment": self.config.run.experiment,
+            "lambda": self.config.algorithm.lambda,
+            "rho": self.config.algorithm.rho,
+            "ended": reason,
+            "epochs": epochs,
+            "early_stop_version": self.early_stop,
+            "first_version_with_eval_laps": first_50,
+            "best_eval": best,
+            "last_eval": self.state.evals.last(),
+            "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
+            "mean_epoch_s": crate::rundir::mean_std(&epoch_s).map_or(0.0, |(m, _)| m),
+            "steps_stored": self.state.ledger.stored_steps,
+            "segments_stored": self.state.ledger.stored_segments,
+            "duplicate_segments": self.state.ledger.duplicates,
+            "segments_not_stored": self.failed_segments,
+            "rejected_messages": rejected,
+            "d_plus": self.replay.len_plus(),
+            "d_uncertain": self.replay.len_uncertain(),
+            "d_minus": self.replay.len_minus(),
+        })
+    }
+}
+
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}

@@ -1,0 +1,91 @@
+//! The narrow interfaces between the parts of Algorithm 1, in the spirit of Acme's actor / adder / variable source.
+//!
+//! An actor sees three ports: a [`PolicySource`] (the learner's published (pi_j, beta_j)), an [`ExpertClient`]
+//! (pi_beta(x) for a batch of states) and a [`SegmentSink`] (where its segments go); an evaluator reports through an
+//! [`EvalSink`]. The learner sees the actors as one port, [`Rollouts`]: "publish (pi_j, beta_j) and collect D_new",
+//! and the evaluation reports.
+//!
+//! The same algorithm code runs over the in-process implementations (a test, one process: `cabc_actor::local`,
+//! `cabc_expert::relabel::Relabeller`) and over zenoh (`cabc_bus::ports`). This module knows nothing of either.
+
+use crate::messages::{
+    EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage,
+};
+
+/// A port that could not do its job.
+#[derive(Debug, thiserror::Error)]
+pub enum PortError {
+    /// The run is over (a Stop, an interrupt) while the port was waiting.
+    #[error("stopped: {0}")]
+    Stopped(String),
+    /// The transport failed.
+    #[error("{0}")]
+    Transport(String),
+}
+
+/// What a policy source hands an actor next.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Next {
+    Policy(Box<PolicyUpdate>),
+    Stop(String),
+}
+
+/// pi_beta(x): the expert's actions for a batch of states (the relabelling of Algorithm 1).
+pub trait ExpertClient {
+    /// One answer per query, in order. Waits for an expert; fails only when the run stops or the transport dies.
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError>;
+}
+
+/// An actor's variable source: the learner's policy versions.
+pub trait PolicySource {
+    /// Blocks until the next policy version (the newest of a burst) or a stop.
+    fn next(&mut self) -> Result<Next, PortError>;
+    /// A newer version or a stop that arrived meanwhile, without blocking: the learner moved on.
+    fn interrupted(&mut self) -> Option<Next>;
+}
+
+/// Where an actor's segments and its epoch markers go (the adder's output).
+pub trait SegmentSink {
+    fn put(&mut self, message: TrajMessage) -> Result<(), PortError>;
+}
+
+/// Where an evaluator's reports go.
+pub trait EvalSink {
+    fn report(&mut self, report: EvalReport) -> Result<(), PortError>;
+}
+
+/// How an epoch's collection ended, as the learner sees it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Collected {
+    /// Steps the actors said they published with this version (their markers).
+    pub steps_published: u64,
+    /// Actors alive when the epoch closed that had not said they were done (the timeout closed the epoch).
+    pub missing: Vec<String>,
+    /// The actors alive when the epoch closed.
+    pub live: Vec<String>,
+}
+
+/// The actors, as the learner sees them.
+pub trait Rollouts {
+    /// Publishes (pi_j, beta_j) and collects D_new: every segment that arrives goes to `store`, until every live
+    /// actor is done with this version (or the epoch's timeout). `Ok(None)`: interrupted, the run must end.
+    fn collect(
+        &mut self,
+        update: &PolicyUpdate,
+        store: &mut dyn FnMut(Segment),
+    ) -> Result<Option<Collected>, PortError>;
+    /// Evaluation reports received since the last call.
+    fn evaluations(&mut self) -> Vec<EvalReport>;
+    /// Whether the run was interrupted (Ctrl-C) since the last collection.
+    fn interrupted(&self) -> bool {
+        false
+    }
+    /// The learner's metrics after an epoch (JSON), for people watching the run.
+    fn metrics(&mut self, _json: &str) {}
+    /// Ends the run for every actor.
+    fn stop(&mut self, reason: &str) -> Result<(), PortError>;
+    /// Messages refused so far (foreign, malformed).
+    fn rejected(&self) -> u64 {
+        0
+    }
+}
