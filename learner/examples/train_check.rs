@@ -88,10 +88,13 @@ fn run(name: &str, config: &RunConfig, epochs: u64, per_epoch: usize, camera: bo
         }
         if epoch % config.algorithm.autolabel_every == 0 && replay.len_uncertain() > 0 {
             let report = autolabel_replay(&replay, &options);
-            println!("{name} epoch {epoch} labelled: removed {}", report.removed.len());
-            replay.remove_uncertain(&report.removed);
+            println!(
+                "{name} epoch {epoch} labelled: removed {}",
+                report.removed.len()
+            );
+            replay.apply_labels(&report);
         }
-        let l = trainer.train_epoch(epoch, &replay, None).unwrap();
+        let l = trainer.train_epoch(epoch, &replay).unwrap();
         show(name, &l);
     }
     let w = trainer.policy_bytes();

@@ -104,7 +104,7 @@ fn main() -> anyhow::Result<()> {
             let run_dir =
                 RunDir::create(&dir).with_context(|| format!("creating {}", dir.display()))?;
             if fresh {
-                let _ = std::fs::remove_dir_all(run_dir.checkpoint());
+                let _ = run_dir.remove_checkpoint();
             }
             run_dir.write_config(&config)?;
             cabc_learner::serve::run(config, run_dir, resume)

@@ -63,19 +63,19 @@ async fn run_async(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<(
         let state = run_dir
             .load_state()
             .context("reading the checkpoint's state")?;
-        let ck = run_dir.checkpoint();
+        let ck = run_dir.open_checkpoint()?;
         let mut trainer = Trainer::with_device(&config, device);
         trainer
             .load(&ck)
             .context("loading the networks of the checkpoint")?;
-        let replay =
-            Replay::load(&ck.join("replay.bin")).context("loading the replay of the checkpoint")?;
+        let replay = Replay::from_bytes(&ck.read("replay.bin")?)
+            .context("loading the replay of the checkpoint")?;
         tracing::info!(
             epoch = state.next_epoch,
             d_plus = replay.len_plus(),
             d_uncertain = replay.len_uncertain(),
             "resumed from {}",
-            ck.display()
+            ck.path().display()
         );
         (trainer, replay, state)
     } else {
@@ -318,7 +318,7 @@ impl Learner {
         let mut rho = self.config.algorithm.rho;
         if epoch % self.config.algorithm.autolabel_every == 0 && replay.len_uncertain() > 0 {
             let report = autolabel_replay(replay, &AutolabelOptions::from_config(&self.config));
-            replay.remove_uncertain(&report.removed);
+            replay.apply_labels(&report);
             removed = report.removed.len();
             rho = report.rho;
             tracing::info!(
@@ -336,7 +336,7 @@ impl Learner {
         let mut trainer = self.trainer.take().expect("trainer present");
         let replay = self.replay.take().expect("replay present");
         let mut training = tokio::task::spawn_blocking(move || {
-            let losses = trainer.train_epoch(epoch, &replay, None);
+            let losses = trainer.train_epoch(epoch, &replay);
             (trainer, replay, losses)
         });
         let mut late: Vec<Segment> = Vec::new();
@@ -542,13 +542,10 @@ impl Learner {
     fn checkpoint(&self) -> Result<()> {
         let trainer = self.trainer.as_ref().expect("trainer present");
         let replay = self.replay.as_ref().expect("replay present");
+        let mut files = trainer.to_checkpoint();
+        files.push(("replay.bin", replay.to_bytes()));
         self.run_dir
-            .save_checkpoint(&self.state, |dir| {
-                trainer.save(dir).map_err(|e| e.to_string())?;
-                replay
-                    .save(&dir.join("replay.bin"))
-                    .map_err(|e| e.to_string())
-            })
+            .save_checkpoint(&self.state, files)
             .context("writing the checkpoint")?;
         Ok(())
     }
