@@ -45,7 +45,9 @@ struct Current;
 
 impl PolicySource for Current {
     fn next(&mut self) -> Result<Next, PortError> {
-        Err(PortError::Stopped("an in-process actor is driven by the learner".into()))
+        Err(PortError::Stopped(
+            "an in-process actor is driven by the learner".into(),
+        ))
     }
 
     fn interrupted(&mut self) -> Option<Next> {

@@ -8,9 +8,7 @@ use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
 use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::ports::{
-    SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments,
-};
+use cabc_bus::ports::{SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments};
 use cabc_bus::{Bus, Role};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
@@ -78,7 +76,13 @@ fn main() -> Result<()> {
         let mut sink = ZenohSegments::new(&bus, &cli.id, stats.clone());
         let index = cli.index.unwrap_or_else(|| trailing_number(&cli.id));
         let mut collector = Collector::new(&cli.id, index, &config);
-        run_actor(&mut collector, &mut source, &mut expert, &mut sink, &mut after_epoch)?;
+        run_actor(
+            &mut collector,
+            &mut source,
+            &mut expert,
+            &mut sink,
+            &mut after_epoch,
+        )?;
     }
     if let Some(value) = last {
         tracing::info!("final metrics: {value}");
@@ -103,7 +107,13 @@ fn metrics(
 ) -> serde_json::Value {
     let wire = wire.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let busy = actor.busy.as_secs_f64();
-    let share = |d: Duration| if busy > 0.0 { d.as_secs_f64() / busy } else { 0.0 };
+    let share = |d: Duration| {
+        if busy > 0.0 {
+            d.as_secs_f64() / busy
+        } else {
+            0.0
+        }
+    };
     let latency = &wire.policy_latency_ms;
     json!({
         "version": update.version,

@@ -184,10 +184,8 @@ pub fn run_evaluator(
         };
         stats.versions += 1;
         let started = Instant::now();
-        let report = evaluate(id, update.version, config, |input| {
-            Ok(act(&policy, input)?)
-        })
-        .map_err(ActorError::Evaluate)?;
+        let report = evaluate(id, update.version, config, |input| Ok(act(&policy, input)?))
+            .map_err(ActorError::Evaluate)?;
         stats.steps += report.steps;
         stats.busy += started.elapsed();
         tracing::info!(

@@ -72,7 +72,8 @@ impl Stops {
         }
         while let Ok(Some(sample)) = self.control.try_recv() {
             let bytes = sample.payload().to_bytes();
-            if let Some(stop) = decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &bus.rejects)
+            if let Some(stop) =
+                decode_sample::<Stop>(sample.key_expr().as_str(), &bytes, &bus.rejects)
             {
                 return Some(stop.reason);
             }
@@ -221,9 +222,8 @@ impl<'a> ZenohExpert<'a> {
             .map_err(|e| e.to_string())?;
         match replies.recv() {
             Ok(reply) => match reply.result() {
-                Ok(sample) => {
-                    codec::decode::<ExpertReply>(&sample.payload().to_bytes()).map_err(|e| e.to_string())
-                }
+                Ok(sample) => codec::decode::<ExpertReply>(&sample.payload().to_bytes())
+                    .map_err(|e| e.to_string()),
                 Err(err) => Err(format!(
                     "the server refused the request: {}",
                     String::from_utf8_lossy(&err.payload().to_bytes())
@@ -301,7 +301,9 @@ impl<'a> ZenohSegments<'a> {
 impl SegmentSink for ZenohSegments<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         let started = Instant::now();
-        self.bus.put_blocking(&self.key, &message).map_err(transport)?;
+        self.bus
+            .put_blocking(&self.key, &message)
+            .map_err(transport)?;
         with_stats(&self.stats, |s| s.transport += started.elapsed());
         Ok(())
     }

@@ -30,13 +30,17 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         // Rollout pi_collect to collect D_new; partition it into D+' and D?' as it arrives: D+ <- D+ u D+',
         // D? <- D? u D?' (a segment that ends in a lap is D+, a failed one D?).
         let before = learner.counts();
-        let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))? else {
+        let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))?
+        else {
             return Ok(Ending::Interrupted);
         };
         let collect_s = started.elapsed().as_secs_f64();
         // Safety auto-labelling (eq. (19)), every `autolabel_every` epochs: remove from D? every x inside the convex
         // hull of its D+ neighbours within rho; what D? then holds is D-, until the next labelling.
-        let labelled = schedule.autolabel_due(j).then(|| learner.autolabel(j)).flatten();
+        let labelled = schedule
+            .autolabel_due(j)
+            .then(|| learner.autolabel(j))
+            .flatten();
         // ComputeGradient and Update: phi_f every k_f epochs (eq. (15)), phi_p every k_p epochs (eq. (16), D+ against
         // D-), theta every epoch (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat).
         learner.progress(j, "training");
@@ -59,7 +63,15 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         for report in actors.evaluations() {
             learner.on_eval(report);
         }
-        let row = learner.row(j, &update, before, &collected, labelled, &fits, [collect_s, train_s]);
+        let row = learner.row(
+            j,
+            &update,
+            before,
+            &collected,
+            labelled,
+            &fits,
+            [collect_s, train_s],
+        );
         learner.end_epoch(row, started.elapsed().as_secs_f64())?;
         actors.metrics(&learner.metrics_json(j, &collected, actors.rejected()));
         if actors.interrupted() {

@@ -1,4 +1,4 @@
-//! Safety auto-labelling, eq. (20)-(21) and Proposition 1 of the paper (algorithm.md 3):
+//! Safety auto-labelling, eq. (19) and Proposition 1 of the paper (algorithm.md 3):
 //!
 //! ```text
 //!     D- = D? \ { x in D? : x in conv(D+ ∩ B_rho(x)) }
@@ -19,7 +19,7 @@ use std::time::Instant;
 /// The knobs of auto-labelling, all from the run configuration.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AutolabelOptions {
-    /// rho of eq. (20) (`algorithm.rho`).
+    /// rho of eq. (19) (`algorithm.rho`).
     pub rho: f64,
     /// Divide each dimension by its standard deviation over D+ before the search (`algorithm.scale_states`).
     pub scale_states: bool,
@@ -157,7 +157,7 @@ pub fn autolabel(
 }
 
 /// Auto-labels the replay's D? against its D+ (raw 6-d states, as the reference). Apply the result with
-/// [`Replay::remove_uncertain`].
+/// [`Replay::apply_labels`], which sets D-.
 pub fn autolabel_replay(replay: &Replay, options: &AutolabelOptions) -> AutolabelReport {
     let flat =
         |states: &[[f32; 6]]| -> Vec<f64> { states.iter().flatten().map(|&v| v as f64).collect() };

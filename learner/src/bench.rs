@@ -5,8 +5,8 @@
 //! closed 1-d curve parameterised by the arc length s (speed, yaw rate and lateral offset vary with s), with noise;
 //! D? is the same curve with more spread (failed laps wander) plus a few percent uniform in the state box.
 
-use crate::autolabel::{autolabel, AutolabelOptions};
-use crate::replay::{Replay, Store};
+use crate::autolabel::{autolabel, AutolabelOptions, AutolabelReport};
+use crate::replay::Replay;
 use crate::train::{CriticTrainer, Trainer};
 use cabc_models::cuda_available;
 use cabc_proto::config::{RunConfig, ScheduleKind};
@@ -106,7 +106,8 @@ pub fn driving_like(n_plus: usize, n_uncertain: usize, seed: u64) -> (Vec<f64>, 
     (plus, uncertain)
 }
 
-/// A replay whose D+ holds `n` driving-like steps (and D? a tenth of that), for the training figures.
+/// A replay whose D+ holds `n` driving-like steps (and D? a tenth of that, all of it D-: a labelling that removed
+/// nothing), for the training figures.
 pub fn synthetic_replay(n: usize, seed: u64) -> Replay {
     let (plus, uncertain) = driving_like(n, n / 10, seed);
     let mut replay = Replay::new(n.max(1), seed);
@@ -136,6 +137,7 @@ pub fn synthetic_replay(n: usize, seed: u64) -> Replay {
         };
         replay.add_segment(&segment).expect("state-only steps");
     }
+    replay.apply_labels(&AutolabelReport::default());
     replay
 }
 
@@ -152,27 +154,21 @@ fn train_figures(device: Device, n_train: usize, seed: u64) -> TrainFigures {
     config.training.schedule = ScheduleKind::EveryEpoch;
     let replay = synthetic_replay(n_train, seed);
     let mut trainer = Trainer::with_device(&config, device);
-    let plus: &Store = &replay.plus;
-    let n = plus.len();
+    let n = replay.len_plus();
     let mut fig = TrainFigures {
         device: format!("{device:?}"),
         ..Default::default()
     };
     fig.policy_bc = rate(n, || {
-        trainer.fit_policy(plus, 1).expect("state policy");
+        trainer.fit_policy(&replay, 1).expect("state policy");
     });
-    let x = Tensor::from_slice(plus.states.as_flattened())
+    let n_dynamics = replay.len_plus() + replay.len_uncertain() + replay.len_dynamics_only();
+    fig.dynamics = rate(n_dynamics, || {
+        trainer.fit_dynamics(&replay, 1);
+    });
+    let x = Tensor::from_slice(replay.plus.states.as_flattened())
         .view([-1, 6])
         .to_device(device);
-    let u = Tensor::from_slice(plus.applied_actions.as_flattened())
-        .view([-1, 2])
-        .to_device(device);
-    let xn = Tensor::from_slice(plus.next_states.as_flattened())
-        .view([-1, 6])
-        .to_device(device);
-    fig.dynamics = rate(n, || {
-        trainer.fit_dynamics(&x, &u, &xn, 1);
-    });
     let labels = Tensor::ones([n as i64], (Kind::Float, device));
     let mut critic = CriticTrainer::new(STATE_DIM, &config, device, seed);
     fig.critic = rate(n, || {
@@ -180,11 +176,11 @@ fn train_figures(device: Device, n_train: usize, seed: u64) -> TrainFigures {
     });
     trainer.set_critic_trained(true);
     fig.policy_ca = rate(n, || {
-        trainer.fit_policy(plus, 1).expect("state policy");
+        trainer.fit_policy(&replay, 1).expect("state policy");
     });
     let mut fresh = Trainer::with_device(&config, device);
     let t = Instant::now();
-    fresh.train_epoch(1, &replay, None).expect("trains");
+    fresh.train_epoch(1, &replay).expect("trains");
     fig.epoch_seconds = t.elapsed().as_secs_f64();
     fig
 }

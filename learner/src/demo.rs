@@ -2,7 +2,7 @@
 //!
 //! The true safe set R is a chevron inside X = [-1, 1]^2: a square with a V-shaped notch cut from the top, whose tip
 //! is a sharp concave corner. D+ is uniform in R, D? uniform in X. For each rho, D? is auto-labelled against D+
-//! (eq. (20)-(21)), a critic MLP (the configured critic size, on 2-d input) is trained on D+ (label 1) and D-
+//! (eq. (19)), a critic MLP (the configured critic size, on 2-d input) is trained on D+ (label 1) and D-
 //! (label `negative_label`), and one panel shows: the true boundary (dotted black), D+ (grey), D- (orange), the
 //! points wrongly removed from D? (red: outside R, yet in the local hull), and the critic's level curves p = 0.5
 //! (blue), 0.7 (purple) and 0.9 (green). A larger rho bridges the notch and removes more points wrongly.

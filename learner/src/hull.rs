@@ -1,4 +1,4 @@
-//! Exact convex-hull membership: is x in conv(S)? (eq. (20), the test of Proposition 1.)
+//! Exact convex-hull membership: is x in conv(S)? (eq. (19), the test of Proposition 1.)
 //!
 //! It is the linear feasibility problem
 //!

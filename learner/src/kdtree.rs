@@ -1,4 +1,4 @@
-//! A static k-d tree for radius queries in any dimension (the neighbour search of eq. (20)).
+//! A static k-d tree for radius queries in any dimension (the neighbour search of eq. (19)).
 //!
 //! Built once per labelling pass over D+: points are copied into tree order (contiguous, so a leaf is one slice),
 //! split at the median of the widest dimension, leaves of up to [`LEAF`] points.

@@ -28,6 +28,9 @@ pub enum LearnerError {
     Checkpoint(String),
 }
 
+/// The replay's file in the checkpoint.
+const REPLAY: &str = "replay.bin";
+
 /// Policy versions whose weights are kept (the early stop keeps the one that succeeded).
 const HISTORY: usize = 8;
 
@@ -69,22 +72,31 @@ impl Learner {
                 )));
             }
             let state = run_dir.load_state()?;
-            let ck = run_dir.checkpoint();
+            let ck = run_dir.open_checkpoint()?;
             let mut trainer = Trainer::with_device(&config, device);
             trainer.load(&ck)?;
-            let replay = Replay::load(&ck.join("replay.bin"))
-                .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))?;
+            let replay = ck
+                .read(REPLAY)
+                .map_err(|e| LearnerError::Checkpoint(e.to_string()))
+                .and_then(|bytes| {
+                    Replay::from_bytes(&bytes)
+                        .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
+                })?;
             tracing::info!(
                 epoch = state.next_epoch,
                 d_plus = replay.len_plus(),
                 d_uncertain = replay.len_uncertain(),
                 "resumed from {}",
-                ck.display()
+                ck.path().display()
             );
             (trainer, replay, state)
         } else {
             let replay = Replay::from_config(&config);
-            (Trainer::with_device(&config, device), replay, LearnerState::default())
+            (
+                Trainer::with_device(&config, device),
+                replay,
+                LearnerState::default(),
+            )
         };
         let bar = ProgressBar::new(config.run.max_epochs);
         bar.set_style(
@@ -127,27 +139,43 @@ impl Learner {
 
     /// Stored steps and segments so far (an epoch's row reports the difference).
     pub fn counts(&self) -> (u64, u64) {
-        (self.state.ledger.stored_steps, self.state.ledger.stored_segments)
+        (
+            self.state.ledger.stored_steps,
+            self.state.ledger.stored_segments,
+        )
     }
 
     /// Stores a segment exactly once: a lap in D+, anything else in D? (or the dynamics-only store).
     pub fn store(&mut self, segment: Segment) {
         if !self.state.ledger.admit(&segment) {
-            tracing::warn!(actor = segment.actor, seq = segment.seq, "duplicate segment dropped");
+            tracing::warn!(
+                actor = segment.actor,
+                seq = segment.seq,
+                "duplicate segment dropped"
+            );
             return;
         }
         // Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
         // episode after its first starts at the start line.
-        if segment.outcome == Outcome::Lap && segment.policy_version == 0 && self.config.beta(0) >= 1.0 {
+        if segment.outcome == Outcome::Lap
+            && segment.policy_version == 0
+            && self.config.beta(0) >= 1.0
+        {
             let stream = (segment.actor.clone(), segment.env, segment.episode);
             if !self.expert_streams.insert(stream) {
                 let dt = cabc_sim::env::EnvConfig::default().dt;
-                self.state.expert_lap_times.push(segment.steps.len() as f64 * dt);
+                self.state
+                    .expert_lap_times
+                    .push(segment.steps.len() as f64 * dt);
             }
         }
         if let Err(e) = self.replay.add_segment(&segment) {
             self.failed_segments += 1;
-            tracing::warn!(actor = segment.actor, seq = segment.seq, "segment not stored: {e}");
+            tracing::warn!(
+                actor = segment.actor,
+                seq = segment.seq,
+                "segment not stored: {e}"
+            );
         }
     }
 
@@ -287,14 +315,11 @@ impl Learner {
         ));
     }
 
+    /// The networks, the replay and the learner state, written atomically (see `crate::checkpoint`).
     fn checkpoint(&self) -> Result<(), LearnerError> {
-        let (trainer, replay) = (&self.trainer, &self.replay);
-        self.run_dir
-            .save_checkpoint(&self.state, |dir| {
-                trainer.save(dir).map_err(|e| e.to_string())?;
-                replay.save(&dir.join("replay.bin")).map_err(|e| e.to_string())
-            })
-            .map_err(|e| LearnerError::Checkpoint(format!("writing the checkpoint: {e}")))
+        let mut files = self.trainer.to_checkpoint();
+        files.push((REPLAY, self.replay.to_bytes()));
+        Ok(self.run_dir.save_checkpoint(&self.state, files)?)
     }
 
     fn write_outputs(&self, final_: bool) -> Result<(), LearnerError> {
@@ -315,7 +340,12 @@ impl Learner {
     }
 
     /// Ends the run: the final outputs (unless interrupted) and `summary.json`, which is returned.
-    pub fn finish(&mut self, reason: &str, interrupted: bool, rejected: u64) -> Result<serde_json::Value, LearnerError> {
+    pub fn finish(
+        &mut self,
+        reason: &str,
+        interrupted: bool,
+        rejected: u64,
+    ) -> Result<serde_json::Value, LearnerError> {
         self.bar.finish_and_clear();
         tracing::info!("run ends: {reason}");
         if !interrupted {
@@ -329,7 +359,12 @@ impl Learner {
 
     fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
         let eval_laps = self.config.collection.eval_laps;
-        let first_50 = self.state.evals.iter().find(|e| e.laps >= eval_laps).map(|e| e.version);
+        let first_50 = self
+            .state
+            .evals
+            .iter()
+            .find(|e| e.laps >= eval_laps)
+            .map(|e| e.version);
         let best = self
             .state
             .evals

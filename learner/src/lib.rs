@@ -1,9 +1,11 @@
 //! cabc-learner: the learning core of constraint-aware behaviour cloning (the paper's Algorithm 1):
 //!
-//! * [`replay`]: D+, D? and the dynamics-only store, filled from segments, saved to disk;
-//! * [`autolabel`]: safety auto-labelling, eq. (20)-(21), over a k-d tree ([`kdtree`]) and an exact hull test
-//!   ([`hull`]);
-//! * [`train`]: the dynamics model, the critic and the policy with L_CA = L_clone + L_safety (eq. (15)-(17));
+//! * [`replay`]: D+, D?, D- and the dynamics-only store, filled from segments;
+//! * [`autolabel`]: safety auto-labelling, eq. (19), over a k-d tree ([`kdtree`]) and an exact hull test ([`hull`]);
+//! * [`schedule`]: when each part of Algorithm 1 runs (k_f, k_p, auto-labelling, warm-up);
+//! * [`train`]: the dynamics model (eq. (15)), the critic (eq. (16)) and the policy with L_CA = L_clone + L_safety
+//!   (eq. (14));
+//! * [`checkpoint`]: the one checkpoint writer (atomic) and reader;
 //! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
 //! * [`epoch`]: the epoch protocol; [`rundir`]: the run folder and checkpoints; [`plots`]: the run's plots;
 //!   `serve` (feature `server`): the learner process over zenoh.
@@ -13,6 +15,7 @@
 pub mod algorithm;
 pub mod autolabel;
 pub mod bench;
+pub mod checkpoint;
 pub mod demo;
 pub mod hull;
 pub mod kdtree;
@@ -27,5 +30,7 @@ pub mod serve;
 pub mod train;
 
 pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};
+pub use checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
 pub use replay::{Replay, ReplayError};
-pub use train::{EpochLosses, TrainError, Trainer};
+pub use schedule::Schedule;
+pub use train::{CriticFit, EpochLosses, Fit, PolicyFit, TrainError, Trainer};

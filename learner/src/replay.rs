@@ -1,22 +1,24 @@
 //! The replay buffers of Algorithm 1 (algorithm.md 2 and 4).
 //!
-//! * **D+** (`plus`): steps of completed laps (every state safe, eq. (19)) whose expert answered: the policy's
+//! * **D+** (`plus`): steps of completed laps (every state safe, eq. (18)) whose expert answered: the policy's
 //!   labels and the critic's positives.
 //! * **D?** (`uncertain`): steps of truncated episodes and steps where the expert failed (the reference sends those
-//!   straight to D_neg; simulator.md 6). Auto-labelling removes likely-safe ones; what stays is D-.
+//!   straight to D_neg; simulator.md 6). Auto-labelling removes likely-safe ones.
+//! * **D-** (`minus`): what D? held right after the last auto-labelling (eq. (19)), a snapshot of its states, held
+//!   until the next labelling: the critic's negatives. D? points that arrive after a labelling stay out of D- until
+//!   the next one, whatever the schedules (a snapshot rather than indices into D?, which eviction would invalidate).
 //! * **dynamics-only**: steps of segments cut by the step budget (never labelled), and the states auto-labelling
 //!   removed from D? (still good (x, u, x') samples for f_hat).
 //!
 //! Each store is a structure of arrays with a fixed capacity (`replay.capacity`); once full, a new step overwrites a
 //! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
 
+use crate::autolabel::AutolabelReport;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{Image, Outcome, Segment, Step, ACTION_DIM, STATE_DIM};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use std::io::{BufReader, BufWriter, Read, Write};
-use std::path::Path;
 
 /// Why the replay could not take a step or be saved or loaded.
 #[derive(Debug, thiserror::Error)]
@@ -33,21 +35,12 @@ pub enum ReplayError {
     },
     #[error("a step without an image in a buffer of images (or the other way round)")]
     ImagePresence,
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: not a replay file (bad magic)")]
-    BadMagic { path: String },
-    #[error("{path}: replay file version {found}, this build reads version {expected}")]
-    Version {
-        path: String,
-        found: u32,
-        expected: u32,
-    },
-    #[error("{path}: {message}")]
-    Decode { path: String, message: String },
+    #[error("not a replay file (bad magic)")]
+    BadMagic,
+    #[error("replay file version {found}, this build reads versions 1 to {expected}")]
+    Version { found: u32, expected: u32 },
+    #[error("replay file: {0}")]
+    Decode(String),
 }
 
 /// Images of one size, contiguous: entry i is `bytes[i * len .. (i + 1) * len]`, HWC RGB.
@@ -230,20 +223,35 @@ pub struct AddCounts {
     pub dynamics_only: usize,
 }
 
-/// D+, D? and the dynamics-only store, with the eviction RNG.
+/// D+, D?, D- and the dynamics-only store, with the eviction RNG.
 #[derive(Clone, Debug)]
 pub struct Replay {
     pub plus: Store,
     pub uncertain: Store,
     pub dynamics_only: Store,
+    /// D-: the states of D? right after the last [`Replay::apply_labels`], in D?'s order.
+    minus: Vec<[f32; STATE_DIM]>,
     rng: ChaCha8Rng,
     /// Steps ever added to each store (evicted ones included).
     pub added: AddCounts,
 }
 
-/// What the file holds, besides the magic and the version.
+/// What the bytes hold, besides the magic and the version (version 2: with D-).
 #[derive(Serialize, Deserialize)]
 struct Saved {
+    plus: Store,
+    uncertain: Store,
+    dynamics_only: Store,
+    minus: Vec<[f32; STATE_DIM]>,
+    rng_seed: [u8; 32],
+    rng_stream: u64,
+    rng_word_pos: u128,
+    added: AddCounts,
+}
+
+/// Version 1, before D- was held: its D- is the whole of its D? (what the learner of then trained the critic on).
+#[derive(Deserialize)]
+struct SavedV1 {
     plus: Store,
     uncertain: Store,
     dynamics_only: Store,
@@ -254,7 +262,7 @@ struct Saved {
 }
 
 const MAGIC: &[u8; 8] = b"CABCRPLY";
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 
 impl Replay {
     /// Empty buffers of `capacity` steps each.
@@ -263,6 +271,7 @@ impl Replay {
             plus: Store::new(capacity),
             uncertain: Store::new(capacity),
             dynamics_only: Store::new(capacity),
+            minus: Vec::new(),
             rng: ChaCha8Rng::seed_from_u64(seed),
             added: AddCounts::default(),
         }
@@ -283,6 +292,16 @@ impl Replay {
 
     pub fn len_dynamics_only(&self) -> usize {
         self.dynamics_only.len()
+    }
+
+    /// |D-|.
+    pub fn len_minus(&self) -> usize {
+        self.minus.len()
+    }
+
+    /// D-: the states of D? right after the last labelling (empty before the first).
+    pub fn minus(&self) -> &[[f32; STATE_DIM]] {
+        &self.minus
     }
 
     /// Partitions a segment by its outcome (algorithm.md 2): Lap -> D+, Failure / ExpertFailure -> D?,
@@ -355,11 +374,12 @@ impl Replay {
         }
     }
 
-    /// Applies auto-labelling (eq. (21)): the D? entries at `removed` (indices into D?) leave D?, which becomes
-    /// D-; as in the reference they are not labelled safe, but they stay available to the dynamics model.
-    pub fn remove_uncertain(&mut self, removed: &[usize]) {
+    /// Applies an auto-labelling pass (eq. (19)), Algorithm 1's "remove x from D?": the D? entries at
+    /// `report.removed` (indices into D? as it was labelled) leave D? (as in the reference they are not labelled
+    /// safe, but stay available to the dynamics model), and D- becomes what D? then holds, until the next labelling.
+    pub fn apply_labels(&mut self, report: &AutolabelReport) {
         let mut keep = vec![true; self.uncertain.len()];
-        for &i in removed {
+        for &i in &report.removed {
             if i < keep.len() && keep[i] {
                 keep[i] = false;
                 self.uncertain
@@ -367,69 +387,64 @@ impl Replay {
             }
         }
         self.uncertain.retain(&keep);
+        self.minus = self.uncertain.states.clone();
     }
 
-    /// Writes a versioned binary file (magic, version, bincode), atomically (temp file, then rename).
-    pub fn save(&self, path: &Path) -> Result<(), ReplayError> {
-        let io = |source| ReplayError::Io {
-            path: path.display().to_string(),
-            source,
-        };
+    /// The replay as bytes for the checkpoint: magic, version, bincode.
+    pub fn to_bytes(&self) -> Vec<u8> {
         let saved = Saved {
             plus: self.plus.clone(),
             uncertain: self.uncertain.clone(),
             dynamics_only: self.dynamics_only.clone(),
+            minus: self.minus.clone(),
             rng_seed: self.rng.get_seed(),
             rng_stream: self.rng.get_stream(),
             rng_word_pos: self.rng.get_word_pos(),
             added: self.added,
         };
-        let tmp = path.with_extension("tmp");
-        {
-            let file = std::fs::File::create(&tmp).map_err(io)?;
-            let mut w = BufWriter::new(file);
-            w.write_all(MAGIC).map_err(io)?;
-            w.write_all(&VERSION.to_le_bytes()).map_err(io)?;
-            bincode::serde::encode_into_std_write(&saved, &mut w, bincode::config::standard())
-                .map_err(|e| ReplayError::Decode {
-                    path: path.display().to_string(),
-                    message: e.to_string(),
-                })?;
-            w.flush().map_err(io)?;
-        }
-        std::fs::rename(&tmp, path).map_err(io)
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&VERSION.to_le_bytes());
+        bincode::serde::encode_into_std_write(&saved, &mut bytes, bincode::config::standard())
+            .expect("writing into a Vec does not fail");
+        bytes
     }
 
-    /// Reads a file written by [`Replay::save`].
-    pub fn load(path: &Path) -> Result<Self, ReplayError> {
-        let p = path.display().to_string();
-        let io = |source| ReplayError::Io {
-            path: p.clone(),
-            source,
+    /// Reads what [`Replay::to_bytes`] wrote (this version or version 1).
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ReplayError> {
+        let body = bytes.strip_prefix(MAGIC).ok_or(ReplayError::BadMagic)?;
+        let (version, body) = body
+            .split_first_chunk::<4>()
+            .ok_or_else(|| ReplayError::Decode("truncated header".into()))?;
+        let decode_err = |e: bincode::error::DecodeError| ReplayError::Decode(e.to_string());
+        let config = bincode::config::standard();
+        let saved: Saved = match u32::from_le_bytes(*version) {
+            VERSION => {
+                bincode::serde::decode_from_slice(body, config)
+                    .map_err(decode_err)?
+                    .0
+            }
+            1 => {
+                let v1: SavedV1 = bincode::serde::decode_from_slice(body, config)
+                    .map_err(decode_err)?
+                    .0;
+                Saved {
+                    minus: v1.uncertain.states.clone(),
+                    plus: v1.plus,
+                    uncertain: v1.uncertain,
+                    dynamics_only: v1.dynamics_only,
+                    rng_seed: v1.rng_seed,
+                    rng_stream: v1.rng_stream,
+                    rng_word_pos: v1.rng_word_pos,
+                    added: v1.added,
+                }
+            }
+            found => {
+                return Err(ReplayError::Version {
+                    found,
+                    expected: VERSION,
+                })
+            }
         };
-        let mut r = BufReader::new(std::fs::File::open(path).map_err(io)?);
-        let mut magic = [0u8; 8];
-        r.read_exact(&mut magic).map_err(io)?;
-        if &magic != MAGIC {
-            return Err(ReplayError::BadMagic { path: p });
-        }
-        let mut version = [0u8; 4];
-        r.read_exact(&mut version).map_err(io)?;
-        let version = u32::from_le_bytes(version);
-        if version != VERSION {
-            return Err(ReplayError::Version {
-                path: p,
-                found: version,
-                expected: VERSION,
-            });
-        }
-        let saved: Saved =
-            bincode::serde::decode_from_std_read(&mut r, bincode::config::standard()).map_err(
-                |e| ReplayError::Decode {
-                    path: p.clone(),
-                    message: e.to_string(),
-                },
-            )?;
         let mut rng = ChaCha8Rng::from_seed(saved.rng_seed);
         rng.set_stream(saved.rng_stream);
         rng.set_word_pos(saved.rng_word_pos);
@@ -437,6 +452,7 @@ impl Replay {
             plus: saved.plus,
             uncertain: saved.uncertain,
             dynamics_only: saved.dynamics_only,
+            minus: saved.minus,
             rng,
             added: saved.added,
         })

@@ -1,8 +1,9 @@
 //! The run folder `runs/<run>/`: configuration, checkpoints, `metrics.csv`, `evals.csv`, plots, `summary.json`.
 //!
-//! Checkpoints are written to `checkpoint.tmp/` and then renamed over `checkpoint/`, so a crash mid-write leaves
-//! the previous checkpoint intact: nothing is lost beyond the epoch in flight.
+//! The checkpoint (`checkpoint/`) is written by the one writer, [`crate::checkpoint`], which also says how a crash
+//! mid-write leaves the previous checkpoint intact.
 
+use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
 use serde::{Deserialize, Serialize};
@@ -19,6 +20,8 @@ pub enum RunDirError {
     },
     #[error("{path}: {message}")]
     Format { path: PathBuf, message: String },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
@@ -152,6 +155,9 @@ impl EvalSummary {
     }
 }
 
+/// The learner state's file in the checkpoint.
+const STATE: &str = "state.json";
+
 /// A run folder.
 #[derive(Clone, Debug)]
 pub struct RunDir {
@@ -171,11 +177,15 @@ impl RunDir {
 
     /// The run folder of `config` (`<runs_dir>/<run name>`, or `dir`), created, with `config.toml` written into it.
     /// With `fresh`, its checkpoint is discarded.
-    pub fn prepare(config: &RunConfig, dir: Option<PathBuf>, fresh: bool) -> Result<Self, RunDirError> {
+    pub fn prepare(
+        config: &RunConfig,
+        dir: Option<PathBuf>,
+        fresh: bool,
+    ) -> Result<Self, RunDirError> {
         let dir = dir.unwrap_or_else(|| PathBuf::from(&config.run.runs_dir).join(&config.run.name));
         let run_dir = RunDir::create(dir)?;
         if fresh {
-            let _ = std::fs::remove_dir_all(run_dir.checkpoint());
+            run_dir.remove_checkpoint()?;
         }
         run_dir.write_config(config)?;
         Ok(run_dir)
@@ -202,46 +212,45 @@ impl RunDir {
         std::fs::write(&path, config.to_toml()).map_err(io(&path))
     }
 
+    /// Whether the run has a checkpoint (`checkpoint/`, or `checkpoint.old/` after a crash mid-commit).
     pub fn has_checkpoint(&self) -> bool {
-        self.checkpoint().join("state.json").exists()
+        Checkpoint::exists(&self.checkpoint())
     }
 
-    /// Writes a checkpoint atomically: `fill` writes into a fresh folder, which then replaces `checkpoint/`.
-    pub fn save_checkpoint(
+    /// The checkpoint to resume from.
+    pub fn open_checkpoint(&self) -> Result<Checkpoint, RunDirError> {
+        Ok(Checkpoint::open(&self.checkpoint())?)
+    }
+
+    /// Removes the checkpoint and what a commit leaves beside it (`--fresh`).
+    pub fn remove_checkpoint(&self) -> Result<(), RunDirError> {
+        Ok(Checkpoint::remove(&self.checkpoint())?)
+    }
+
+    /// Writes a checkpoint atomically: `files` (the trainer's, the replay's) and the learner state as
+    /// `state.json`.
+    pub fn save_checkpoint<N: AsRef<str>>(
         &self,
         state: &LearnerState,
-        fill: impl FnOnce(&Path) -> Result<(), String>,
+        files: impl IntoIterator<Item = (N, Vec<u8>)>,
     ) -> Result<(), RunDirError> {
-        let tmp = self.root.join("checkpoint.tmp");
-        let _ = std::fs::remove_dir_all(&tmp);
-        std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-        fill(&tmp).map_err(|message| RunDirError::Format {
-            path: tmp.clone(),
-            message,
-        })?;
-        let state_path = tmp.join("state.json");
         let json = serde_json::to_vec(state).map_err(|e| RunDirError::Format {
-            path: state_path.clone(),
+            path: self.checkpoint().join(STATE),
             message: e.to_string(),
         })?;
-        std::fs::write(&state_path, json).map_err(io(&state_path))?;
-        let dst = self.checkpoint();
-        let old = self.root.join("checkpoint.old");
-        let _ = std::fs::remove_dir_all(&old);
-        if dst.exists() {
-            std::fs::rename(&dst, &old).map_err(io(&dst))?;
-        }
-        std::fs::rename(&tmp, &dst).map_err(io(&tmp))?;
-        let _ = std::fs::remove_dir_all(&old);
+        CheckpointWriter::new(self.checkpoint())
+            .files(files)
+            .file(STATE, json)
+            .commit()?;
         Ok(())
     }
 
     /// Reads the learner state of the checkpoint.
     pub fn load_state(&self) -> Result<LearnerState, RunDirError> {
-        let path = self.checkpoint().join("state.json");
-        let bytes = std::fs::read(&path).map_err(io(&path))?;
+        let checkpoint = self.open_checkpoint()?;
+        let bytes = checkpoint.read(STATE)?;
         serde_json::from_slice(&bytes).map_err(|e| RunDirError::Format {
-            path,
+            path: checkpoint.path().join(STATE),
             message: e.to_string(),
         })
     }
@@ -302,7 +311,7 @@ mod tests {
     use cabc_proto::messages::EndReason;
 
     #[test]
-    fn checkpoint_round_trip_and_atomic_replace() {
+    fn checkpoint_round_trip_and_fresh_start() {
         let dir = tempfile::tempdir().unwrap();
         let run = RunDir::create(dir.path().join("r")).unwrap();
         assert!(!run.has_checkpoint());
@@ -310,22 +319,17 @@ mod tests {
             next_epoch: 3,
             ..Default::default()
         };
-        run.save_checkpoint(&state, |p| {
-            std::fs::write(p.join("x"), b"1").map_err(|e| e.to_string())
-        })
-        .unwrap();
+        run.save_checkpoint(&state, [("x", b"1".to_vec())]).unwrap();
         state.next_epoch = 4;
-        run.save_checkpoint(&state, |p| {
-            std::fs::write(p.join("x"), b"2").map_err(|e| e.to_string())
-        })
-        .unwrap();
+        run.save_checkpoint(&state, [("x", b"2".to_vec())]).unwrap();
         assert_eq!(run.load_state().unwrap().next_epoch, 4);
+        assert_eq!(run.open_checkpoint().unwrap().read("x").unwrap(), b"2");
+        assert!(run.checkpoint().join("state.json").exists());
+        // A failing commit leaves the last checkpoint untouched.
+        assert!(run.save_checkpoint(&state, [("a/b", vec![])]).is_err());
         assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
-        // A failing fill leaves the last checkpoint untouched.
-        assert!(run
-            .save_checkpoint(&state, |_| Err("disk full".into()))
-            .is_err());
-        assert_eq!(std::fs::read(run.checkpoint().join("x")).unwrap(), b"2");
+        run.remove_checkpoint().unwrap();
+        assert!(!run.has_checkpoint());
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! Auto-labelling (eq. (20)-(21)): the hull test agrees with an LP solver, keeps points outside the hull, and is
+//! Auto-labelling (eq. (19)): the hull test agrees with an LP solver, keeps points outside the hull, and is
 //! exact on a 6-d simplex.
 
 use cabc_learner::autolabel::{autolabel, AutolabelOptions};

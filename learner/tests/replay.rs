@@ -1,6 +1,7 @@
-//! Replay: partition by outcome, random eviction, images, auto-labelling removal, save/load round trip.
+//! Replay: partition by outcome, random eviction, images, auto-labelling removal and D-, bytes round trip.
 
 use cabc_learner::replay::{Replay, ReplayError};
+use cabc_learner::AutolabelReport;
 use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
 
 fn step(v: f32, ok: bool, image: Option<Image>) -> Step {
@@ -58,12 +59,26 @@ fn segments_are_partitioned_by_outcome() {
     );
     assert_eq!(r.plus.expert_actions[0], [1.0, -1.0]);
     assert_eq!(r.uncertain.states[0][0], 2.0);
-    // Auto-labelling removal: D? entries move to the dynamics-only store.
-    r.remove_uncertain(&[0, 2]);
+    // Auto-labelling removal: D? entries move to the dynamics-only store; what D? then holds is D-.
+    assert_eq!(r.len_minus(), 0, "no D- before the first labelling");
+    r.apply_labels(&AutolabelReport {
+        removed: vec![0, 2],
+        ..Default::default()
+    });
     assert_eq!(r.len_uncertain(), 3);
     assert_eq!(r.len_dynamics_only(), 4);
     let left: Vec<f32> = r.uncertain.states.iter().map(|s| s[0]).collect();
     assert_eq!(left, vec![3.0, 3.0, 4.0]);
+    assert_eq!(r.minus(), r.uncertain.states.as_slice());
+    // D? points that arrive later stay out of D- until the next labelling.
+    r.add_segment(&segment(
+        Outcome::Failure(EndReason::Spin),
+        vec![step(6.0, true, None)],
+    ))
+    .unwrap();
+    assert_eq!((r.len_uncertain(), r.len_minus()), (4, 3));
+    r.apply_labels(&AutolabelReport::default());
+    assert_eq!(r.len_minus(), 4);
 }
 
 #[test]
@@ -118,9 +133,7 @@ fn images_are_stored_contiguously_and_checked() {
 }
 
 #[test]
-fn save_and_load_round_trip() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("replay.bin");
+fn bytes_round_trip() {
     let mut r = Replay::new(50, 3);
     for k in 0..4 {
         let steps = (0..30)
@@ -133,10 +146,16 @@ fn save_and_load_round_trip() {
         r.add_segment(&segment(Outcome::Failure(EndReason::Spin), steps))
             .unwrap();
     }
-    r.save(&path).unwrap();
-    let mut back = Replay::load(&path).unwrap();
+    r.apply_labels(&AutolabelReport {
+        removed: vec![1, 5],
+        ..Default::default()
+    });
+    let mut back = Replay::from_bytes(&r.to_bytes()).unwrap();
     assert_eq!(back.plus, r.plus);
     assert_eq!(back.uncertain, r.uncertain);
+    assert_eq!(back.dynamics_only, r.dynamics_only);
+    assert_eq!(back.minus(), r.minus());
+    assert_eq!(back.len_minus(), 48, "D? is full (50) before two leave");
     assert_eq!(back.added, r.added);
     // The eviction RNG continues where it was.
     let more = segment(
@@ -148,14 +167,20 @@ fn save_and_load_round_trip() {
     r.add_segment(&more).unwrap();
     back.add_segment(&more).unwrap();
     assert_eq!(back.plus, r.plus);
-    // Not a replay file.
-    std::fs::write(&path, b"garbage!garbage").unwrap();
+    // Not a replay file, a truncated one, another version.
     assert!(matches!(
-        Replay::load(&path),
-        Err(ReplayError::BadMagic { .. })
+        Replay::from_bytes(b"garbage!garbage"),
+        Err(ReplayError::BadMagic)
     ));
+    let bytes = r.to_bytes();
     assert!(matches!(
-        Replay::load(&dir.path().join("missing")),
-        Err(ReplayError::Io { .. })
+        Replay::from_bytes(&bytes[..bytes.len() / 2]),
+        Err(ReplayError::Decode(_))
+    ));
+    let mut v9 = bytes.clone();
+    v9[8..12].copy_from_slice(&9u32.to_le_bytes());
+    assert!(matches!(
+        Replay::from_bytes(&v9),
+        Err(ReplayError::Version { found: 9, .. })
     ));
 }

@@ -1,8 +1,12 @@
 //! Training: the dynamics model learns a linear system, the critic separates two blobs, L_safety pushes the policy
-//! away from what the critic marks unsafe, training is deterministic for a seed, and save/load round-trips.
+//! away from what the critic marks unsafe, the critic trains on D+ and D- only, training is deterministic for a seed,
+//! and the checkpoint round-trips.
 
 use cabc_learner::replay::Replay;
-use cabc_learner::train::{CriticTrainer, Trainer};
+use cabc_learner::train::{critic_examples, CriticTrainer, Trainer};
+use cabc_learner::{
+    autolabel_replay, AutolabelOptions, AutolabelReport, Checkpoint, CheckpointWriter, Schedule,
+};
 use cabc_proto::config::{RunConfig, ScheduleKind};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
@@ -78,6 +82,8 @@ fn replay(seed: u64) -> Replay {
         random_steps(2048, &mut rng, 0.3..1.5, [0.5, 0.2]),
     ))
     .unwrap();
+    // A labelling that removed nothing: D- is all of D?.
+    r.apply_labels(&AutolabelReport::default());
     r
 }
 
@@ -90,7 +96,7 @@ fn dynamics_learns_a_linear_system() {
     let mut t = Trainer::with_device(&c, Device::Cpu);
     let mut last = f64::INFINITY;
     for epoch in 0..6 {
-        last = t.train_epoch(epoch, &r, None).unwrap().dynamics.unwrap();
+        last = t.train_epoch(epoch, &r).unwrap().dynamics.unwrap();
     }
     assert!(last < 2e-3, "dynamics MSE {last}");
     // Held-out states.
@@ -169,7 +175,7 @@ fn safety_term_pushes_the_policy_away_from_unsafe_states() {
         let mut t = Trainer::with_device(&c, Device::Cpu);
         let mut last = None;
         for epoch in 0..6 {
-            last = Some(t.train_epoch(epoch, &r, None).unwrap());
+            last = Some(t.train_epoch(epoch, &r).unwrap());
         }
         (mean_action(&t, &r), last.unwrap())
     };
@@ -200,9 +206,7 @@ fn training_is_deterministic_for_a_seed() {
         let mut c = config(seed);
         c.algorithm.lambda = 1.0;
         let mut t = Trainer::with_device(&c, Device::Cpu);
-        let losses: Vec<_> = (0..2)
-            .map(|e| t.train_epoch(e, &r, None).unwrap())
-            .collect();
+        let losses: Vec<_> = (0..2).map(|e| t.train_epoch(e, &r).unwrap()).collect();
         (
             t.policy_bytes(),
             losses
@@ -223,10 +227,15 @@ fn trainer_save_and_load_round_trip() {
     let r = replay(6);
     let c = config(6);
     let mut t = Trainer::new(&c).unwrap();
-    t.train_epoch(0, &r, None).unwrap();
+    t.train_epoch(0, &r).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    t.save(dir.path()).unwrap();
-    let back = Trainer::resume(&c, dir.path()).unwrap();
+    let path = dir.path().join("checkpoint");
+    CheckpointWriter::new(&path)
+        .files(t.to_checkpoint())
+        .commit()
+        .unwrap();
+    let ck = Checkpoint::open(&path).unwrap();
+    let back = Trainer::resume(&c, &ck).unwrap();
     assert!(back.policy_bytes() == t.policy_bytes());
     assert_eq!(back.epochs_trained, 1);
     assert_eq!(back.critic_trained(), t.critic_trained());
@@ -234,10 +243,113 @@ fn trainer_save_and_load_round_trip() {
     // Another architecture's checkpoint is refused.
     let mut other = c.clone();
     other.networks.policy.width = 64;
-    assert!(Trainer::resume(&other, dir.path()).is_err());
-    // With a D- mask that is all false, the critic does not train.
+    assert!(Trainer::resume(&other, &ck).is_err());
+    // Before any labelling D- is empty, and the critic does not train.
+    let mut unlabelled = Replay::new(10_000, 6);
+    for store in [&r.plus, &r.uncertain] {
+        let outcome = if std::ptr::eq(store, &r.plus) {
+            Outcome::Lap
+        } else {
+            Outcome::Failure(EndReason::Spin)
+        };
+        let steps = (0..store.len())
+            .map(|i| Step {
+                state: store.states[i],
+                pose: [0.0; 3],
+                image: None,
+                expert_action: store.expert_actions[i],
+                applied_action: store.applied_actions[i],
+                next_state: store.next_states[i],
+                expert_ok: true,
+            })
+            .collect();
+        unlabelled.add_segment(&segment(outcome, steps)).unwrap();
+    }
     let mut fresh = Trainer::new(&c).unwrap();
-    let mask = vec![false; r.len_uncertain()];
-    let l = fresh.train_epoch(0, &r, Some(&mask)).unwrap();
+    let l = fresh.train_epoch(0, &unlabelled).unwrap();
     assert_eq!((l.n_minus, l.critic), (0, None));
+    assert!(!fresh.critic_trained());
+}
+
+/// Issue 10: with critic_every = 1 and autolabel_every = 3 the critic trains every epoch, and D? points that arrived
+/// after the last labelling must never be among its negatives: its training set is D+ then the D- snapshot.
+#[test]
+fn the_critic_trains_on_d_plus_and_the_labelled_d_minus_only() {
+    let mut c = config(7);
+    c.training.schedule = ScheduleKind::Paper;
+    c.training.critic_every = 1;
+    c.training.dynamics_every = 1000;
+    c.training.aux_passes = 1;
+    c.training.initial_passes = 1;
+    c.algorithm.autolabel_every = 3;
+    let schedule = Schedule::from_config(&c);
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut r = Replay::new(100_000, 7);
+    r.add_segment(&segment(
+        Outcome::Lap,
+        random_steps(512, &mut rng, -1.0..0.0, [0.5, 0.2]),
+    ))
+    .unwrap();
+    let mut t = Trainer::with_device(&c, Device::Cpu);
+    let (mut snapshot, mut labelled_at) = (Vec::new(), 0);
+    let mut trained = 0;
+    for epoch in 0..7u64 {
+        // Epoch e's new D? points sit at x0 in [10 + e, 10.5 + e): far from D+, so labelling keeps them.
+        let e = epoch as f32;
+        r.add_segment(&segment(
+            Outcome::Failure(EndReason::OutOfTrack),
+            random_steps(40, &mut rng, 10.0 + e..10.5 + e, [0.5, 0.2]),
+        ))
+        .unwrap();
+        if schedule.autolabel_due(epoch) {
+            let report = autolabel_replay(&r, &AutolabelOptions::from_config(&c));
+            r.apply_labels(&report);
+            snapshot = r.uncertain.states.clone();
+            labelled_at = epoch;
+        }
+        // More D? points after the labelling, before training.
+        r.add_segment(&segment(
+            Outcome::Failure(EndReason::OutOfTrack),
+            random_steps(40, &mut rng, 20.0 + e..20.5 + e, [0.5, 0.2]),
+        ))
+        .unwrap();
+        assert!(r.len_uncertain() > r.len_minus());
+        let (x, labels) = critic_examples(&r, c.algorithm.negative_label, Device::Cpu);
+        let rows: Vec<f32> = Vec::try_from(x.view(-1)).unwrap();
+        let want: Vec<f32> = r
+            .plus
+            .states
+            .iter()
+            .chain(&snapshot)
+            .flatten()
+            .copied()
+            .collect();
+        assert!(
+            rows == want,
+            "epoch {epoch}: the critic's set is D+ and the D- snapshot"
+        );
+        let negatives: Vec<f32> = Vec::try_from(labels.view(-1)).unwrap();
+        assert_eq!(negatives.len(), r.len_plus() + snapshot.len());
+        assert!(negatives[r.len_plus()..]
+            .iter()
+            .all(|&l| l == c.algorithm.negative_label as f32));
+        // No negative came in after the last labelling (at epoch L: bands 20 + e for e >= L, 10 + e for e > L).
+        let l0 = labelled_at as f32;
+        let late = rows
+            .chunks_exact(6)
+            .skip(r.len_plus())
+            .filter(|s| s[0] >= 20.0 + l0 || (s[0] >= 10.0 + l0 + 0.75 && s[0] < 20.0));
+        assert_eq!(late.count(), 0, "epoch {epoch}");
+        let l = t.train_epoch(epoch, &r).unwrap();
+        assert_eq!(l.n_minus, snapshot.len());
+        if l.critic.is_some() {
+            trained += 1;
+            let n = r.len_plus() + snapshot.len();
+            assert_eq!(
+                l.critic_samples,
+                n / c.training.batch_size * c.training.batch_size
+            );
+        }
+    }
+    assert_eq!(trained, 7, "the critic trains every epoch");
 }

@@ -1,5 +1,5 @@
 //! The safety critic: a logit whose sigmoid p_hat(x) estimates P(x in the backward reachable tube), trained by
-//! binary cross-entropy, eq. (17). The input dimension is free (6 for the state, 2 in the Fig. 3 example).
+//! binary cross-entropy, eq. (16). The input dimension is free (6 for the state, 2 in the Fig. 3 example).
 
 use crate::init::{kaiming_normal, Fan};
 use crate::weights::Network;

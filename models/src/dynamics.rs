@@ -1,4 +1,4 @@
-//! The learned one-step dynamics f_hat(x, u) = x + MLP([x, u]) (algorithm.md 1, residual), trained by eq. (16).
+//! The learned one-step dynamics f_hat(x, u) = x + MLP([x, u]) (algorithm.md 1, residual), trained by eq. (15).
 
 use crate::init::{kaiming_normal, Fan};
 use crate::weights::Network;

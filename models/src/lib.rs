@@ -3,8 +3,8 @@
 //!
 //! * [`Policy`] pi_theta(y): an MLP on the full state, or a vision trunk (ResNet-18 / small CNN) on the camera image
 //!   concatenated with the velocities, then an MLP;
-//! * [`Dynamics`] f_hat(x, u) = x + MLP([x, u]) (eq. (16), residual);
-//! * [`Critic`] the logit of p_hat(x in the backward reachable tube) (eq. (17)).
+//! * [`Dynamics`] f_hat(x, u) = x + MLP([x, u]) (residual), trained by eq. (15);
+//! * [`Critic`] the logit of p_hat(x in the backward reachable tube), trained by eq. (16).
 //!
 //! Each network owns its `VarStore` and carries its architecture's name; weights travel as safetensors bytes with
 //! that name in the metadata ([`weights`]), so weights of another architecture are refused by a typed error.

@@ -2,19 +2,21 @@
 //!
 //! * full state: y = x (6) -> MLP -> [a, delta];
 //! * camera: y = (image, [v_long, v_tran, omega]); trunk(image / 255, NCHW) ++ velocity -> MLP -> [a, delta].
+//!
+//! Observations become tensors in one place, [`PolicyInput::states`] and [`PolicyInput::camera`], for the actor's
+//! [`Observation`]s and the learner's D+ batches alike.
 
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
 use crate::weights::Network;
 use crate::{weights, Mlp, ModelError};
 use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, VisionTrunk};
-use cabc_proto::messages::{Image, ACTION_DIM, STATE_DIM};
+use cabc_proto::messages::{velocity_of, Image, ACTION_DIM, STATE_DIM};
 use std::fmt;
 use std::str::FromStr;
 use tch::{nn, nn::Module, nn::ModuleT, Device, Kind, Tensor};
 
-/// Velocities the camera policy sees beside the image.
-pub const VELOCITY_DIM: usize = 3;
+pub use cabc_proto::messages::VELOCITY_DIM;
 
 /// The policy's architecture; its [`Display`](fmt::Display) is the name stored with the weights and sent in
 /// `PolicyUpdate.architecture`, e.g. `policy-state-mlp-3x128` or `policy-camera-resnet18-mlp-3x128`.
@@ -103,6 +105,42 @@ pub enum PolicyInput {
     Camera { images: Tensor, velocity: Tensor },
 }
 
+impl PolicyInput {
+    /// Full states, stacked into [N, 6].
+    pub fn states<'a>(states: impl IntoIterator<Item = &'a [f32; STATE_DIM]>) -> Self {
+        let flat: Vec<f32> = states.into_iter().flatten().copied().collect();
+        PolicyInput::State(Tensor::from_slice(&flat).view([-1, STATE_DIM as i64]))
+    }
+
+    /// The one camera batching routine (the actor's observations and the learner's D+ batches): frames of
+    /// `width` x `height` RGB bytes (HWC) with their velocities, stacked into [N, H, W, 3] u8 and [N, 3].
+    pub fn camera<'a>(
+        width: u16,
+        height: u16,
+        frames: impl IntoIterator<Item = (&'a [u8], [f32; VELOCITY_DIM])>,
+    ) -> Result<Self, ModelError> {
+        let per = width as usize * height as usize * 3;
+        let frames = frames.into_iter();
+        let mut pixels = Vec::with_capacity(per * frames.size_hint().0);
+        let mut velocity = Vec::with_capacity(VELOCITY_DIM * frames.size_hint().0);
+        for (rgb, v) in frames {
+            if rgb.len() != per {
+                return Err(ModelError::Observation(format!(
+                    "an image of {} bytes in a batch of {width}x{height} RGB images ({per} bytes each)",
+                    rgb.len()
+                )));
+            }
+            pixels.extend_from_slice(rgb);
+            velocity.extend_from_slice(&v);
+        }
+        let n = (velocity.len() / VELOCITY_DIM) as i64;
+        Ok(PolicyInput::Camera {
+            images: Tensor::from_slice(&pixels).view([n, height as i64, width as i64, 3]),
+            velocity: Tensor::from_slice(&velocity).view([n, VELOCITY_DIM as i64]),
+        })
+    }
+}
+
 /// One observation, as an actor holds it.
 #[derive(Clone, Copy, Debug)]
 pub enum Observation<'a> {
@@ -111,6 +149,16 @@ pub enum Observation<'a> {
         image: &'a Image,
         velocity: [f32; VELOCITY_DIM],
     },
+}
+
+impl<'a> Observation<'a> {
+    /// The camera observation at `state`: the image and the state's velocities ([`velocity_of`]).
+    pub fn camera(image: &'a Image, state: &[f32; STATE_DIM]) -> Self {
+        Observation::Camera {
+            image,
+            velocity: velocity_of(state),
+        }
+    }
 }
 
 /// u8 NHWC -> float NCHW in [0, 1] (no mean/std normalisation, as the reference).
@@ -217,53 +265,43 @@ impl Policy {
     }
 
     fn input_of(&self, observations: &[Observation]) -> Result<PolicyInput, ModelError> {
-        let n = observations.len() as i64;
+        let wrong = |what: String| ModelError::Observation(format!("{} takes {what}", self.arch));
         match self.arch {
             PolicyArch::State { .. } => {
-                let mut flat = Vec::with_capacity(observations.len() * STATE_DIM);
-                for o in observations {
-                    match o {
-                        Observation::State(x) => flat.extend_from_slice(&x[..]),
+                let states = observations
+                    .iter()
+                    .map(|o| match o {
+                        Observation::State(x) => Ok(*x),
                         Observation::Camera { .. } => {
-                            return Err(ModelError::Observation(format!(
-                                "{} takes states, got a camera observation",
-                                self.arch
-                            )))
+                            Err(wrong("states, got a camera observation".into()))
                         }
-                    }
-                }
-                Ok(PolicyInput::State(
-                    Tensor::from_slice(&flat).view([n, STATE_DIM as i64]),
-                ))
+                    })
+                    .collect::<Result<Vec<_>, _>>()?;
+                Ok(PolicyInput::states(states))
             }
             PolicyArch::Camera { .. } => {
                 let (w, h) = match observations[0] {
                     Observation::Camera { image, .. } => (image.width, image.height),
                     Observation::State(_) => (0, 0),
                 };
-                let per = w as usize * h as usize * 3;
-                let mut pixels = Vec::with_capacity(per * observations.len());
-                let mut velocity = Vec::with_capacity(VELOCITY_DIM * observations.len());
-                for o in observations {
-                    match o {
-                        Observation::Camera { image, velocity: v }
-                            if image.width == w && image.height == h && image.rgb.len() == per =>
+                let one_size = || {
+                    let per = w as usize * h as usize * 3;
+                    wrong(format!(
+                        "camera images of one size ({w}x{h}, {per} bytes each)"
+                    ))
+                };
+                let frames = observations
+                    .iter()
+                    .map(|o| match o {
+                        Observation::Camera { image, velocity }
+                            if image.width == w && image.height == h =>
                         {
-                            pixels.extend_from_slice(&image.rgb);
-                            velocity.extend_from_slice(v);
+                            Ok((image.rgb.as_slice(), *velocity))
                         }
-                        _ => {
-                            return Err(ModelError::Observation(format!(
-                                "{} takes camera images of one size ({w}x{h}, {per} bytes each)",
-                                self.arch
-                            )))
-                        }
-                    }
-                }
-                Ok(PolicyInput::Camera {
-                    images: Tensor::from_slice(&pixels).view([n, h as i64, w as i64, 3]),
-                    velocity: Tensor::from_slice(&velocity).view([n, VELOCITY_DIM as i64]),
-                })
+                        _ => Err(one_size()),
+                    })
+                    .collect::<Result<Vec<_>, _>>()?;
+                PolicyInput::camera(w, h, frames).map_err(|_| one_size())
             }
         }
     }

@@ -10,6 +10,13 @@ use serde::{Deserialize, Serialize};
 pub const STATE_DIM: usize = 6;
 /// Action dimension.
 pub const ACTION_DIM: usize = 2;
+/// Velocities the camera policy sees beside the image.
+pub const VELOCITY_DIM: usize = 3;
+
+/// [v_long, v_tran, omega] = state[0..3]: the velocities the vision policy sees beside the image (the one definition).
+pub fn velocity_of(state: &[f32; STATE_DIM]) -> [f32; VELOCITY_DIM] {
+    [state[0], state[1], state[2]]
+}
 
 /// An RGB camera image, row-major HWC.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -39,9 +46,9 @@ pub struct Step {
 }
 
 impl Step {
-    /// [v_long, v_tran, omega]: the velocities the vision policy sees beside the image.
-    pub fn velocity(&self) -> [f32; 3] {
-        [self.state[0], self.state[1], self.state[2]]
+    /// [v_long, v_tran, omega] before the step ([`velocity_of`]).
+    pub fn velocity(&self) -> [f32; VELOCITY_DIM] {
+        velocity_of(&self.state)
     }
 }
 

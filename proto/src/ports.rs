@@ -8,9 +8,7 @@
 //! The same algorithm code runs over the in-process implementations (a test, one process: `cabc_actor::local`,
 //! `cabc_expert::relabel::Relabeller`) and over zenoh (`cabc_bus::ports`). This module knows nothing of either.
 
-use crate::messages::{
-    EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage,
-};
+use crate::messages::{EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage};
 
 /// A port that could not do its job.
 #[derive(Debug, thiserror::Error)]

@@ -39,11 +39,19 @@ fn three_epochs_of_algorithm_1_in_process() {
     let (learner, ending) = run(&config, tmp.path());
     assert_eq!(ending, Ending::MaxEpochs);
     let rows = &learner.state.rows;
-    assert_eq!(rows.iter().map(|r| r.epoch).collect::<Vec<_>>(), [0, 1, 2, 3]);
+    assert_eq!(
+        rows.iter().map(|r| r.epoch).collect::<Vec<_>>(),
+        [0, 1, 2, 3]
+    );
     for r in rows {
         // Every step collected is stored once, and the epoch's budget is spent exactly.
         assert_eq!(r.steps_collected, r.steps_published, "epoch {}", r.epoch);
-        assert_eq!(r.steps_published, config.epoch_steps(r.epoch), "epoch {}", r.epoch);
+        assert_eq!(
+            r.steps_published,
+            config.epoch_steps(r.epoch),
+            "epoch {}",
+            r.epoch
+        );
         assert!(!r.closed_by_timeout);
     }
     let stored: u64 = rows.iter().map(|r| r.steps_collected).sum();
@@ -58,18 +66,29 @@ fn three_epochs_of_algorithm_1_in_process() {
     // D- is made by labelling (epochs 0 and 2) and held until the next one.
     for r in rows {
         if r.epoch % 2 == 0 {
-            assert_eq!(r.d_minus, r.d_uncertain, "epoch {}: right after labelling D- is D?", r.epoch);
+            assert_eq!(
+                r.d_minus, r.d_uncertain,
+                "epoch {}: right after labelling D- is D?",
+                r.epoch
+            );
         } else {
-            assert_eq!(r.d_minus, rows[r.epoch as usize - 1].d_minus, "epoch {}: D- held", r.epoch);
+            assert_eq!(
+                r.d_minus,
+                rows[r.epoch as usize - 1].d_minus,
+                "epoch {}: D- held",
+                r.epoch
+            );
         }
         // The critic's training set is D+ and D-, never the unlabelled part of D?.
         if let Some(points) = r.critic_points {
             assert_eq!(points, r.d_plus + r.d_minus, "epoch {}", r.epoch);
         }
     }
+    // The case the schedules make: the critic trained while D? held points the last labelling did not see.
     assert!(
-        rows[1].d_uncertain > rows[1].d_minus || rows[1].d_uncertain == rows[0].d_uncertain,
-        "epoch 1 adds unlabelled points to D? (or none failed): {rows:?}"
+        rows.iter()
+            .any(|r| r.critic_points.is_some() && r.d_uncertain > r.d_minus),
+        "{rows:#?}"
     );
     // Each policy version was evaluated once.
     let versions: Vec<u64> = learner.state.evals.iter().map(|e| e.version).collect();

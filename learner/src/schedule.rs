@@ -1,0 +1,103 @@
+//! When each part of Algorithm 1 runs in epoch j: auto-labelling, the dynamics model (every k_f epochs), the critic
+//! (every k_p epochs), and how many passes each fit makes (more for the policy in epoch 0, the warm-up).
+//!
+//! All numbers come from the run configuration (`algorithm.autolabel_every`, `training.dynamics_every` = k_f,
+//! `training.critic_every` = k_p, `training.initial_passes` / `passes` / `aux_passes`, `training.schedule`).
+
+use cabc_proto::config::{RunConfig, ScheduleKind};
+
+/// The schedule of a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Schedule {
+    kind: ScheduleKind,
+    autolabel_every: u64,
+    /// k_f.
+    dynamics_every: u64,
+    /// k_p.
+    critic_every: u64,
+    initial_passes: usize,
+    passes: usize,
+    aux_passes: usize,
+}
+
+impl Schedule {
+    pub fn from_config(config: &RunConfig) -> Self {
+        let t = &config.training;
+        Schedule {
+            kind: t.schedule,
+            autolabel_every: config.algorithm.autolabel_every,
+            dynamics_every: t.dynamics_every,
+            critic_every: t.critic_every,
+            initial_passes: t.initial_passes,
+            passes: t.passes,
+            aux_passes: t.aux_passes,
+        }
+    }
+
+    /// Whether D? is auto-labelled (eq. (19)) before training in epoch j; the same under both kinds of schedule.
+    pub fn autolabel_due(&self, j: u64) -> bool {
+        j % self.autolabel_every == 0
+    }
+
+    /// Whether f_hat trains in epoch j: every k_f epochs (Algorithm 1), or every epoch (`EveryEpoch`).
+    pub fn dynamics_due(&self, j: u64) -> bool {
+        match self.kind {
+            ScheduleKind::Paper => j % self.dynamics_every == 0,
+            ScheduleKind::EveryEpoch => true,
+        }
+    }
+
+    /// Whether p_hat trains in epoch j: every k_p epochs (Algorithm 1), or every epoch (`EveryEpoch`).
+    pub fn critic_due(&self, j: u64) -> bool {
+        match self.kind {
+            ScheduleKind::Paper => j % self.critic_every == 0,
+            ScheduleKind::EveryEpoch => true,
+        }
+    }
+
+    /// Passes of the policy over D+ in epoch j: `initial_passes` in epoch 0 (the warm-up), `passes` later.
+    pub fn policy_passes(&self, j: u64) -> usize {
+        if j == 0 {
+            self.initial_passes
+        } else {
+            self.passes
+        }
+    }
+
+    /// Passes of f_hat and p_hat when they train in epoch j: `aux_passes` (Algorithm 1), or the policy's passes
+    /// (`EveryEpoch`, the reference's full-state trainer).
+    pub fn aux_passes(&self, j: u64) -> usize {
+        match self.kind {
+            ScheduleKind::Paper => self.aux_passes,
+            ScheduleKind::EveryEpoch => self.policy_passes(j),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_and_every_epoch_schedules() {
+        let mut c = RunConfig::default();
+        c.training.dynamics_every = 5;
+        c.training.critic_every = 10;
+        c.training.initial_passes = 7;
+        c.training.passes = 2;
+        c.training.aux_passes = 3;
+        c.algorithm.autolabel_every = 4;
+        let s = Schedule::from_config(&c);
+        let due = |f: fn(&Schedule, u64) -> bool| (0..21).filter(|&j| f(&s, j)).collect::<Vec<_>>();
+        assert_eq!(due(Schedule::dynamics_due), [0, 5, 10, 15, 20]);
+        assert_eq!(due(Schedule::critic_due), [0, 10, 20]);
+        assert_eq!(due(Schedule::autolabel_due), [0, 4, 8, 12, 16, 20]);
+        assert_eq!((s.policy_passes(0), s.policy_passes(1)), (7, 2));
+        assert_eq!((s.aux_passes(0), s.aux_passes(1)), (3, 3));
+        c.training.schedule = ScheduleKind::EveryEpoch;
+        let s = Schedule::from_config(&c);
+        assert!((0..5).all(|j| s.dynamics_due(j) && s.critic_due(j)));
+        assert_eq!((s.aux_passes(0), s.aux_passes(1)), (7, 2));
+        assert!(!s.autolabel_due(1));
+    }
+}

@@ -1,0 +1,129 @@
+//! The one fit loop the three networks share: one fit call is `passes` passes of shuffled mini-batches (the last
+//! partial batch dropped), each batch a zero_grad / backward / gradient-norm clip / Adam step, at the learning rate
+//! lr0 * gamma^fits (ExponentialLR stepped once per fit call); the figures reported are those of the last pass.
+
+use cabc_models::ModelError;
+use cabc_proto::config::TrainingSection;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use tch::{nn, nn::OptimizerConfig, Device, Tensor};
+
+/// One network's optimiser and learning-rate schedule.
+pub(crate) struct Opt {
+    opt: nn::Optimizer,
+    /// Fit calls so far: lr = lr0 * gamma^fits.
+    pub fits: u64,
+}
+
+impl Opt {
+    /// Adam with the configured weight decay on `vs`.
+    pub fn adam(vs: &nn::VarStore, t: &TrainingSection) -> Self {
+        Opt {
+            opt: nn::Adam::default()
+                .wd(t.weight_decay)
+                .build(vs, t.lr)
+                .expect("Adam builds"),
+            fits: 0,
+        }
+    }
+
+    /// The learning rate of the next fit call.
+    pub fn lr(&self, t: &TrainingSection) -> f64 {
+        t.lr * t.lr_gamma.powi(self.fits as i32)
+    }
+}
+
+/// libtorch's intra-op threads on the CPU. These networks are small (batch 64, widths <= 256): with more threads
+/// OpenMP's spinning costs more than it gains, up to 20x slower on a loaded 2-core machine (measured), and one thread
+/// also makes CPU runs bit-reproducible. OpenMP keeps the setting per OS thread, so it is set on each fit call.
+const CPU_THREADS: i32 = 1;
+
+pub(crate) fn limit_cpu_threads(device: Device) {
+    if device == Device::Cpu {
+        tch::set_num_threads(CPU_THREADS);
+    }
+}
+
+/// One mini-batch: its row indices, on the CPU and as a tensor on the training device.
+pub(crate) struct Batch<'a> {
+    pub rows: &'a [i64],
+    pub idx: Tensor,
+}
+
+/// One fit call over `n` examples: `loss` gives the batch's loss to minimise and records what it wants to report
+/// into the pass's `M` (a fresh `M` each pass). Returns the last pass's `M` and the samples seen (all passes).
+pub(crate) fn fit<M: Default>(
+    opt: &mut Opt,
+    t: &TrainingSection,
+    device: Device,
+    rng: &mut ChaCha8Rng,
+    n: usize,
+    passes: usize,
+    mut loss: impl FnMut(&Batch, &mut M) -> Result<Tensor, ModelError>,
+) -> Result<(M, usize), ModelError> {
+    limit_cpu_threads(device);
+    opt.opt.set_lr(opt.lr(t));
+    let mut last = M::default();
+    let mut samples = 0;
+    for _ in 0..passes {
+        last = M::default();
+        for rows in shuffled_batches(n, t.batch_size, rng) {
+            let batch = Batch {
+                idx: Tensor::from_slice(&rows).to_device(device),
+                rows: &rows,
+            };
+            let l = loss(&batch, &mut last)?;
+            opt.opt.zero_grad();
+            l.backward();
+            opt.opt.clip_grad_norm(t.grad_clip);
+            opt.opt.step();
+            samples += t.batch_size;
+        }
+    }
+    opt.fits += 1;
+    Ok((last, samples))
+}
+
+/// Shuffled index batches of exactly `batch` (the last partial batch is dropped).
+fn shuffled_batches(n: usize, batch: usize, rng: &mut ChaCha8Rng) -> Vec<Vec<i64>> {
+    let mut perm: Vec<i64> = (0..n as i64).collect();
+    perm.shuffle(rng);
+    perm.chunks_exact(batch.max(1))
+        .map(|c| c.to_vec())
+        .collect()
+}
+
+/// Row-major f32 slices of `cols` columns, stacked into one [N, cols] tensor on `device`.
+pub(crate) fn cat_rows<'a>(
+    parts: impl IntoIterator<Item = &'a [f32]>,
+    cols: usize,
+    device: Device,
+) -> Tensor {
+    let flat: Vec<f32> = parts.into_iter().flatten().copied().collect();
+    let n = (flat.len() / cols) as i64;
+    Tensor::from_slice(&flat)
+        .view([n, cols as i64])
+        .to_device(device)
+}
+
+/// The mean of the values added.
+#[derive(Default)]
+pub(crate) struct Mean {
+    sum: f64,
+    n: usize,
+}
+
+impl Mean {
+    pub fn add(&mut self, v: f64) {
+        self.sum += v;
+        self.n += 1;
+    }
+
+    pub fn get(&self) -> f64 {
+        if self.n == 0 {
+            0.0
+        } else {
+            self.sum / self.n as f64
+        }
+    }
+}

@@ -1,0 +1,215 @@
+//! Constraint-aware training: the training part of Algorithm 1 and Fig. 4 of the paper.
+//!
+//! Per epoch j, in the order of Algorithm 1 ([`Trainer::train_epoch`], when due by the [`Schedule`]): the dynamics
+//! model f_hat (eq. (15), on every stored (x, u, x'), [`Trainer::fit_dynamics`]), the critic p_hat (eq. (16), D+
+//! against D-, [`Trainer::fit_critic`]), then the policy on D+ ([`Trainer::fit_policy`]) with
+//!
+//! ```text
+//!     L_CA = L_clone + L_safety,                                  eq. (14)
+//!     L_clone  = || pi_theta(y) - pi_beta(x) ||^2                  eq. (6)  (mean over batch and action dims)
+//!     L_safety = -lambda * log p_hat( f_hat(x, pi_theta(y)) )      eq. (14) (mean over the batch)
+//! ```
+//!
+//! through the frozen f_hat and p_hat. L_safety is used once the critic has trained at least once; lambda = 0 is the
+//! behaviour-cloning baseline.
+//!
+//! Optimisation (all numbers from `TrainingSection`): one fit loop for the three networks ([`fit`]): Adam with weight
+//! decay, gradient-norm clip, ExponentialLR stepped once per fit call, shuffled mini-batches with the last partial
+//! batch dropped. Deterministic for a seed on one device: weights are initialised from the seed (cabc_models::init)
+//! and batches are shuffled by one seeded ChaCha, consumed in the order dynamics, critic, policy.
+
+mod critic;
+mod dynamics;
+mod fit;
+mod policy;
+mod state;
+
+pub use critic::{critic_examples, CriticFit, CriticTrainer};
+pub use dynamics::Fit;
+pub use policy::{l_clone, l_safety, PolicyFit};
+
+use crate::checkpoint::CheckpointError;
+use crate::replay::Replay;
+use crate::schedule::Schedule;
+use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::STATE_DIM;
+use fit::{limit_cpu_threads, Opt};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+use tch::Device;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("{path}: {message}")]
+    State { path: String, message: String },
+    #[error("the camera policy needs images, and D+ holds none")]
+    NoImages,
+}
+
+/// Every loss term of one epoch, for logging. Losses are means over the last pass of their fit call.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EpochLosses {
+    pub epoch: u64,
+    /// L_clone, eq. (6): MSE between pi_theta(y) and the expert's label.
+    pub imitation: f64,
+    /// L_safety, eq. (14): lambda * mean(-log sigmoid(critic(f_hat(x, pi_theta(y))))); 0 while inactive.
+    pub safety: f64,
+    /// Whether L_safety took part (lambda > 0 and the critic has trained).
+    pub safety_active: bool,
+    /// Eq. (15) MSE, when the dynamics model trained this epoch.
+    pub dynamics: Option<f64>,
+    /// Eq. (16) BCE, when the critic trained this epoch.
+    pub critic: Option<f64>,
+    /// Fraction of the critic's training points on the right side of p = 0.5 (last pass).
+    pub critic_accuracy: Option<f64>,
+    pub n_plus: usize,
+    /// |D-| (eq. (19)) as the last labelling left it.
+    pub n_minus: usize,
+    pub n_dynamics: usize,
+    /// Samples seen by each network this epoch (all passes).
+    pub policy_samples: usize,
+    pub dynamics_samples: usize,
+    pub critic_samples: usize,
+    pub lr_policy: f64,
+    pub seconds: f64,
+}
+
+/// The three networks, their optimisers, the epoch counter and the batch-shuffling RNG.
+pub struct Trainer {
+    config: RunConfig,
+    device: Device,
+    policy: Policy,
+    dynamics: Dynamics,
+    critic: Critic,
+    policy_opt: Opt,
+    dynamics_opt: Opt,
+    critic_opt: Opt,
+    /// Epochs trained so far.
+    pub epochs_trained: u64,
+    critic_trained: bool,
+    rng: ChaCha8Rng,
+}
+
+impl Trainer {
+    /// Networks and optimisers from the configuration, on `training.device`.
+    pub fn new(config: &RunConfig) -> Result<Self, TrainError> {
+        let device = parse_device(&config.training.device)?;
+        Ok(Self::with_device(config, device))
+    }
+
+    pub fn with_device(config: &RunConfig, device: Device) -> Self {
+        let seed = config.run.seed;
+        let nets = &config.networks;
+        let policy = Policy::new(PolicyArch::from_config(config), device, seed);
+        let dynamics = Dynamics::new(nets.dynamics, device, seed.wrapping_add(1));
+        let critic = Critic::new(STATE_DIM, nets.critic, device, seed.wrapping_add(2));
+        let t = &config.training;
+        Trainer {
+            config: config.clone(),
+            device,
+            policy_opt: Opt::adam(policy.var_store(), t),
+            dynamics_opt: Opt::adam(dynamics.var_store(), t),
+            critic_opt: Opt::adam(critic.var_store(), t),
+            policy,
+            dynamics,
+            critic,
+            epochs_trained: 0,
+            critic_trained: false,
+            rng: ChaCha8Rng::seed_from_u64(seed.wrapping_add(3)),
+        }
+    }
+
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    pub fn policy(&self) -> &Policy {
+        &self.policy
+    }
+
+    pub fn dynamics(&self) -> &Dynamics {
+        &self.dynamics
+    }
+
+    pub fn critic(&self) -> &Critic {
+        &self.critic
+    }
+
+    /// The policy's weights for a `PolicyUpdate` (safetensors, architecture in the metadata).
+    pub fn policy_bytes(&self) -> Vec<u8> {
+        self.policy.to_bytes()
+    }
+
+    /// `PolicyUpdate.architecture`.
+    pub fn policy_architecture(&self) -> String {
+        self.policy.architecture()
+    }
+
+    /// Whether the critic has trained at least once (L_safety is active from then on when lambda > 0).
+    pub fn critic_trained(&self) -> bool {
+        self.critic_trained
+    }
+
+    /// Marks the critic as trained (benchmarks and tests of L_safety with a hand-set critic).
+    pub fn set_critic_trained(&mut self, trained: bool) {
+        self.critic_trained = trained;
+    }
+
+    pub fn critic_mut(&mut self) -> &mut Critic {
+        &mut self.critic
+    }
+
+    pub fn dynamics_mut(&mut self) -> &mut Dynamics {
+        &mut self.dynamics
+    }
+
+    /// The policy's learning rate for its next fit call.
+    pub fn lr_policy(&self) -> f64 {
+        self.policy_opt.lr(&self.config.training)
+    }
+
+    /// One epoch of Algorithm 1's training part, as the [`Schedule`] says: f_hat when due (eq. (15)), p_hat when
+    /// due (eq. (16), D+ against the replay's D-), then pi_theta (eq. (14)). Auto-labelling is the caller's
+    /// ([`Replay::apply_labels`]), before this call.
+    pub fn train_epoch(&mut self, epoch: u64, replay: &Replay) -> Result<EpochLosses, TrainError> {
+        let start = Instant::now();
+        limit_cpu_threads(self.device);
+        let schedule = Schedule::from_config(&self.config);
+        let mut losses = EpochLosses {
+            epoch,
+            n_plus: replay.len_plus(),
+            n_minus: replay.len_minus(),
+            n_dynamics: replay.len_plus() + replay.len_uncertain() + replay.len_dynamics_only(),
+            ..Default::default()
+        };
+        if schedule.dynamics_due(epoch) {
+            if let Some(fit) = self.fit_dynamics(replay, schedule.aux_passes(epoch)) {
+                losses.dynamics = Some(fit.loss);
+                losses.dynamics_samples = fit.samples;
+            }
+        }
+        if schedule.critic_due(epoch) {
+            if let Some(fit) = self.fit_critic(replay, schedule.aux_passes(epoch)) {
+                losses.critic = Some(fit.loss);
+                losses.critic_accuracy = Some(fit.accuracy);
+                losses.critic_samples = fit.samples;
+            }
+        }
+        losses.lr_policy = self.lr_policy();
+        let fit = self.fit_policy(replay, schedule.policy_passes(epoch))?;
+        losses.imitation = fit.imitation;
+        losses.safety = fit.safety;
+        losses.safety_active = fit.safety_active;
+        losses.policy_samples = fit.samples;
+        self.epochs_trained = self.epochs_trained.max(epoch + 1);
+        losses.seconds = start.elapsed().as_secs_f64();
+        Ok(losses)
+    }
+}

@@ -1,0 +1,109 @@
+//! Fitting the policy pi_theta on D+, eq. (14): L_CA = L_clone + L_safety, through the frozen f_hat and p_hat
+//! (Fig. 4: their variables are frozen, so gradients reach theta only).
+
+use super::fit::{cat_rows, fit, Mean};
+use super::{TrainError, Trainer};
+use crate::replay::Replay;
+use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
+use cabc_proto::messages::{velocity_of, ACTION_DIM, STATE_DIM};
+use tch::{Kind, Reduction, Tensor};
+
+/// L_clone, eq. (6) and the first term of eq. (14): || pi_theta(y) - pi_beta(x) ||^2, mean over batch and action.
+pub fn l_clone(u: &Tensor, expert: &Tensor) -> Tensor {
+    u.mse_loss(expert, Reduction::Mean)
+}
+
+/// L_safety, eq. (14): -lambda log p_hat(f_hat(x, u)), mean over the batch (-log sigmoid as a stable log_sigmoid).
+pub fn l_safety(
+    dynamics: &Dynamics,
+    critic: &Critic,
+    x: &Tensor,
+    u: &Tensor,
+    lambda: f64,
+) -> Tensor {
+    (-critic.logits(&dynamics.forward(x, u)).log_sigmoid()).mean(Kind::Float) * lambda
+}
+
+/// The result of a policy fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PolicyFit {
+    /// L_clone, mean over the last pass.
+    pub imitation: f64,
+    /// L_safety, mean over the last pass; 0 while inactive.
+    pub safety: f64,
+    /// Whether L_safety took part (lambda > 0 and the critic has trained).
+    pub safety_active: bool,
+    /// Samples seen (all passes); 0 when D+ holds fewer than `batch_size` steps and nothing trained.
+    pub samples: usize,
+}
+
+/// What one pass of a policy fit reports.
+#[derive(Default)]
+struct Pass {
+    clone: Mean,
+    safety: Mean,
+}
+
+impl Trainer {
+    /// One fit call of pi_theta on D+, eq. (14). With fewer than `batch_size` steps in D+ nothing trains (the rng and
+    /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images.
+    pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
+        let plus = &replay.plus;
+        if plus.len() < self.config.training.batch_size {
+            return Ok(PolicyFit::default());
+        }
+        let lambda = self.config.algorithm.lambda;
+        let safety_active = lambda > 0.0 && self.critic_trained;
+        let images = match (self.policy.arch(), &plus.images) {
+            (PolicyArch::Camera { .. }, None) => return Err(TrainError::NoImages),
+            (PolicyArch::Camera { .. }, Some(images)) => Some(images),
+            (PolicyArch::State { .. }, _) => None,
+        };
+        let dev = self.device;
+        let x_all = cat_rows([plus.states.as_flattened()], STATE_DIM, dev);
+        let label_all = cat_rows([plus.expert_actions.as_flattened()], ACTION_DIM, dev);
+        self.dynamics.var_store_mut().freeze();
+        self.critic.var_store_mut().freeze();
+        let (policy, dynamics, critic) = (&self.policy, &self.dynamics, &self.critic);
+        let fitted = fit(
+            &mut self.policy_opt,
+            &self.config.training,
+            dev,
+            &mut self.rng,
+            plus.len(),
+            passes,
+            |b, pass: &mut Pass| {
+                let x = x_all.index_select(0, &b.idx);
+                let input = match images {
+                    Some(images) => PolicyInput::camera(
+                        images.width,
+                        images.height,
+                        b.rows.iter().map(|&i| {
+                            let i = i as usize;
+                            (images.get(i), velocity_of(&plus.states[i]))
+                        }),
+                    )?,
+                    None => PolicyInput::State(x.shallow_clone()),
+                };
+                let u = policy.forward_t(&input, true);
+                let l_clone = l_clone(&u, &label_all.index_select(0, &b.idx));
+                pass.clone.add(l_clone.double_value(&[]));
+                if !safety_active {
+                    return Ok(l_clone);
+                }
+                let l_safety = l_safety(dynamics, critic, &x, &u, lambda);
+                pass.safety.add(l_safety.double_value(&[]));
+                Ok(l_clone + l_safety)
+            },
+        );
+        self.dynamics.var_store_mut().unfreeze();
+        self.critic.var_store_mut().unfreeze();
+        let (pass, samples) = fitted?;
+        Ok(PolicyFit {
+            imitation: pass.clone.get(),
+            safety: pass.safety.get(),
+            safety_active,
+            samples,
+        })
+    }
+}
