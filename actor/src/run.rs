@@ -44,10 +44,7 @@ pub fn act(policy: &Policy, input: &PolicyInput) -> Result<Vec<[f32; 2]>, ModelE
             .states
             .iter()
             .zip(input.images)
-            .map(|(s, image)| Observation::Camera {
-                image,
-                velocity: [s[0], s[1], s[2]],
-            })
+            .map(|(state, image)| Observation::camera(image, state))
             .collect()
     };
     policy.act(&observations)

@@ -126,11 +126,8 @@ fn main() -> anyhow::Result<()> {
             seed,
         } => {
             let report = autolabel_demo(&rho, seed, &out).context("auto-labelling demo")?;
-            match json {
-                true => println!("{}", serde_json::to_string_pretty(&report)?),
-                false => report.log(),
-            }
-            Ok(())
+            report.log();
+            print_json(json, &report)
         }
         Command::Bench {
             plus,
@@ -146,13 +143,16 @@ fn main() -> anyhow::Result<()> {
                 cuda: !cpu_only,
                 ..Default::default()
             };
-            let report = run_bench(&options);
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            }
-            Ok(())
+            print_json(json, &run_bench(&options))
         }
     }
+}
+
+fn print_json(json: bool, report: &impl serde::Serialize) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    }
+    Ok(())
 }
 
 fn load(name: &str, baseline: bool) -> anyhow::Result<RunConfig> {
