@@ -6,6 +6,7 @@
 //! * [`codec`]: `encode` / `decode` with a header (magic + schema version + message kind), so a stale or foreign
 //!   payload is refused with a typed error, never half-read;
 //! * [`config`]: the run configuration (TOML), the one place for every number that defines an experiment;
+//! * [`stats`]: mean / standard deviation and nearest-rank percentiles, the one definition for every report;
 //! * [`telemetry`]: `tracing` set up the same way in every binary.
 //!
 //! This crate knows nothing of zenoh or tch.
@@ -14,6 +15,7 @@ pub mod codec;
 pub mod config;
 pub mod keys;
 pub mod messages;
+pub mod stats;
 pub mod telemetry;
 
 pub use codec::{decode, encode, DecodeError, Message};
