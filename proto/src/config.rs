@@ -47,12 +47,28 @@ pub enum VisionTrunk {
     SmallCnn,
 }
 
-/// Where the training spawns are drawn.
+/// Where an episode starts (simulator.md §3.2): the run's training spawns, and the simulator's `reset`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum SpawnKind {
+pub enum Spawn {
+    /// Training spawn, drawn in this order: s ~ U(0.1, L−2), x_tran ~ U(−band, band), e_psi ~ U(−π/6, π/6),
+    /// v_long ~ U(0.5, 2).
     Random,
+    /// The evaluation spawn: s = 0.1, x_tran = 0, e_psi = 0, v_long = 0.5 (`cabc_sim::env::FIXED_SPAWN`).
     Fixed,
+}
+
+impl std::str::FromStr for Spawn {
+    type Err = String;
+
+    /// "random" or "fixed", as in the configuration.
+    fn from_str(s: &str) -> Result<Spawn, String> {
+        match s {
+            "random" => Ok(Spawn::Random),
+            "fixed" => Ok(Spawn::Fixed),
+            _ => Err(format!("unknown spawn {s:?}: expected random or fixed")),
+        }
+    }
 }
 
 /// When the dynamics model and the critic train.
@@ -185,7 +201,7 @@ pub struct CollectionSection {
     pub steps_per_epoch: u64,
     /// Environment steps in epoch 0 (reference `initial_traj_len`).
     pub initial_steps: u64,
-    pub spawn: SpawnKind,
+    pub spawn: Spawn,
     /// Maximum laps of an episode (the env truncates after it).
     pub max_laps: u32,
     /// Evaluation: laps a policy must complete from the fixed spawn.
@@ -199,7 +215,7 @@ impl Default for CollectionSection {
         CollectionSection {
             steps_per_epoch: 1024,
             initial_steps: 1024,
-            spawn: SpawnKind::Random,
+            spawn: Spawn::Random,
             max_laps: 50,
             eval_laps: 50,
             early_stop_successes: 2,

@@ -38,10 +38,18 @@ pub struct Step {
     pub expert_ok: bool,
 }
 
+/// Velocities the vision policy sees beside the image.
+pub const VELOCITY_DIM: usize = 3;
+
+/// [v_long, v_tran, omega] of a state: the velocities the vision policy sees beside the image (state[0..3]).
+pub fn velocity(state: &[f32; STATE_DIM]) -> [f32; VELOCITY_DIM] {
+    [state[0], state[1], state[2]]
+}
+
 impl Step {
-    /// [v_long, v_tran, omega]: the velocities the vision policy sees beside the image.
-    pub fn velocity(&self) -> [f32; 3] {
-        [self.state[0], self.state[1], self.state[2]]
+    /// [`velocity`] of the state before the step.
+    pub fn velocity(&self) -> [f32; VELOCITY_DIM] {
+        velocity(&self.state)
     }
 }
 
