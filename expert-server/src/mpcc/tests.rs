@@ -176,7 +176,7 @@ fn bench_print() {
             ..MpccConfig::default()
         };
         let mpcc = Mpcc::new(Track::l_track_barc(), VehicleParams::default(), cfg).unwrap();
-        let r = crate::drive::bench(&mpcc, &VehicleParams::default(), 200).unwrap();
+        let r = crate::bench::bench(&mpcc, &VehicleParams::default(), 200).unwrap();
         eprintln!("reuse {reuse} equilibrate {eq}: {r}");
     }
 }
