@@ -8,12 +8,11 @@
 
 use crate::eyes::Eyes;
 use crate::segment::{Segmenter, SeqCounter, StepEnd};
-use cabc_proto::config::{ObservationKind, RunConfig, SpawnKind};
+use cabc_proto::config::{ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
-use cabc_sim::env::{Env, EnvConfig, Observation, Spawn, Truncation};
+use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
-use cabc_sim::vehicle::{clip_action, VehicleParams};
-use rand_chacha::ChaCha8Rng;
+use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
 use std::sync::Arc;
 
 /// What the policy sees for a batch of environments.
@@ -26,25 +25,23 @@ pub struct PolicyInput<'a> {
 
 /// Maps the simulator's truncation to the protocol's end reason.
 pub fn end_reason(t: Truncation) -> EndReason {
-    match t {
-        Truncation::OutOfTrack => EndReason::OutOfTrack,
-        Truncation::LeftBand => EndReason::LeftBand,
-        Truncation::Stall => EndReason::Stall,
-        Truncation::Spin => EndReason::Spin,
-        Truncation::MaxLaps => EndReason::MaxLaps,
+    t.into()
+}
+
+/// The env constants of a run: the simulator's, with `max_laps` laps at most.
+fn env_config(max_laps: u32) -> EnvConfig {
+    EnvConfig {
+        max_laps,
+        ..EnvConfig::default()
     }
 }
 
 /// The environment of a run: the BARC track, the reference vehicle and env constants, `max_laps` laps at most.
 pub fn make_env(max_laps: u32) -> Env {
-    let env_config = EnvConfig {
-        max_laps,
-        ..EnvConfig::default()
-    };
     Env::new(
         Arc::new(Track::l_track_barc()),
         VehicleParams::default(),
-        env_config,
+        env_config(max_laps),
     )
 }
 
@@ -55,15 +52,18 @@ fn f32s<const N: usize>(x: &[f64; N]) -> [f32; N] {
 /// One actor's K environments.
 pub struct Collector {
     actor: String,
-    envs: Vec<Env>,
-    rngs: Vec<ChaCha8Rng>,
+    envs: EnvBatch,
     segmenters: Vec<Segmenter>,
     stream_start: Vec<bool>,
     seq: SeqCounter,
     spawn: Spawn,
     eyes: Option<Eyes>,
     states: Vec<[f32; 6]>,
+    /// The images of the last [`Collector::observations`], moved into the steps by [`Collector::step`].
     images: Vec<Image>,
+    /// Reused per step: the observations before it and the applied actions.
+    before: Vec<EnvObservation>,
+    applied: Vec<Input>,
     /// Steps taken in the current epoch.
     taken: u64,
 }
@@ -72,32 +72,30 @@ impl Collector {
     /// `index` makes each actor's random streams distinct (actor k uses streams k*K .. k*K+K-1 of the run seed).
     pub fn new(actor: &str, index: u64, config: &RunConfig) -> Self {
         let k = config.actors.envs_per_actor as usize;
-        let envs: Vec<Env> = (0..k)
-            .map(|_| make_env(config.collection.max_laps))
-            .collect();
-        let rngs = (0..k)
-            .map(|i| Env::rng(config.run.seed, index * k as u64 + i as u64))
-            .collect();
+        let envs = EnvBatch::with_streams(
+            Arc::new(Track::l_track_barc()),
+            VehicleParams::default(),
+            env_config(config.collection.max_laps),
+            config.run.seed,
+            index * k as u64..(index + 1) * k as u64,
+        );
         let segmenters = (0..k)
             .map(|i| Segmenter::new(actor, i as u32, config.expert.patience))
             .collect();
         let eyes = (config.observation.kind == ObservationKind::Camera)
             .then(|| Eyes::new(&config.observation));
-        let spawn = match config.collection.spawn {
-            SpawnKind::Random => Spawn::Random,
-            SpawnKind::Fixed => Spawn::Fixed,
-        };
         Collector {
             actor: actor.to_string(),
             envs,
-            rngs,
             segmenters,
             stream_start: vec![true; k],
             seq: SeqCounter::default(),
-            spawn,
+            spawn: config.collection.spawn,
             eyes,
             states: Vec::with_capacity(k),
             images: Vec::with_capacity(k),
+            before: Vec::with_capacity(k),
+            applied: Vec::with_capacity(k),
             taken: 0,
         }
     }
@@ -134,7 +132,9 @@ impl Collector {
     }
 
     fn reset(&mut self, i: usize) {
-        self.envs[i].reset(self.spawn, &mut self.rngs[i]);
+        self.envs
+            .reset_one(i, self.spawn)
+            .expect("i indexes the batch");
         self.stream_start[i] = true;
     }
 
@@ -145,19 +145,18 @@ impl Collector {
 
     /// The expert queries of the next step (for the first `active` environments).
     pub fn queries(&self, active: usize) -> Vec<ExpertQuery> {
-        (0..active)
-            .map(|i| {
-                let env = &self.envs[i];
-                ExpertQuery {
-                    stream: StreamId {
-                        actor: self.actor.clone(),
-                        env: i as u32,
-                        episode: self.segmenters[i].episode(),
-                    },
-                    start: self.stream_start[i],
-                    vehicle: env.vehicle_state(),
-                    frenet: env.observation().state,
-                }
+        self.envs.envs()[..active]
+            .iter()
+            .enumerate()
+            .map(|(i, env)| ExpertQuery {
+                stream: StreamId {
+                    actor: self.actor.clone(),
+                    env: i as u32,
+                    episode: self.segmenters[i].episode(),
+                },
+                start: self.stream_start[i],
+                vehicle: env.vehicle_state(),
+                frenet: env.observation().state,
             })
             .collect()
     }
@@ -166,7 +165,7 @@ impl Collector {
     pub fn observations(&mut self, active: usize) -> PolicyInput<'_> {
         self.states.clear();
         self.images.clear();
-        for env in &self.envs[..active] {
+        for env in &self.envs.envs()[..active] {
             self.states.push(f32s(&env.observation().state));
             if let Some(eyes) = &mut self.eyes {
                 self.images.push(eyes.see(env));
@@ -179,8 +178,8 @@ impl Collector {
     }
 
     /// Steps the first `answers.len()` environments. `policy` holds the policy's actions for them (call
-    /// [`Self::observations`] first when images are needed: its images are stored with the steps). Completed
-    /// segments are appended to `out`.
+    /// [`Self::observations`] first when images are needed: its images move into the steps, so each is stored
+    /// once). Completed segments are appended to `out`.
     pub fn step(
         &mut self,
         answers: &[ExpertAnswer],
@@ -190,22 +189,22 @@ impl Collector {
         out: &mut Vec<Segment>,
     ) {
         let active = answers.len().min(policy.len()).min(self.envs.len());
-        for i in 0..active {
-            let before: Observation = self.envs[i].observation();
-            let image = self.images.get(i).cloned();
+        self.before.clear();
+        self.applied.clear();
+        for (i, env) in self.envs.envs()[..active].iter().enumerate() {
+            self.before.push(env.observation());
+            self.applied
+                .push(applied_action(&answers[i], &policy[i], beta));
+        }
+        let results = self
+            .envs
+            .step(&self.applied)
+            .expect("at most one action per env");
+        let mut images = self.images.drain(..);
+        let mut ended = Vec::new();
+        for (i, result) in results.iter().enumerate() {
             let answer = &answers[i];
-            let expert_ok = answer.success && answer.action.iter().all(|v| v.is_finite());
-            let agent = [policy[i][0] as f64, policy[i][1] as f64];
-            let mixed = if expert_ok {
-                [
-                    beta * answer.action[0] + (1.0 - beta) * agent[0],
-                    beta * answer.action[1] + (1.0 - beta) * agent[1],
-                ]
-            } else {
-                agent
-            };
-            let applied = clip_action(&mixed);
-            let result = self.envs[i].step(&applied);
+            let expert_ok = expert_ok(answer);
             self.stream_start[i] = false;
             let end = match (result.truncation, result.lap_completed) {
                 (Some(t), _) => StepEnd::Truncated(end_reason(t)),
@@ -213,15 +212,15 @@ impl Collector {
                 (None, false) => StepEnd::Continue,
             };
             let step = Step {
-                state: f32s(&before.state),
-                pose: f32s(&before.pose),
-                image,
+                state: f32s(&self.before[i].state),
+                pose: f32s(&self.before[i].pose),
+                image: images.next(),
                 expert_action: if expert_ok {
                     f32s(&answer.action)
                 } else {
                     [0.0; 2]
                 },
-                applied_action: f32s(&applied),
+                applied_action: f32s(&self.applied[i]),
                 next_state: f32s(&result.obs.state),
                 expert_ok,
             };
@@ -230,8 +229,12 @@ impl Collector {
                 .push(step, end, version, &mut self.seq, out)
                 .is_some()
             {
-                self.reset(i);
+                ended.push(i);
             }
+        }
+        drop(images);
+        for i in ended {
+            self.reset(i);
         }
     }
 
@@ -241,4 +244,23 @@ impl Collector {
             s.finish(version, &mut self.seq, out);
         }
     }
+}
+
+fn expert_ok(answer: &ExpertAnswer) -> bool {
+    answer.success && answer.action.iter().all(|v| v.is_finite())
+}
+
+/// The beta mixture of the expert's and the policy's actions when the expert solved its problem, else the policy's
+/// action; clipped to the action box.
+fn applied_action(answer: &ExpertAnswer, policy: &[f32; 2], beta: f64) -> Input {
+    let agent = [policy[0] as f64, policy[1] as f64];
+    let mixed = if expert_ok(answer) {
+        [
+            beta * answer.action[0] + (1.0 - beta) * agent[0],
+            beta * answer.action[1] + (1.0 - beta) * agent[1],
+        ]
+    } else {
+        agent
+    };
+    clip_action(&mixed)
 }

@@ -28,18 +28,15 @@ impl Eyes {
         }
     }
 
-    /// The first-person image of `env`'s car under `env`'s sun.
+    /// The first-person image of `env`'s car under `env`'s sun (a new buffer, moved on to the segment).
     pub fn see(&mut self, env: &Env) -> Image {
         let lookup = self
             .lookup
             .get_or_insert_with(|| Arc::new(TrackLookup::new(env.track(), LOOKUP_RESOLUTION)))
             .clone();
         let [x, y, psi] = env.observation().pose;
-        let image = self.camera.render(&lookup, Pose { x, y, psi }, env.sun());
-        Image {
-            width: image.width as u16,
-            height: image.height as u16,
-            rgb: image.rgb.clone(),
-        }
+        self.camera
+            .render_owned(&lookup, Pose { x, y, psi }, env.sun())
+            .into()
     }
 }

@@ -124,7 +124,7 @@ fn metrics(
         "expert_wait_share": share(wire.expert_wait),
         "transport_share": share(wire.transport),
         "policy_latency_ms_last": latency.last(),
-        "policy_latency_ms_mean": (!latency.is_empty()).then(|| latency.iter().sum::<f64>() / latency.len() as f64),
+        "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
     })
 }

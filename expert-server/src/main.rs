@@ -4,14 +4,14 @@
 mod server;
 
 use anyhow::{bail, Context, Result};
-use cabc_expert::drive::{bench, drive, DriveOptions, DriveReport};
-use cabc_expert::relabel::{Expert, Relabeller};
+use cabc_expert::bench;
+use cabc_expert::drive::{drive, DriveOptions};
+use cabc_expert::relabel::Expert;
 use cabc_expert::{Mpcc, MpccConfig};
 use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::VehicleParams;
 use clap::{Parser, Subcommand};
-use serde_json::json;
 use std::sync::Arc;
 
 #[derive(Parser)]
@@ -82,17 +82,15 @@ fn main() -> Result<()> {
             plot,
         } => {
             let mpcc = mpcc()?;
-            let report = drive(
-                &mpcc,
-                &VehicleParams::default(),
-                &DriveOptions {
-                    laps,
-                    max_steps,
-                    stop_on_failure: false,
-                },
-            );
+            let opts = DriveOptions {
+                laps,
+                max_steps,
+                stop_on_failure: false,
+            };
+            let report = drive(&mpcc, &VehicleParams::default(), &opts);
             if let Some(path) = &trace {
-                write_trace(&report, path)
+                report
+                    .write_csv(path)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
             if let Some(path) = &plot {
@@ -105,7 +103,7 @@ fn main() -> Result<()> {
                     .write_png(path)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
-            println!("{}", serde_json::to_string_pretty(&summary(&report))?);
+            println!("{}", serde_json::to_string_pretty(&report.summary())?);
             Ok(())
         }
         Command::Bench { steps, repeat } => {
@@ -115,160 +113,11 @@ fn main() -> Result<()> {
             if repeat == 0 {
                 bail!("--repeat must be at least 1");
             }
-            let mpcc = Arc::new(mpcc()?);
-            let mut runs = (0..repeat)
-                .map(|_| bench(&mpcc, &VehicleParams::default(), steps))
-                .collect::<Result<Vec<_>, _>>()?;
-            let run_p50s: Vec<f64> = runs.iter().map(|r| ms(r.p50)).collect();
-            // The run whose median is the median of the runs' medians stands for them all.
-            runs.sort_by_key(|r| r.p50);
-            let report = runs.swap_remove(repeat / 2);
-            let scaling = batch_throughput(&mpcc, steps)?;
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&json!({
-                    "single_stream": {
-                        "steps": report.steps,
-                        "failures": report.failures,
-                        "step_ms_p50": ms(report.p50),
-                        "step_ms_p99": ms(report.p99),
-                        "step_ms_mean": ms(report.mean),
-                        "step_ms_max": ms(report.max),
-                        "solve_ms_p50": ms(report.solve_p50),
-                        "clarabel_iterations_p50": report.iterations_p50,
-                        "runs": repeat,
-                        "step_ms_p50_of_each_run": run_p50s,
-                    },
-                    "batch_throughput": scaling
-                }))?
-            );
+            let report = bench::report(&Arc::new(mpcc()?), steps, repeat)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(())
         }
     }
-}
-
-fn ms(d: std::time::Duration) -> f64 {
-    d.as_secs_f64() * 1e3
-}
-
-/// Solves per second of the relabelling service on batches of 8 streams replaying a closed-loop drive, with 1 thread
-/// and with every core: the server's scaling with its cores.
-fn batch_throughput(mpcc: &Arc<Mpcc>, steps: usize) -> Result<serde_json::Value> {
-    use cabc_proto::messages::{ExpertQuery, ExpertRequest, StreamId};
-    const STREAMS: usize = 8;
-    let drive = drive(
-        mpcc,
-        &VehicleParams::default(),
-        &DriveOptions {
-            laps: 100,
-            max_steps: steps,
-            stop_on_failure: false,
-        },
-    );
-    let states: Vec<_> = drive.steps.iter().map(|s| (s.state, s.frenet)).collect();
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut rows = Vec::new();
-    for threads in [1, cores] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .context("building a thread pool")?;
-        let service = Relabeller::new(Expert::Mpcc(mpcc.clone()), 64, 64);
-        let started = std::time::Instant::now();
-        let mut solved = 0usize;
-        for (k, _) in states.iter().enumerate() {
-            let queries = (0..STREAMS)
-                .map(|i| {
-                    let (q, f) = states[(k + i * 7) % states.len()];
-                    ExpertQuery {
-                        stream: StreamId {
-                            actor: "bench".into(),
-                            env: i as u32,
-                            episode: 0,
-                        },
-                        start: k == 0,
-                        vehicle: q,
-                        frenet: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
-                    }
-                })
-                .collect();
-            let request = ExpertRequest {
-                request_id: k as u64,
-                queries,
-            };
-            let answered = pool.install(|| service.answer(&request))?;
-            solved += answered.0.answers.len();
-        }
-        let secs = started.elapsed().as_secs_f64();
-        rows.push(
-            json!({ "threads": threads, "solves_per_s": solved as f64 / secs, "batch": STREAMS }),
-        );
-    }
-    Ok(json!(rows))
-}
-
-/// The JSON summary of a drive: laps, lap times, failures, truncation, max |x_tran|, solve-time percentiles.
-fn summary(report: &DriveReport) -> serde_json::Value {
-    let mut solve_ms: Vec<f64> = report.steps.iter().map(|s| s.solve_time * 1e3).collect();
-    solve_ms.sort_by(f64::total_cmp);
-    let pct = |p: f64| {
-        (!solve_ms.is_empty()).then(|| solve_ms[((solve_ms.len() - 1) as f64 * p).round() as usize])
-    };
-    let n = report.lap_times.len() as f64;
-    let mean = (n > 0.0).then(|| report.lap_times.iter().sum::<f64>() / n);
-    let std = mean.map(|m| {
-        (report
-            .lap_times
-            .iter()
-            .map(|t| (t - m).powi(2))
-            .sum::<f64>()
-            / n)
-            .sqrt()
-    });
-    json!({
-        "steps": report.steps.len(),
-        "laps": report.lap_times.len(),
-        "lap_times": report.lap_times,
-        "lap_time_mean": mean,
-        "lap_time_std": std,
-        "failures": report.failures,
-        "end": format!("{:?}", report.end),
-        "max_abs_x_tran": report.steps.iter().map(|s| s.frenet.x_tran.abs()).fold(0.0, f64::max),
-        "solve_ms_p50": pct(0.5),
-        "solve_ms_p99": pct(0.99),
-    })
-}
-
-/// Every step of a drive as CSV.
-fn write_trace(report: &DriveReport, path: &std::path::Path) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    writeln!(f, "t,v_x,v_y,omega,X,Y,psi,s,x_tran,e_psi,a,delta,success,status,qp_iterations,solve_ms,step_ms")?;
-    for s in &report.steps {
-        let q = s.state;
-        writeln!(
-            f,
-            "{:.2},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4}",
-            s.t,
-            q[0],
-            q[1],
-            q[2],
-            q[3],
-            q[4],
-            q[5],
-            s.frenet.s,
-            s.frenet.x_tran,
-            s.frenet.e_psi,
-            s.action[0],
-            s.action[1],
-            s.success,
-            s.status,
-            s.qp_iterations,
-            s.solve_time * 1e3,
-            s.step_time * 1e3
-        )?;
-    }
-    f.flush()
 }
 
 fn mpcc() -> Result<Mpcc> {

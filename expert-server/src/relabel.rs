@@ -284,12 +284,9 @@ mod tests {
     }
 
     fn spawn() -> ([f64; 6], [f64; 6]) {
-        let track = Track::l_track_barc();
-        let p = track.local_to_global(0.1, 0.0, 0.0);
-        (
-            [0.5, 0.0, 0.0, p.x, p.y, p.psi],
-            [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
-        )
+        let q = cabc_sim::env::fixed_spawn_state(&Track::l_track_barc());
+        let (at, v) = (cabc_sim::FIXED_SPAWN, cabc_sim::FIXED_SPAWN_SPEED);
+        (q, [v, 0.0, 0.0, at.s, at.x_tran, at.e_psi])
     }
 
     #[test]

@@ -129,6 +129,7 @@ pub fn col(q: &[f64; NQ]) -> SVector<f64, NQ> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use cabc_sim::env::{DT, SUBSTEPS};
     use cabc_sim::vehicle::VehicleParams;
 
     /// Central finite differences of the RK4 map, one column per perturbed coordinate.
@@ -160,8 +161,8 @@ mod tests {
     fn jacobians_match_central_differences() {
         let p = VehicleParams::default();
         let rk = Rk4 {
-            dt: 0.1,
-            substeps: 10,
+            dt: DT,
+            substeps: SUBSTEPS,
         };
         let cases: [([f64; NQ], [f64; NU]); 4] = [
             ([2.0, 0.0, 0.0, 1.0, 0.2, 0.3], [0.5, 0.0]),
@@ -217,13 +218,13 @@ mod tests {
     fn map_matches_the_simulator_step() {
         let p = VehicleParams::default();
         let rk = Rk4 {
-            dt: 0.1,
-            substeps: 10,
+            dt: DT,
+            substeps: SUBSTEPS,
         };
         let q = [2.5, 0.1, 0.5, 0.3, -0.2, 0.4];
         let u = [0.7, 0.12];
         let ours = rk.map(&p, &q, &u);
-        let sim = p.step(&q, &u, 0.1, 10);
+        let sim = p.step(&q, &u, DT, SUBSTEPS);
         for i in 0..NQ {
             assert!((ours[i] - sim[i]).abs() < 1e-12, "{ours:?} vs {sim:?}");
         }

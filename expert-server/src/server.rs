@@ -50,16 +50,13 @@ impl Metrics {
     }
 
     fn json(&mut self, rejects: u64, cache: (usize, u64)) -> serde_json::Value {
-        let mut sorted = self.recent_us.clone();
-        sorted.sort_unstable();
-        let pct = |p: f64| -> Option<f64> {
-            if sorted.is_empty() {
-                None
-            } else {
-                let i = ((sorted.len() - 1) as f64 * p).round() as usize;
-                Some(sorted[i] as f64 / 1000.0)
-            }
-        };
+        let mut solve_ms: Vec<f64> = self
+            .recent_us
+            .iter()
+            .map(|&us| us as f64 / 1000.0)
+            .collect();
+        solve_ms.sort_by(f64::total_cmp);
+        let pct = |q: f64| cabc_proto::stats::percentile_sorted(&solve_ms, q);
         json!({
             "requests": self.requests,
             "items": self.items,

@@ -163,7 +163,7 @@ impl Learner {
         {
             let stream = (segment.actor.clone(), segment.env, segment.episode);
             if !self.expert_streams.insert(stream) {
-                let dt = cabc_sim::env::EnvConfig::default().dt;
+                let dt = cabc_sim::env::DT;
                 self.state
                     .expert_lap_times
                     .push(segment.steps.len() as f64 * dt);
@@ -370,7 +370,7 @@ impl Learner {
             .evals
             .iter()
             .max_by_key(|e| (e.laps, std::cmp::Reverse(e.version)));
-        let expert = crate::rundir::mean_std(&self.state.expert_lap_times);
+        let expert = cabc_proto::stats::mean_std(&self.state.expert_lap_times);
         let epochs = self.state.rows.len();
         let epoch_s: Vec<f64> = self.state.rows.iter().map(|r| r.epoch_s).collect();
         json!({
@@ -385,7 +385,7 @@ impl Learner {
             "best_eval": best,
             "last_eval": self.state.evals.last(),
             "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
-            "mean_epoch_s": crate::rundir::mean_std(&epoch_s).map_or(0.0, |(m, _)| m),
+            "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
             "steps_stored": self.state.ledger.stored_steps,
             "segments_stored": self.state.ledger.stored_segments,
             "duplicate_segments": self.state.ledger.duplicates,

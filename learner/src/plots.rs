@@ -128,7 +128,7 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
     let with_laps: Vec<&EvalSummary> = evals.iter().filter(|e| e.lap_mean.is_some()).collect();
-    let expert_ms = crate::rundir::mean_std(expert);
+    let expert_ms = cabc_proto::stats::mean_std(expert);
     let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
     let hi = with_laps
         .iter()

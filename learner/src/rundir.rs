@@ -6,6 +6,7 @@
 use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
+use cabc_proto::stats::mean_std;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -125,17 +126,6 @@ pub struct EvalSummary {
     pub lap_max: Option<f64>,
     pub end_reason: String,
     pub steps: u64,
-}
-
-/// Mean and (population) standard deviation.
-pub fn mean_std(xs: &[f64]) -> Option<(f64, f64)> {
-    if xs.is_empty() {
-        return None;
-    }
-    let n = xs.len() as f64;
-    let mean = xs.iter().sum::<f64>() / n;
-    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-    Some((mean, var.sqrt()))
 }
 
 impl EvalSummary {

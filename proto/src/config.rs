@@ -47,12 +47,28 @@ pub enum VisionTrunk {
     SmallCnn,
 }
 
-/// Where the training spawns are drawn.
+/// Where an episode starts (simulator.md §3.2): the run's training spawns, and the simulator's `reset`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum SpawnKind {
+pub enum Spawn {
+    /// Training spawn, drawn in this order: s ~ U(0.1, L−2), x_tran ~ U(−band, band), e_psi ~ U(−π/6, π/6),
+    /// v_long ~ U(0.5, 2).
     Random,
+    /// The evaluation spawn: s = 0.1, x_tran = 0, e_psi = 0, v_long = 0.5 (`cabc_sim::env::FIXED_SPAWN`).
     Fixed,
+}
+
+impl std::str::FromStr for Spawn {
+    type Err = String;
+
+    /// "random" or "fixed", as in the configuration.
+    fn from_str(s: &str) -> Result<Spawn, String> {
+        match s {
+            "random" => Ok(Spawn::Random),
+            "fixed" => Ok(Spawn::Fixed),
+            _ => Err(format!("unknown spawn {s:?}: expected random or fixed")),
+        }
+    }
 }
 
 /// When the dynamics model and the critic train.
@@ -185,7 +201,7 @@ pub struct CollectionSection {
     pub steps_per_epoch: u64,
     /// Environment steps in epoch 0 (reference `initial_traj_len`).
     pub initial_steps: u64,
-    pub spawn: SpawnKind,
+    pub spawn: Spawn,
     /// Maximum laps of an episode (the env truncates after it).
     pub max_laps: u32,
     /// Evaluation: laps a policy must complete from the fixed spawn.
@@ -199,7 +215,7 @@ impl Default for CollectionSection {
         CollectionSection {
             steps_per_epoch: 1024,
             initial_steps: 1024,
-            spawn: SpawnKind::Random,
+            spawn: Spawn::Random,
             max_laps: 50,
             eval_laps: 50,
             early_stop_successes: 2,
@@ -555,101 +571,4 @@ impl RunConfig {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn presets_parse_and_match_the_paper() {
-        for (name, _) in PRESETS {
-            RunConfig::load(name).unwrap_or_else(|e| panic!("{name}: {e}"));
-        }
-        let va = RunConfig::load("v-a").unwrap();
-        assert_eq!(va.expert.kind, ExpertKind::Pid);
-        assert_eq!(va.observation.kind, ObservationKind::Camera);
-        assert_eq!(va.algorithm.lambda, 1.0);
-        let vb = RunConfig::load("v-b").unwrap();
-        assert_eq!(vb.expert.kind, ExpertKind::Mpcc);
-        assert_eq!(vb.observation.kind, ObservationKind::State);
-        assert_eq!((vb.algorithm.lambda, vb.algorithm.rho), (10.0, 1.0));
-        assert_eq!(vb.run.max_epochs, 500);
-        let vc = RunConfig::load("v-c").unwrap();
-        assert_eq!((vc.algorithm.lambda, vc.algorithm.rho), (1.0, 0.5));
-        assert_eq!(vc.observation.kind, ObservationKind::Camera);
-        assert_eq!(vc.run.max_epochs, 200);
-    }
-
-    #[test]
-    fn defaults_are_the_reference_values() {
-        let c = RunConfig::default();
-        assert_eq!(c.replay.capacity, 102_400);
-        assert_eq!(
-            c.networks.policy,
-            MlpSize {
-                layers: 3,
-                width: 128
-            }
-        );
-        assert_eq!(
-            c.networks.critic,
-            MlpSize {
-                layers: 4,
-                width: 256
-            }
-        );
-        assert_eq!(c.training.batch_size, 64);
-        assert!((c.training.lr_gamma.powi(100) - 0.1).abs() < 1e-12);
-        assert_eq!(c.collection.steps_per_epoch, 1024);
-        assert_eq!(c.beta(0), 1.0);
-        assert!((c.beta(2) - 0.9025).abs() < 1e-12);
-    }
-
-    #[test]
-    fn unknown_key_names_key_and_line() {
-        let err = RunConfig::from_toml("[run]\nname = \"x\"\n\n[algorithm]\nlamda = 3\n", "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("lamda"), "{err}");
-        assert!(err.contains("line 5"), "{err}");
-        assert!(err.starts_with("t.toml"), "{err}");
-    }
-
-    #[test]
-    fn wrong_type_names_key_and_line() {
-        let err = RunConfig::from_toml("[algorithm]\nrho = \"big\"\n", "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("line 2"), "{err}");
-        assert!(err.contains("rho") || err.contains("float"), "{err}");
-    }
-
-    #[test]
-    fn invalid_values_are_refused_by_name() {
-        let err = RunConfig::from_toml("[algorithm]\nrho = -1.0\n", "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("algorithm.rho"), "{err}");
-        let err = RunConfig::from_toml("[run]\nname = \"a/b\"\n", "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("run.name"), "{err}");
-    }
-
-    #[test]
-    fn unknown_preset_lists_presets() {
-        let err = RunConfig::load("v-z").unwrap_err().to_string();
-        assert!(err.contains("v-b") && err.contains("smoke"), "{err}");
-    }
-
-    #[test]
-    fn toml_round_trip() {
-        let c = RunConfig::load("v-c").unwrap();
-        assert_eq!(RunConfig::from_toml(&c.to_toml(), "rt").unwrap(), c);
-    }
-
-    #[test]
-    fn steps_are_split_between_actors() {
-        let mut c = RunConfig::default();
-        c.actors.count = 3;
-        assert_eq!(c.steps_per_actor(1), 342);
-    }
-}
+mod tests;

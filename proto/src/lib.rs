@@ -8,6 +8,7 @@
 //! * [`config`]: the run configuration (TOML), the one place for every number that defines an experiment;
 //! * [`ports`]: the narrow interfaces between the parts of Algorithm 1 (expert client, policy source, segment
 //!   sink, evaluation sink; the actors as the learner sees them);
+//! * [`stats`]: mean / standard deviation and nearest-rank percentiles, the one definition for every report;
 //! * [`telemetry`]: `tracing` set up the same way in every binary.
 //!
 //! This crate knows nothing of zenoh or tch.
@@ -17,6 +18,7 @@ pub mod config;
 pub mod keys;
 pub mod messages;
 pub mod ports;
+pub mod stats;
 pub mod telemetry;
 
 pub use codec::{decode, encode, DecodeError, Message};

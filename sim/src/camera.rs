@@ -118,6 +118,17 @@ impl Image {
     }
 }
 
+/// The protocol's image (what a segment carries): the pixels move, they are not copied.
+impl From<Image> for cabc_proto::messages::Image {
+    fn from(image: Image) -> Self {
+        cabc_proto::messages::Image {
+            width: image.width as u16,
+            height: image.height as u16,
+            rgb: image.rgb,
+        }
+    }
+}
+
 /// A grid over the track's surroundings holding the distance to the centreline (m, f32), built once per
 /// track; share it with `Arc`. Outside the grid everything is ground.
 #[derive(Clone, Debug)]
@@ -354,6 +365,13 @@ impl Camera {
             }
         }
         &self.image
+    }
+
+    /// Render like [`Camera::render`] and hand the image over (moved, not copied; the camera takes a fresh
+    /// buffer), for callers that keep every frame.
+    pub fn render_owned(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> Image {
+        self.render(lookup, pose, sun);
+        std::mem::replace(&mut self.image, Image::new(self.width, self.height))
     }
 
     /// The last rendered image.

@@ -1,6 +1,6 @@
 //! The gym-like racing environment (`BarcEnv`, simulator.md §3), state observations only.
 //!
-//! Each step clips the action, holds it for dt = 0.1 s as 10 sub-steps of 0.01 s (each sub-step
+//! Each step clips the action, holds it for [`DT`] = 0.1 s as [`SUBSTEPS`] = 10 sub-steps of 0.01 s (each sub-step
 //! `rk4_per_substep` classic RK4 steps, default 1), recomputes the Frenet state after every sub-step, then
 //! computes reward, lap trigger and truncation in the reference's order. The camera is separate
 //! ([`crate::camera`]); the env only draws the per-reset [`Sun`] so images are reproducible from the seed.
@@ -20,6 +20,9 @@
 //!    the true n·0.1 s. The reference's `fastest_lap` (np.max) is not reproduced.
 //! 7. (M) ψ in the pose is never wrapped (grows 2π per lap).
 //! 8. (F) `reset(options=None)` crashing has no analogue: [`Spawn`] is an enum.
+//!
+//! The numbers of the plant (dt, sub-steps, truncation limits, the fixed spawn) are the constants below, read by
+//! the PID, the MPCC and the actor from here.
 
 use std::fmt;
 use std::sync::Arc;
@@ -27,49 +30,80 @@ use std::sync::Arc;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use cabc_proto::messages::EndReason;
+
 use crate::camera::Sun;
-use crate::track::{Frenet, Track};
+use crate::track::{Frenet, Track, TrackError};
 use crate::vehicle::{clip_action, Input, State, VehicleParams};
 
-/// Where an episode starts (simulator.md §3.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Spawn {
-    /// Evaluation spawn: s = 0.1, x_tran = 0, e_psi = 0, v_long = 0.5.
-    Fixed,
-    /// Training spawn, drawn in this order: s ~ U(0.1, L−2), x_tran ~ U(−band, band),
-    /// e_psi ~ U(−π/6, π/6), v_long ~ U(0.5, 2).
-    Random,
+/// Where an episode starts: the run configuration's type, re-exported.
+pub use cabc_proto::config::Spawn;
+
+/// The control period (s): one env step, the PID's sampling time and the MPCC's stage length.
+pub const DT: f64 = 0.1;
+/// Frenet-checked sub-steps per control period (0.01 s each).
+pub const SUBSTEPS: usize = 10;
+/// Stall: truncate when v_long falls below this (m/s).
+pub const MIN_SPEED: f64 = 0.25;
+/// Spin: truncate when |e_psi| exceeds this (rad).
+pub const MAX_HEADING_ERROR: f64 = std::f64::consts::FRAC_PI_2;
+/// Laps after which an episode is truncated (the trainer's 50).
+pub const MAX_LAPS: u32 = 50;
+/// The evaluation spawn (simulator.md §3.2) in the track frame: s = 0.1, x_tran = 0, e_psi = 0 ...
+pub const FIXED_SPAWN: Frenet = Frenet {
+    s: 0.1,
+    x_tran: 0.0,
+    e_psi: 0.0,
+};
+/// ... at v_long = 0.5 m/s (v_tran = ω = 0).
+pub const FIXED_SPAWN_SPEED: f64 = 0.5;
+
+/// The vehicle state q = [v_long, 0, 0, X, Y, ψ] of a car placed at Frenet pose `at` with forward speed `v_long`.
+pub fn spawn_state(track: &Track, at: Frenet, v_long: f64) -> State {
+    let p = track.local_to_global(at.s, at.x_tran, at.e_psi);
+    [v_long, 0.0, 0.0, p.x, p.y, p.psi]
+}
+
+/// The vehicle state at the evaluation spawn ([`FIXED_SPAWN`], [`FIXED_SPAWN_SPEED`]).
+pub fn fixed_spawn_state(track: &Track) -> State {
+    spawn_state(track, FIXED_SPAWN, FIXED_SPAWN_SPEED)
 }
 
 /// Why an episode ended (simulator.md §3.6). When several hold, the first of LeftBand, OutOfTrack,
-/// MaxLaps, Stall, Spin is reported.
+/// MaxLaps, Stall, Spin is reported. Displayed as the protocol's [`EndReason`] ("out-of-track", ...).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Truncation {
     /// |x_tran| > H: the constraint violation ("collision").
     OutOfTrack,
     /// The Frenet conversion failed during the step: the car left the band H + slack.
     LeftBand,
-    /// v_long < 0.25 m/s.
+    /// v_long < [`MIN_SPEED`].
     Stall,
-    /// |e_psi| > π/2.
+    /// |e_psi| > [`MAX_HEADING_ERROR`].
     Spin,
     /// lap_no ≥ max_laps before this step.
     MaxLaps,
 }
 
-impl fmt::Display for Truncation {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Truncation::OutOfTrack => "out_of_track",
-            Truncation::LeftBand => "left_band",
-            Truncation::Stall => "stall",
-            Truncation::Spin => "spin",
-            Truncation::MaxLaps => "max_laps",
-        })
+impl From<Truncation> for EndReason {
+    fn from(t: Truncation) -> EndReason {
+        match t {
+            Truncation::OutOfTrack => EndReason::OutOfTrack,
+            Truncation::LeftBand => EndReason::LeftBand,
+            Truncation::Stall => EndReason::Stall,
+            Truncation::Spin => EndReason::Spin,
+            Truncation::MaxLaps => EndReason::MaxLaps,
+        }
     }
 }
 
-/// Env constants (simulator.md §3): the one place for these numbers.
+impl fmt::Display for Truncation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        EndReason::from(*self).fmt(f)
+    }
+}
+
+/// Env constants (simulator.md §3); the defaults are the constants above.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EnvConfig {
     /// Control period (s).
@@ -78,7 +112,7 @@ pub struct EnvConfig {
     pub substeps: usize,
     /// RK4 steps per sub-step (1 → h = 0.01 s).
     pub rk4_per_substep: usize,
-    /// Truncate once this many laps are done (the trainer passes 50).
+    /// Truncate once this many laps are done.
     pub max_laps: u32,
     /// Stall threshold on v_long (m/s).
     pub min_speed: f64,
@@ -89,19 +123,19 @@ pub struct EnvConfig {
 impl Default for EnvConfig {
     fn default() -> Self {
         EnvConfig {
-            dt: 0.1,
-            substeps: 10,
+            dt: DT,
+            substeps: SUBSTEPS,
             rk4_per_substep: 1,
-            max_laps: 50,
-            min_speed: 0.25,
-            max_heading_error: std::f64::consts::FRAC_PI_2,
+            max_laps: MAX_LAPS,
+            min_speed: MIN_SPEED,
+            max_heading_error: MAX_HEADING_ERROR,
         }
     }
 }
 
-/// What the policy sees (simulator.md §3.1), in f64.
+/// What the env reports after a reset or a step (simulator.md §3.1), in f64; the policy's input is built from it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Observation {
+pub struct EnvObservation {
     /// [v_long, v_tran, ω, s, x_tran, e_psi].
     pub state: [f64; 6],
     /// [X, Y, ψ] with ψ unwrapped.
@@ -110,7 +144,7 @@ pub struct Observation {
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StepResult {
-    pub obs: Observation,
+    pub obs: EnvObservation,
     /// Progress s_new − s_old (m), plus L on the lap step.
     pub reward: f64,
     /// The reference's `terminated`: a lap was just completed (the episode goes on).
@@ -156,7 +190,7 @@ impl Env {
             lap_times: Vec::with_capacity(64),
             sun: Sun::default(),
         };
-        env.set_spawn(0.1, 0.0, 0.0, 0.5);
+        env.reset_fixed();
         env
     }
 
@@ -178,9 +212,9 @@ impl Env {
 
     /// Start an episode. Random draws: s, x_tran, e_psi, v_long (simulator.md §3.2), then the sun
     /// (azimuth U(0, 2π), elevation U(15°, 75°)); the fixed spawn still draws the sun.
-    pub fn reset<R: Rng + ?Sized>(&mut self, spawn: Spawn, rng: &mut R) -> Observation {
+    pub fn reset<R: Rng + ?Sized>(&mut self, spawn: Spawn, rng: &mut R) -> EnvObservation {
         match spawn {
-            Spawn::Fixed => self.set_spawn(0.1, 0.0, 0.0, 0.5),
+            Spawn::Fixed => self.reset_fixed(),
             Spawn::Random => {
                 let band = self.track.band();
                 let s = uniform(rng, 0.1, self.track.length() - 2.0);
@@ -198,15 +232,31 @@ impl Env {
         self.observation()
     }
 
+    fn reset_fixed(&mut self) {
+        let at = FIXED_SPAWN;
+        self.set_spawn(at.s, at.x_tran, at.e_psi, FIXED_SPAWN_SPEED);
+    }
+
     /// Place the car at a Frenet pose with speed `v_long` (v_tran = ω = 0) and clear the episode counters.
     pub fn set_spawn(&mut self, s: f64, x_tran: f64, e_psi: f64, v_long: f64) {
-        let p = self.track.local_to_global(s, x_tran, e_psi);
-        self.q = [v_long, 0.0, 0.0, p.x, p.y, p.psi];
+        let at = Frenet { s, x_tran, e_psi };
+        let q = spawn_state(&self.track, at, v_long);
         // Within the band the conversion succeeds; fall back to the requested values otherwise.
-        self.frenet = self
-            .track
-            .global_to_local(p.x, p.y, p.psi)
-            .unwrap_or(Frenet { s, x_tran, e_psi });
+        let frenet = self.track.global_to_local(q[3], q[4], q[5]).unwrap_or(at);
+        self.place(q, frenet);
+    }
+
+    /// Place the car at vehicle state `q` (global frame) and clear the episode counters; outside the band this is
+    /// the conversion's error and the env is unchanged.
+    pub fn set_state(&mut self, q: State) -> Result<(), TrackError> {
+        let frenet = self.track.global_to_local(q[3], q[4], q[5])?;
+        self.place(q, frenet);
+        Ok(())
+    }
+
+    fn place(&mut self, q: State, frenet: Frenet) {
+        self.q = q;
+        self.frenet = frenet;
         self.u = [0.0; 2];
         self.t = 0.0;
         self.lap_no = 0;
@@ -279,9 +329,9 @@ impl Env {
         }
     }
 
-    pub fn observation(&self) -> Observation {
+    pub fn observation(&self) -> EnvObservation {
         let (q, f) = (&self.q, &self.frenet);
-        Observation {
+        EnvObservation {
             state: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
             pose: [q[3], q[4], q[5]],
         }
@@ -344,13 +394,13 @@ fn uniform<R: Rng + ?Sized>(rng: &mut R, a: f64, b: f64) -> f64 {
 
 #[derive(thiserror::Error, Debug, Clone, PartialEq, Eq)]
 pub enum EnvError {
-    #[error("expected {expected} actions (one per env), got {got}")]
+    #[error("expected at most {expected} actions (one per env), got {got}")]
     BatchSize { expected: usize, got: usize },
     #[error("env index {index} out of range (batch of {len})")]
     Index { index: usize, len: usize },
 }
 
-/// K environments sharing one track, env i drawing from RNG stream (seed, i). Resetting after a
+/// K environments sharing one track, env i drawing from RNG stream (seed, first_stream + i). Resetting after a
 /// truncation is the caller's choice ([`EnvBatch::reset_one`]).
 #[derive(Clone, Debug)]
 pub struct EnvBatch {
@@ -360,6 +410,7 @@ pub struct EnvBatch {
 }
 
 impl EnvBatch {
+    /// K envs on streams 0..K of `seed`.
     pub fn new(
         track: Arc<Track>,
         params: VehicleParams,
@@ -367,14 +418,26 @@ impl EnvBatch {
         k: usize,
         seed: u64,
     ) -> EnvBatch {
-        let envs = (0..k)
+        EnvBatch::with_streams(track, params, config, seed, 0..k as u64)
+    }
+
+    /// One env per stream of `seed` in `streams` (so that several batches of one run draw distinct spawns).
+    pub fn with_streams(
+        track: Arc<Track>,
+        params: VehicleParams,
+        config: EnvConfig,
+        seed: u64,
+        streams: std::ops::Range<u64>,
+    ) -> EnvBatch {
+        let rngs: Vec<ChaCha8Rng> = streams.map(|i| Env::rng(seed, i)).collect();
+        let envs = rngs
+            .iter()
             .map(|_| Env::new(track.clone(), params.clone(), config.clone()))
             .collect();
-        let rngs = (0..k as u64).map(|i| Env::rng(seed, i)).collect();
         EnvBatch {
             envs,
+            results: vec![StepResult::default(); rngs.len()],
             rngs,
-            results: vec![StepResult::default(); k],
         }
     }
 
@@ -394,7 +457,7 @@ impl EnvBatch {
         self.envs.get(i)
     }
 
-    pub fn reset_all(&mut self, spawn: Spawn) -> Vec<Observation> {
+    pub fn reset_all(&mut self, spawn: Spawn) -> Vec<EnvObservation> {
         self.envs
             .iter_mut()
             .zip(self.rngs.iter_mut())
@@ -402,7 +465,7 @@ impl EnvBatch {
             .collect()
     }
 
-    pub fn reset_one(&mut self, i: usize, spawn: Spawn) -> Result<Observation, EnvError> {
+    pub fn reset_one(&mut self, i: usize, spawn: Spawn) -> Result<EnvObservation, EnvError> {
         let len = self.envs.len();
         match (self.envs.get_mut(i), self.rngs.get_mut(i)) {
             (Some(e), Some(r)) => Ok(e.reset(spawn, r)),
@@ -410,9 +473,10 @@ impl EnvBatch {
         }
     }
 
-    /// Step env i with `actions[i]`; the results live in a buffer reused across calls.
+    /// Step env i with `actions[i]` for the first `actions.len()` envs (the rest wait: a step budget can end
+    /// mid-batch); the results live in a buffer reused across calls.
     pub fn step(&mut self, actions: &[Input]) -> Result<&[StepResult], EnvError> {
-        if actions.len() != self.envs.len() {
+        if actions.len() > self.envs.len() {
             return Err(EnvError::BatchSize {
                 expected: self.envs.len(),
                 got: actions.len(),
@@ -426,6 +490,6 @@ impl EnvBatch {
         {
             *out = env.step(a);
         }
-        Ok(&self.results)
+        Ok(&self.results[..actions.len()])
     }
 }

@@ -40,7 +40,7 @@ impl Pid {
             u_max,
             du_max,
             ei_max: 100.0,
-            dt: 0.1,
+            dt: crate::env::DT,
             e_prev: 0.0,
             ei: 0.0,
             u_prev: 0.0,

@@ -1,7 +1,7 @@
 //! The race track: a closed centreline of straights and circular arcs, with Frenet conversions.
 //!
 //! Frame: right-handed plane, ψ counter-clockwise from +x, metres and radians. A track is data: a list of
-//! [`Segment`]s (arc length, signed radius; radius 0 = straight, > 0 = left/CCW turn) starting at the pose
+//! [`TrackPiece`]s (arc length, signed radius; radius 0 = straight, > 0 = left/CCW turn) starting at the pose
 //! (0, 0, 0). The routines follow simulator.md §2 literally (the reference's `key_pts` recurrence,
 //! `local_to_global` and the analytic first-match `global_to_local`), so a round trip is exact to rounding.
 
@@ -9,7 +9,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 /// One piece of centreline: `length` of arc (m) and signed `radius` (m); 0 = straight, > 0 = left (CCW).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Segment {
+pub struct TrackPiece {
     pub length: f64,
     pub radius: f64,
 }
@@ -33,21 +33,21 @@ pub struct Frenet {
 
 #[derive(thiserror::Error, Debug, Clone, PartialEq)]
 pub enum TrackError {
-    /// The reference's "Point is out of the track!": no segment holds the point within the band.
+    /// The reference's "Point is out of the track!": no track piece holds the point within the band.
     #[error(
         "point ({x:.4}, {y:.4}) is out of the track (farther than {band} m from the centreline)"
     )]
     OutOfBand { x: f64, y: f64, band: f64 },
-    #[error("segment {index} is invalid: {reason}")]
-    InvalidSegment { index: usize, reason: String },
+    #[error("track piece {index} is invalid: {reason}")]
+    InvalidPiece { index: usize, reason: String },
     #[error("invalid widths: half_width {half_width} and slack {slack} must be finite, half_width > 0, slack >= 0")]
     InvalidWidth { half_width: f64, slack: f64 },
     #[error("the centreline does not close: the end is {gap:.3e} m from the start")]
     NotClosed { gap: f64 },
 }
 
-/// One row of the reference's `key_pts`: the pose at the end of a segment, its cumulative arc length and
-/// the segment's length and curvature (row 0 is the start pose).
+/// One row of the reference's `key_pts`: the pose at the end of a track piece, its cumulative arc length and
+/// the piece's length and curvature (row 0 is the start pose).
 #[derive(Clone, Copy, Debug)]
 struct KeyPoint {
     x: f64,
@@ -62,7 +62,7 @@ struct KeyPoint {
 /// A closed track with a constant half-width (the constraint) and a slack band (Frenet validity).
 #[derive(Clone, Debug)]
 pub struct Track {
-    segments: Vec<Segment>,
+    pieces: Vec<TrackPiece>,
     half_width: f64,
     slack: f64,
     key: Vec<KeyPoint>,
@@ -118,66 +118,66 @@ fn sign(v: f64) -> f64 {
 }
 
 impl Track {
-    /// The paper's `L_track_barc` (simulator.md §2.1): nine segments to the npz's full precision,
+    /// The paper's `L_track_barc` (simulator.md §2.1): nine pieces to the npz's full precision,
     /// half-width 0.55 m, slack 0.3 m.
     pub fn l_track_barc() -> Track {
         // The npz's `cl_segs` to full double precision, as `generate_LTrack_barc` computes them
         // (e.g. s2 = 1.051 - 0.15 = 0.9009999999999999, arcs = π r or π r / 2).
-        let segments = vec![
-            Segment {
+        let pieces = vec![
+            TrackPiece {
                 length: 2.251,
                 radius: 0.0,
             },
-            Segment {
+            TrackPiece {
                 length: 3.620685533262237,
                 radius: 1.1525,
             },
-            Segment {
+            TrackPiece {
                 length: 0.9009999999999999,
                 radius: 0.0,
             },
-            Segment {
+            TrackPiece {
                 length: 1.6024753617155325,
                 radius: -1.0201675,
             },
-            Segment {
+            TrackPiece {
                 length: 0.15000000000000002,
                 radius: 0.0,
             },
-            Segment {
+            TrackPiece {
                 length: 3.858449119267546,
                 radius: 1.2281825,
             },
-            Segment {
+            TrackPiece {
                 length: 2.25454,
                 radius: 0.0,
             },
-            Segment {
+            TrackPiece {
                 length: 1.9173571933848375,
                 radius: 1.2206275,
             },
-            Segment {
+            TrackPiece {
                 length: 0.9059049999999997,
                 radius: 0.0,
             },
         ];
-        Track::new(segments, 0.55, 0.3).expect("L_track_barc is a valid closed track")
+        Track::new(pieces, 0.55, 0.3).expect("L_track_barc is a valid closed track")
     }
 
-    /// Build a track from segments starting at pose (0, 0, 0). Fails if a segment is degenerate, an arc is
+    /// Build a track from pieces starting at pose (0, 0, 0). Fails if a piece is degenerate, an arc is
     /// tighter than the band (the inner band edge would fold), or the centreline does not close (to 1 mm).
-    pub fn new(segments: Vec<Segment>, half_width: f64, slack: f64) -> Result<Track, TrackError> {
+    pub fn new(pieces: Vec<TrackPiece>, half_width: f64, slack: f64) -> Result<Track, TrackError> {
         if !(half_width.is_finite() && slack.is_finite() && half_width > 0.0 && slack >= 0.0) {
             return Err(TrackError::InvalidWidth { half_width, slack });
         }
-        if segments.is_empty() {
-            return Err(TrackError::InvalidSegment {
+        if pieces.is_empty() {
+            return Err(TrackError::InvalidPiece {
                 index: 0,
-                reason: "no segments".into(),
+                reason: "no pieces".into(),
             });
         }
         let band = half_width + slack;
-        let mut key = Vec::with_capacity(segments.len() + 1);
+        let mut key = Vec::with_capacity(pieces.len() + 1);
         key.push(KeyPoint {
             x: 0.0,
             y: 0.0,
@@ -186,9 +186,9 @@ impl Track {
             len: 0.0,
             curvature: 0.0,
         });
-        for (i, seg) in segments.iter().enumerate() {
+        for (i, seg) in pieces.iter().enumerate() {
             if !(seg.length.is_finite() && seg.length > 0.0 && seg.radius.is_finite()) {
-                return Err(TrackError::InvalidSegment {
+                return Err(TrackError::InvalidPiece {
                     index: i,
                     reason: format!(
                         "length {} / radius {} must be finite with length > 0",
@@ -197,7 +197,7 @@ impl Track {
                 });
             }
             if seg.radius != 0.0 && seg.radius.abs() <= band {
-                return Err(TrackError::InvalidSegment {
+                return Err(TrackError::InvalidPiece {
                     index: i,
                     reason: format!("|radius| {} must exceed the band {band}", seg.radius.abs()),
                 });
@@ -233,7 +233,7 @@ impl Track {
         }
         let length = last.cum_s;
         let mut track = Track {
-            segments,
+            pieces,
             half_width,
             slack,
             key,
@@ -246,8 +246,8 @@ impl Track {
         Ok(track)
     }
 
-    pub fn segments(&self) -> &[Segment] {
-        &self.segments
+    pub fn pieces(&self) -> &[TrackPiece] {
+        &self.pieces
     }
 
     /// Centreline length L (m); 17.461412207630154 for `L_track_barc`.
@@ -269,8 +269,8 @@ impl Track {
         self.half_width + self.slack
     }
 
-    /// The end poses of the segments with their cumulative s: row 0 is the start pose, row i the end of
-    /// segment i (simulator.md §2.2), as `(pose, cum_s)`.
+    /// The end poses of the pieces with their cumulative s: row 0 is the start pose, row i the end of
+    /// piece i (simulator.md §2.2), as `(pose, cum_s)`.
     pub fn key_points(&self) -> Vec<(Pose, f64)> {
         self.key
             .iter()
@@ -304,8 +304,8 @@ impl Track {
         while s >= self.length {
             s -= self.length;
         }
-        // Last key point with cum_s <= s (among the segment starts 0..n-1).
-        let n = self.segments.len();
+        // Last key point with cum_s <= s (among the piece starts 0..n-1).
+        let n = self.pieces.len();
         let mut i = 0;
         while i + 1 < n && self.key[i + 1].cum_s <= s {
             i += 1;
@@ -339,7 +339,7 @@ impl Track {
         }
     }
 
-    /// Global → Frenet (simulator.md §2.5): the first segment, in order, whose region holds the point within
+    /// Global → Frenet (simulator.md §2.5): the first piece, in order, whose region holds the point within
     /// the band. ψ may be unwrapped (any multiple of 2π); `e_psi` comes back in [-π, π].
     pub fn global_to_local(&self, x: f64, y: f64, psi: f64) -> Result<Frenet, TrackError> {
         let band = self.band();
@@ -408,7 +408,7 @@ impl Track {
         segments_intersect(new, old, self.start_line[0], self.start_line[1])
     }
 
-    /// Euclidean distance from (x, y) to the centreline curve (exact, over all segments). Inside the band it
+    /// Euclidean distance from (x, y) to the centreline curve (exact, over all pieces). Inside the band it
     /// equals |x_tran|. Used to precompute the camera's lookup grid.
     pub fn distance_to_centreline(&self, x: f64, y: f64) -> f64 {
         let mut best = f64::INFINITY;

@@ -1,7 +1,7 @@
 //! Env checks: truncation reasons, lap counting, spawns, batches (simulator.md §3).
 use std::sync::Arc;
 
-use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvError, Spawn, Truncation};
+use cabc_sim::env::{fixed_spawn_state, Env, EnvBatch, EnvConfig, EnvError, Spawn, Truncation};
 use cabc_sim::{PidLaneFollower, Track, VehicleParams};
 
 fn pid_until(env: &mut Env, max_steps: usize) -> (usize, Option<Truncation>) {
@@ -191,14 +191,49 @@ fn batch_streams_and_errors() {
     assert_eq!(obs[1], single, "env i uses stream (seed, i)");
     let res = batch.step(&[[0.0, 0.0]; 3]).unwrap();
     assert_eq!(res.len(), 3);
+    // A prefix steps the first envs only (a budget can end mid-batch).
+    let before = batch.env(2).unwrap().steps();
+    assert_eq!(batch.step(&[[0.0, 0.0]; 2]).unwrap().len(), 2);
+    assert_eq!(batch.env(2).unwrap().steps(), before);
     assert_eq!(
-        batch.step(&[[0.0, 0.0]; 2]).unwrap_err(),
+        batch.step(&[[0.0, 0.0]; 4]).unwrap_err(),
         EnvError::BatchSize {
             expected: 3,
-            got: 2
+            got: 4
         }
     );
     assert!(batch.reset_one(2, Spawn::Fixed).is_ok());
     assert!(batch.reset_one(3, Spawn::Fixed).is_err());
     assert_eq!(batch.env(2).unwrap().observation().state[3], 0.1);
+}
+
+#[test]
+fn batch_streams_can_start_anywhere() {
+    let track = Arc::new(Track::l_track_barc());
+    let config = EnvConfig::default();
+    let mut batch = EnvBatch::with_streams(track, VehicleParams::default(), config, 9, 4..6);
+    let obs = batch.reset_all(Spawn::Random);
+    assert_eq!(
+        obs[1],
+        Env::barc().reset(Spawn::Random, &mut Env::rng(9, 5))
+    );
+}
+
+#[test]
+fn set_state_places_the_car_and_refuses_points_off_the_band() {
+    let mut env = Env::barc();
+    let q = fixed_spawn_state(env.track());
+    env.step(&[1.0, 0.1]);
+    env.set_state(q).unwrap();
+    assert_eq!(env.steps(), 0);
+    assert_eq!(env.observation(), Env::barc().observation());
+    assert!(env.set_state([1.0, 0.0, 0.0, 50.0, 50.0, 0.0]).is_err());
+    assert_eq!(env.vehicle_state(), q, "unchanged on error");
+}
+
+#[test]
+fn truncations_read_as_the_protocol_end_reasons() {
+    assert_eq!(Truncation::OutOfTrack.to_string(), "out-of-track");
+    assert_eq!(Truncation::LeftBand.to_string(), "left-band");
+    assert_eq!(Truncation::MaxLaps.to_string(), "max-laps");
 }

@@ -1,5 +1,5 @@
 //! Track checks against simulator.md §2.
-use cabc_sim::track::{Segment, Track, TrackError};
+use cabc_sim::track::{Track, TrackError, TrackPiece};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::{FRAC_PI_2, PI};
@@ -120,19 +120,19 @@ fn tracks_are_data() {
     // A 2 m × circle-ended stadium.
     let r = 1.0;
     let segs = vec![
-        Segment {
+        TrackPiece {
             length: 2.0,
             radius: 0.0,
         },
-        Segment {
+        TrackPiece {
             length: PI * r,
             radius: r,
         },
-        Segment {
+        TrackPiece {
             length: 2.0,
             radius: 0.0,
         },
-        Segment {
+        TrackPiece {
             length: PI * r,
             radius: r,
         },
@@ -145,7 +145,7 @@ fn tracks_are_data() {
     // Open or degenerate tracks are rejected.
     assert!(matches!(
         Track::new(
-            vec![Segment {
+            vec![TrackPiece {
                 length: 1.0,
                 radius: 0.0
             }],
@@ -155,7 +155,7 @@ fn tracks_are_data() {
         Err(TrackError::NotClosed { .. })
     ));
     assert!(Track::new(
-        vec![Segment {
+        vec![TrackPiece {
             length: -1.0,
             radius: 0.0
         }],
@@ -164,7 +164,7 @@ fn tracks_are_data() {
     )
     .is_err());
     assert!(Track::new(
-        vec![Segment {
+        vec![TrackPiece {
             length: 1.0,
             radius: 0.2
         }],
@@ -174,7 +174,7 @@ fn tracks_are_data() {
     .is_err());
     assert!(Track::new(vec![], 0.3, 0.1).is_err());
     assert!(Track::new(
-        vec![Segment {
+        vec![TrackPiece {
             length: 1.0,
             radius: 0.0
         }],

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 pub struct MpccConfig {
     /// Horizon length N (stages).
     pub horizon: usize,
-    /// Control period dt [s].
+    /// Control period dt [s] (the plant's, `cabc_sim::env::DT`).
     pub dt: f64,
     /// RK4 sub-steps per dt in the prediction model (M = 10, h = 0.01 s).
     pub rk4_substeps: usize,
@@ -93,8 +93,8 @@ impl Default for MpccConfig {
     fn default() -> Self {
         Self {
             horizon: 20,
-            dt: 0.1,
-            rk4_substeps: 10,
+            dt: cabc_sim::env::DT,
+            rk4_substeps: cabc_sim::env::SUBSTEPS,
             q_contour: 0.1,
             q_lag: 1000.0,
             q_yaw_rate: 1e-5,

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::drive::{drive, DriveEnd, DriveOptions};
+use cabc_sim::env::{fixed_spawn_state, DT, SUBSTEPS};
 
 fn assert_send_sync<T: Send + Sync>() {}
 
@@ -95,7 +96,7 @@ fn pruned_rows_do_not_change_the_qp_solution() {
 fn prediction_starts_where_the_plant_goes() {
     let mpcc = Mpcc::reference();
     let plant = VehicleParams::default();
-    let q = crate::drive::fixed_spawn(mpcc.track());
+    let q = fixed_spawn_state(mpcc.track());
     let mut stream = mpcc.start(&q).unwrap();
     let step = mpcc.step(&mut stream, &q).unwrap();
     assert!(step.success);
@@ -103,7 +104,7 @@ fn prediction_starts_where_the_plant_goes() {
     let n = mpcc.config().horizon;
     assert_eq!((p.states.len(), p.s.len()), (n + 1, n + 1));
     assert_eq!(p.s[0], step.measured[S]);
-    let next = plant.step(&q, &step.action, 0.1, 10);
+    let next = plant.step(&q, &step.action, DT, SUBSTEPS);
     for i in 0..6 {
         let expected = if i == 5 {
             next[5] - q[5] + step.measured[5]
@@ -117,15 +118,13 @@ fn prediction_starts_where_the_plant_goes() {
         );
     }
     // Progress advances by dt·v_s of the plan.
-    assert!((p.s[1] - p.s[0] - 0.1 * step.plan[0][2]).abs() < 1e-12);
+    assert!((p.s[1] - p.s[0] - DT * step.plan[0][2]).abs() < 1e-12);
 }
 
 #[test]
 fn rejects_bad_states_without_panicking() {
     let mpcc = Mpcc::reference();
-    let mut stream = mpcc
-        .start(&crate::drive::fixed_spawn(mpcc.track()))
-        .unwrap();
+    let mut stream = mpcc.start(&fixed_spawn_state(mpcc.track())).unwrap();
     assert!(matches!(
         mpcc.step(&mut stream, &[f64::NAN, 0.0, 0.0, 1.0, 0.0, 0.0]),
         Err(MpccError::NonFinite(_))
@@ -177,7 +176,7 @@ fn bench_print() {
             ..MpccConfig::default()
         };
         let mpcc = Mpcc::new(Track::l_track_barc(), VehicleParams::default(), cfg).unwrap();
-        let r = crate::drive::bench(&mpcc, &VehicleParams::default(), 200).unwrap();
+        let r = crate::bench::bench(&mpcc, &VehicleParams::default(), 200).unwrap();
         eprintln!("reuse {reuse} equilibrate {eq}: {r}");
     }
 }
