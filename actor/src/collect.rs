@@ -16,7 +16,7 @@ use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
 use std::sync::Arc;
 
 /// What the policy sees for a batch of environments.
-pub struct PolicyInput<'a> {
+pub struct Observations<'a> {
     /// Full states [v_long, v_tran, omega, s, x_tran, e_psi].
     pub states: &'a [[f32; 6]],
     /// Camera images, one per state, when the run observes images (else empty).
@@ -162,7 +162,7 @@ impl Collector {
     }
 
     /// Observations of the first `active` environments (images rendered when the run observes images).
-    pub fn observations(&mut self, active: usize) -> PolicyInput<'_> {
+    pub fn observations(&mut self, active: usize) -> Observations<'_> {
         self.states.clear();
         self.images.clear();
         for env in &self.envs.envs()[..active] {
@@ -171,7 +171,7 @@ impl Collector {
                 self.images.push(eyes.see(env));
             }
         }
-        PolicyInput {
+        Observations {
             states: &self.states,
             images: &self.images,
         }

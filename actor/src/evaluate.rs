@@ -1,7 +1,7 @@
 //! Evaluation (algorithm.md 5): the policy drives alone (beta = 0) from the fixed spawn until truncation or
 //! `eval_laps` completed laps.
 
-use crate::collect::{end_reason, make_env, PolicyInput};
+use crate::collect::{end_reason, make_env, Observations};
 use crate::eyes::Eyes;
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, EvalReport};
@@ -15,7 +15,7 @@ pub fn evaluate(
     actor: &str,
     version: u64,
     config: &RunConfig,
-    mut act: impl FnMut(&PolicyInput) -> anyhow::Result<Vec<[f32; 2]>>,
+    mut act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
 ) -> anyhow::Result<EvalReport> {
     let laps_wanted = config.collection.eval_laps;
     // One lap more than wanted so that the env's max-laps truncation never cuts the last wanted lap.
@@ -32,7 +32,7 @@ pub fn evaluate(
         line.push([obs.pose[0] as f32, obs.pose[1] as f32]);
         let state = [obs.state.map(|v| v as f32)];
         let images: Vec<_> = eyes.as_mut().map(|e| vec![e.see(&env)]).unwrap_or_default();
-        let action = act(&PolicyInput {
+        let action = act(&Observations {
             states: &state,
             images: &images,
         })?;

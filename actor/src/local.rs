@@ -103,6 +103,7 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
         }
         Ok(Some(Collected {
             steps_published: sink.steps_published,
+            timed_out: false,
             missing: Vec::new(),
             live: self
                 .collectors

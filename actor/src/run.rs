@@ -4,7 +4,7 @@
 //!
 //! The same functions run in the `actor` binary over zenoh and in-process in a test ([`crate::local`]).
 
-use crate::collect::{Collector, PolicyInput};
+use crate::collect::{Collector, Observations};
 use crate::evaluate::evaluate;
 use cabc_models::{ModelError, Observation, Policy};
 use cabc_proto::config::RunConfig;
@@ -36,7 +36,7 @@ pub struct ActorStats {
 }
 
 /// pi_theta(y) for a batch of observations (states, or images with the velocities).
-pub fn act(policy: &Policy, input: &PolicyInput) -> Result<Vec<[f32; 2]>, ModelError> {
+pub fn act(policy: &Policy, input: &Observations) -> Result<Vec<[f32; 2]>, ModelError> {
     let observations: Vec<Observation> = if input.images.is_empty() {
         input.states.iter().map(Observation::State).collect()
     } else {

@@ -26,6 +26,7 @@ pub struct EpochGate {
     timeout: Duration,
     live: BTreeSet<String>,
     done: BTreeMap<String, EpochDone>,
+    expected: usize,
 }
 
 impl EpochGate {
@@ -42,7 +43,15 @@ impl EpochGate {
             timeout,
             live: live.into_iter().collect(),
             done: BTreeMap::new(),
+            expected: 0,
         }
+    }
+
+    /// Waits (until the timeout) for at least `n` actors' markers even when fewer are known to be alive: at the start
+    /// of a run, an actor may be done before another one's liveliness has reached the learner.
+    pub fn expecting(mut self, n: usize) -> Self {
+        self.expected = n;
+        self
     }
 
     pub fn version(&self) -> u64 {
@@ -86,7 +95,7 @@ impl EpochGate {
             return None;
         }
         let missing = self.missing();
-        if missing.is_empty() {
+        if missing.is_empty() && self.done.len() >= self.expected {
             Some(Closed::AllDone)
         } else if now.duration_since(self.opened) >= self.timeout {
             Some(Closed::Timeout { missing })
@@ -120,6 +129,24 @@ mod tests {
         assert_eq!(g.closed(t0), None);
         assert!(g.done(marker("b", 3)));
         assert_eq!(g.closed(t0), Some(Closed::AllDone));
+    }
+
+    #[test]
+    fn the_expected_actors_are_waited_for_before_their_liveliness_arrives() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(0, Duration::from_secs(5), ["a".into()], t0).expecting(2);
+        g.done(marker("a", 0));
+        assert_eq!(g.closed(t0), None, "b has not been seen yet");
+        g.alive("b");
+        g.done(marker("b", 0));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+        let mut g = EpochGate::open(0, Duration::from_secs(5), ["a".into()], t0).expecting(2);
+        g.done(marker("a", 0));
+        assert_eq!(
+            g.closed(t0 + Duration::from_secs(5)),
+            Some(Closed::Timeout { missing: vec![] }),
+            "b never came: the timeout closes the epoch"
+        );
     }
 
     #[test]

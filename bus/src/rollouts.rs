@@ -42,14 +42,23 @@ pub struct ZenohActors {
     _policy: Queryable<()>,
     latest: Arc<Mutex<Vec<u8>>>,
     live: BTreeSet<String>,
+    /// Actors that left and did not come back.
+    left: BTreeSet<String>,
+    /// The run's actors (`actors.count`): an epoch waits for this many markers, less those that left.
+    expected: usize,
     epoch_timeout: Duration,
     interrupt: Interrupt,
 }
 
 impl ZenohActors {
-    /// Subscribes to the actors' keys of `bus`'s run; an epoch without every live actor's marker closes after
-    /// `epoch_timeout`.
-    pub fn new(bus: Bus, epoch_timeout: Duration, interrupt: Interrupt) -> Result<Self, PortError> {
+    /// Subscribes to the actors' keys of `bus`'s run. An epoch closes when every live actor, and at least `expected`
+    /// actors (less those that left), said they are done; or after `epoch_timeout` with at least one marker.
+    pub fn new(
+        bus: Bus,
+        expected: usize,
+        epoch_timeout: Duration,
+        interrupt: Interrupt,
+    ) -> Result<Self, PortError> {
         let keys = bus.keys.clone();
         let traj = bus
             .session
@@ -98,6 +107,8 @@ impl ZenohActors {
             _policy: policy,
             latest,
             live: BTreeSet::new(),
+            left: BTreeSet::new(),
+            expected,
             epoch_timeout,
             interrupt,
         })
@@ -120,6 +131,7 @@ impl ZenohActors {
                     if let Some(g) = gate.as_deref_mut() {
                         g.alive(&actor);
                     }
+                    self.left.remove(&actor);
                     self.live.insert(actor);
                 }
                 SampleKind::Delete => {
@@ -128,6 +140,7 @@ impl ZenohActors {
                         g.gone(&actor);
                     }
                     self.live.remove(&actor);
+                    self.left.insert(actor);
                 }
             }
         }
@@ -150,7 +163,8 @@ impl Rollouts for ZenohActors {
             self.epoch_timeout,
             self.live.iter().cloned(),
             Instant::now(),
-        );
+        )
+        .expecting(self.expected.saturating_sub(self.left.len()));
         let mut last_wait_log = Instant::now();
         let closed = loop {
             if self.interrupt.is_set() {
@@ -176,20 +190,22 @@ impl Rollouts for ZenohActors {
                 tracing::info!(epoch = update.version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
             }
         };
-        let missing = match closed {
-            Closed::AllDone => Vec::new(),
+        let (missing, timed_out) = match closed {
+            Closed::AllDone => (Vec::new(), false),
             Closed::Timeout { missing } => {
                 tracing::warn!(
                     epoch = update.version,
                     ?missing,
-                    "epoch closed by the timeout without these actors"
+                    done = gate.markers().count(),
+                    "epoch closed by the timeout"
                 );
-                missing
+                (missing, true)
             }
         };
         Ok(Some(Collected {
             steps_published: gate.markers().map(|m| m.steps).sum(),
             missing,
+            timed_out,
             live: self.live.iter().cloned().collect(),
         }))
     }

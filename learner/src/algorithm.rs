@@ -27,14 +27,15 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         let started = Instant::now();
         // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j).
         let update = learner.policy_update(j);
-        // Rollout pi_collect to collect D_new; partition it into D+' and D?' as it arrives: D+ <- D+ u D+',
-        // D? <- D? u D?' (a segment that ends in a lap is D+, a failed one D?).
+        // Rollout pi_collect to collect D_new.
         let before = learner.counts();
         let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))?
         else {
             return Ok(Ending::Interrupted);
         };
         let collect_s = started.elapsed().as_secs_f64();
+        // Partition D_new into D+' (laps) and D?' (failures): D+ <- D+ u D+', D? <- D? u D?'.
+        learner.partition();
         // Safety auto-labelling (eq. (19)), every `autolabel_every` epochs: remove from D? every x inside the convex
         // hull of its D+ neighbours within rho; what D? then holds is D-, until the next labelling.
         let labelled = schedule

@@ -53,6 +53,8 @@ pub struct Learner {
     /// The version that stopped the run early, once decided.
     pub early_stop: Option<u64>,
     history: BTreeMap<u64, Vec<u8>>,
+    /// The segments of the epoch being collected, until [`Learner::partition`].
+    d_new: Vec<Segment>,
     last_eval: Option<EvalReport>,
     expert_streams: HashSet<(String, u32, u64)>,
     failed_segments: u64,
@@ -112,6 +114,7 @@ impl Learner {
             state,
             early_stop: None,
             history: BTreeMap::new(),
+            d_new: Vec::new(),
             last_eval: None,
             expert_streams: HashSet::new(),
             failed_segments: 0,
@@ -145,7 +148,7 @@ impl Learner {
         )
     }
 
-    /// Stores a segment exactly once: a lap in D+, anything else in D? (or the dynamics-only store).
+    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate).
     pub fn store(&mut self, segment: Segment) {
         if !self.state.ledger.admit(&segment) {
             tracing::warn!(
@@ -155,8 +158,31 @@ impl Learner {
             );
             return;
         }
-        // Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
-        // episode after its first starts at the start line.
+        self.d_new.push(segment);
+    }
+
+    /// Partitions D_new into D+' (laps) and D?' (failures; unfinished steps go to the dynamics-only store) and adds
+    /// them to D+ and D?. Segments are added in (actor, seq) order, whatever order the bus delivered them in, so a
+    /// distributed run with a given seed is as reproducible as an in-process one.
+    pub fn partition(&mut self) {
+        let mut d_new = std::mem::take(&mut self.d_new);
+        d_new.sort_by(|a, b| (&a.actor, a.seq).cmp(&(&b.actor, b.seq)));
+        for segment in d_new {
+            self.expert_lap_time(&segment);
+            if let Err(e) = self.replay.add_segment(&segment) {
+                self.failed_segments += 1;
+                tracing::warn!(
+                    actor = segment.actor,
+                    seq = segment.seq,
+                    "segment not stored: {e}"
+                );
+            }
+        }
+    }
+
+    /// Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
+    /// episode after its first starts at the start line.
+    fn expert_lap_time(&mut self, segment: &Segment) {
         if segment.outcome == Outcome::Lap
             && segment.policy_version == 0
             && self.config.beta(0) >= 1.0
@@ -168,14 +194,6 @@ impl Learner {
                     .expert_lap_times
                     .push(segment.steps.len() as f64 * dt);
             }
-        }
-        if let Err(e) = self.replay.add_segment(&segment) {
-            self.failed_segments += 1;
-            tracing::warn!(
-                actor = segment.actor,
-                seq = segment.seq,
-                "segment not stored: {e}"
-            );
         }
     }
 
@@ -260,7 +278,7 @@ impl Learner {
             collect_s,
             train_s,
             epoch_s: 0.0,
-            closed_by_timeout: !collected.missing.is_empty(),
+            closed_by_timeout: collected.timed_out,
             eval_version: self.last_eval.as_ref().map(|e| e.version),
             eval_laps: self.last_eval.as_ref().map(|e| e.laps),
         }

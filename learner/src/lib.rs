@@ -1,5 +1,7 @@
 //! cabc-learner: the learning core of constraint-aware behaviour cloning (the paper's Algorithm 1):
 //!
+//! * [`algorithm`]: Algorithm 1 on one screen, over the actors' port (`cabc_proto::ports::Rollouts`);
+//! * [`learner`]: what the learner holds between epochs (replay, networks, ledger, evaluations, run folder);
 //! * [`replay`]: D+, D?, D- and the dynamics-only store, filled from segments;
 //! * [`autolabel`]: safety auto-labelling, eq. (19), over a k-d tree ([`kdtree`]) and an exact hull test ([`hull`]);
 //! * [`schedule`]: when each part of Algorithm 1 runs (k_f, k_p, auto-labelling, warm-up);
@@ -7,8 +9,8 @@
 //!   (eq. (14));
 //! * [`checkpoint`]: the one checkpoint writer (atomic) and reader;
 //! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
-//! * [`epoch`]: the epoch protocol; [`rundir`]: the run folder and checkpoints; [`plots`]: the run's plots;
-//!   `serve` (feature `server`): the learner process over zenoh.
+//! * [`ledger`]: exactly-once storage of segments; [`rundir`]: the run folder; [`plots`]: the run's plots;
+//!   `serve` (feature `server`): `learner run`, Algorithm 1 with the actors over zenoh.
 //!
 //! Apart from `serve` (behind the `server` feature), the library knows nothing of the bus.
 

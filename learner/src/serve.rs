@@ -29,7 +29,8 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
         "learner up; waiting for actors"
     );
     let mut learner = Learner::open(config, run_dir, resume)?;
-    let mut actors = ZenohActors::new(bus, timeout, interrupt)?;
+    let expected = learner.config.actors.count as usize;
+    let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
     let ending = algorithm::run(&mut learner, &mut actors)?;
     let reason = match &ending {
         Ending::Interrupted => "interrupted".to_string(),

@@ -57,7 +57,9 @@ pub trait EvalSink {
 pub struct Collected {
     /// Steps the actors said they published with this version (their markers).
     pub steps_published: u64,
-    /// Actors alive when the epoch closed that had not said they were done (the timeout closed the epoch).
+    /// Whether the timeout closed the epoch (an actor missing or not yet seen).
+    pub timed_out: bool,
+    /// Actors alive when the epoch closed that had not said they were done.
     pub missing: Vec<String>,
     /// The actors alive when the epoch closed.
     pub live: Vec<String>,

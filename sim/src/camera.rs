@@ -77,15 +77,15 @@ impl Sun {
 
 /// An 8-bit RGB image, rows top to bottom, HWC.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Image {
+pub struct Frame {
     pub width: usize,
     pub height: usize,
     pub rgb: Vec<u8>,
 }
 
-impl Image {
-    pub fn new(width: usize, height: usize) -> Image {
-        Image {
+impl Frame {
+    pub fn new(width: usize, height: usize) -> Frame {
+        Frame {
             width,
             height,
             rgb: vec![0; width * height * 3],
@@ -119,8 +119,8 @@ impl Image {
 }
 
 /// The protocol's image (what a segment carries): the pixels move, they are not copied.
-impl From<Image> for cabc_proto::messages::Image {
-    fn from(image: Image) -> Self {
+impl From<Frame> for cabc_proto::messages::Image {
+    fn from(image: Frame) -> Self {
         cabc_proto::messages::Image {
             width: image.width as u16,
             height: image.height as u16,
@@ -239,7 +239,7 @@ pub struct Camera {
     /// Per row: upward ray slope (positive = above the horizon).
     row_up: Vec<f64>,
     sky: Vec<[u8; 3]>,
-    image: Image,
+    image: Frame,
 }
 
 impl Camera {
@@ -274,7 +274,7 @@ impl Camera {
             col_left,
             row_up,
             sky,
-            image: Image::new(width, height),
+            image: Frame::new(width, height),
         }
     }
 
@@ -296,7 +296,7 @@ impl Camera {
     }
 
     /// Render the view from `pose` under `sun` into the camera's buffer and return it.
-    pub fn render(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> &Image {
+    pub fn render(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> &Frame {
         let (sp, cp) = pose.psi.sin_cos();
         let s = sun.direction();
         let (sun_dx, sun_dy) = (sun.azimuth.cos(), sun.azimuth.sin());
@@ -369,13 +369,13 @@ impl Camera {
 
     /// Render like [`Camera::render`] and hand the image over (moved, not copied; the camera takes a fresh
     /// buffer), for callers that keep every frame.
-    pub fn render_owned(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> Image {
+    pub fn render_owned(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> Frame {
         self.render(lookup, pose, sun);
-        std::mem::replace(&mut self.image, Image::new(self.width, self.height))
+        std::mem::replace(&mut self.image, Frame::new(self.width, self.height))
     }
 
     /// The last rendered image.
-    pub fn image(&self) -> &Image {
+    pub fn image(&self) -> &Frame {
         &self.image
     }
 }

@@ -15,7 +15,7 @@ pub mod trace;
 pub mod track;
 pub mod vehicle;
 
-pub use camera::{Camera, Image, Sun, TrackLookup};
+pub use camera::{Camera, Frame, Sun, TrackLookup};
 pub use env::{
     Env, EnvBatch, EnvConfig, EnvObservation, Spawn, StepResult, Truncation, DT, FIXED_SPAWN,
     FIXED_SPAWN_SPEED,

@@ -1,7 +1,7 @@
 //! A top-down picture of a track: centreline, constraint boundary (±H), Frenet band (±(H + slack)), start
-//! line, and optionally a driven line. A tiny rasteriser into an [`Image`]; no plotting crate.
+//! line, and optionally a driven line. A tiny rasteriser into an [`Frame`]; no plotting crate.
 
-use crate::camera::Image;
+use crate::camera::Frame;
 use crate::track::Track;
 
 const BACKGROUND: [u8; 3] = [250, 250, 250];
@@ -28,7 +28,7 @@ impl View {
 }
 
 /// Render the track at `px_per_m` pixels per metre with the optional driven line `trace` of (X, Y) points.
-pub fn render_track(track: &Track, px_per_m: f64, trace: &[(f64, f64)]) -> Image {
+pub fn render_track(track: &Track, px_per_m: f64, trace: &[(f64, f64)]) -> Frame {
     let px_per_m = if px_per_m.is_finite() {
         px_per_m.clamp(10.0, 1000.0)
     } else {
@@ -43,7 +43,7 @@ pub fn render_track(track: &Track, px_per_m: f64, trace: &[(f64, f64)]) -> Image
     };
     let width = ((bx1 - bx0 + 2.0 * margin) * px_per_m).ceil() as usize;
     let height = ((by1 - by0 + 2.0 * margin) * px_per_m).ceil() as usize;
-    let mut img = Image::new(width, height);
+    let mut img = Frame::new(width, height);
     let (h, band) = (track.half_width(), track.band());
     let line = 0.8 / px_per_m; // half line width, m
     for j in 0..height {
@@ -86,7 +86,7 @@ pub fn render_track(track: &Track, px_per_m: f64, trace: &[(f64, f64)]) -> Image
 }
 
 /// A one-pixel line by uniform sampling (clipped to the image).
-fn draw_line(img: &mut Image, p: (f64, f64), q: (f64, f64), c: [u8; 3]) {
+fn draw_line(img: &mut Frame, p: (f64, f64), q: (f64, f64), c: [u8; 3]) {
     let n = ((q.0 - p.0).abs().max((q.1 - p.1).abs()).ceil() as usize).clamp(1, 100_000);
     for k in 0..=n {
         let t = k as f64 / n as f64;

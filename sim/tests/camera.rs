@@ -1,7 +1,7 @@
 //! Camera checks: symmetry, sun dependence, determinism.
 use std::sync::OnceLock;
 
-use cabc_sim::camera::{Camera, Image, Sun, TrackLookup};
+use cabc_sim::camera::{Camera, Frame, Sun, TrackLookup};
 use cabc_sim::Track;
 
 fn lookup() -> &'static TrackLookup {
@@ -9,7 +9,7 @@ fn lookup() -> &'static TrackLookup {
     L.get_or_init(|| TrackLookup::new(&Track::l_track_barc(), 0.01))
 }
 
-fn render(w: usize, h: usize, s: f64, e: f64, p: f64, sun: Sun) -> Image {
+fn render(w: usize, h: usize, s: f64, e: f64, p: f64, sun: Sun) -> Frame {
     let track = Track::l_track_barc();
     let mut cam = Camera::new(w, h, 110.0);
     cam.render(lookup(), track.local_to_global(s, e, p), sun)
