@@ -100,6 +100,13 @@ impl Collector {
         }
     }
 
+    /// Sets the incarnation every segment carries (the `actor` binary: the time it started), so that the learner
+    /// tells a restarted actor's segments from duplicates. In-process actors keep 0.
+    pub fn with_incarnation(mut self, incarnation: u64) -> Self {
+        self.seq.incarnation = incarnation;
+        self
+    }
+
     /// The actor's name (the `actor` of its segments).
     pub fn actor(&self) -> &str {
         &self.actor
@@ -115,7 +122,7 @@ impl Collector {
 
     /// Segments published so far (the next `seq`).
     pub fn segments_cut(&self) -> u64 {
-        self.seq.0
+        self.seq.next
     }
 
     /// Steps taken in this epoch.

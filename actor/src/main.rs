@@ -75,7 +75,11 @@ fn main() -> Result<()> {
         let mut expert = ZenohExpert::new(&bus, kind, timeout, &interrupt, stats.clone())?;
         let mut sink = ZenohSegments::new(&bus, &cli.id, stats.clone());
         let index = cli.index.unwrap_or_else(|| trailing_number(&cli.id));
-        let mut collector = Collector::new(&cli.id, index, &config);
+        // Restarts under the same id are new incarnations (the learner's ledger keys segments by both).
+        let incarnation = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64);
+        let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
         run_actor(
             &mut collector,
             &mut source,
@@ -126,5 +130,7 @@ fn metrics(
         "policy_latency_ms_last": latency.last(),
         "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
+        "segments_held": wire.held,
+        "segments_lost": wire.segments_lost,
     })
 }

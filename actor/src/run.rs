@@ -101,6 +101,7 @@ pub fn collect_epoch(
     sink.put(TrajMessage::EpochDone(EpochDone {
         actor: collector.actor().to_string(),
         version: update.version,
+        published_unix_ms: update.published_unix_ms,
         segments: collector.segments_cut() - first_seq,
         steps: published,
     }))?;

@@ -38,14 +38,19 @@ pub struct Segmenter {
     staged: Vec<Step>,
 }
 
-/// Numbers the segments of one actor (its `seq`).
+/// Numbers the segments of one actor incarnation (its `seq`).
 #[derive(Debug, Default)]
-pub struct SeqCounter(pub u64);
+pub struct SeqCounter {
+    /// The actor process's incarnation, carried by every segment.
+    pub incarnation: u64,
+    /// The next `seq`.
+    pub next: u64,
+}
 
 impl SeqCounter {
     fn next(&mut self) -> u64 {
-        self.0 += 1;
-        self.0 - 1
+        self.next += 1;
+        self.next - 1
     }
 }
 
@@ -80,6 +85,7 @@ impl Segmenter {
             actor: self.actor.clone(),
             env: self.env,
             episode: self.episode,
+            incarnation: seq.incarnation,
             seq: seq.next(),
             policy_version: version,
             outcome,

@@ -27,6 +27,8 @@ pub struct EpochGate {
     live: BTreeSet<String>,
     done: BTreeMap<String, EpochDone>,
     expected: usize,
+    /// The publication's time, when markers must answer that publication and not an earlier one of the version.
+    published_unix_ms: Option<u64>,
 }
 
 impl EpochGate {
@@ -44,7 +46,15 @@ impl EpochGate {
             live: live.into_iter().collect(),
             done: BTreeMap::new(),
             expected: 0,
+            published_unix_ms: None,
         }
+    }
+
+    /// Counts only markers that answer the publication of `published_unix_ms` (a resumed learner publishes a version
+    /// again; actors interrupted in its first publication send a marker for that one).
+    pub fn answering(mut self, published_unix_ms: u64) -> Self {
+        self.published_unix_ms = Some(published_unix_ms);
+        self
     }
 
     /// Waits (until the timeout) for at least `n` actors' markers even when fewer are known to be alive: at the start
@@ -68,7 +78,11 @@ impl EpochGate {
 
     /// Records a marker; markers of other versions are ignored (returns false).
     pub fn done(&mut self, marker: EpochDone) -> bool {
-        if marker.version != self.version {
+        if marker.version != self.version
+            || self
+                .published_unix_ms
+                .is_some_and(|p| p != marker.published_unix_ms)
+        {
             return false;
         }
         self.done.insert(marker.actor.clone(), marker);
@@ -113,6 +127,7 @@ mod tests {
         EpochDone {
             actor: actor.into(),
             version,
+            published_unix_ms: 0,
             segments: 1,
             steps: 10,
         }
@@ -147,6 +162,22 @@ mod tests {
             Some(Closed::Timeout { missing: vec![] }),
             "b never came: the timeout closes the epoch"
         );
+    }
+
+    #[test]
+    fn a_marker_of_an_earlier_publication_of_the_version_does_not_count() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(3, Duration::from_secs(5), ["a".into()], t0).answering(200);
+        let mut early = marker("a", 3);
+        early.published_unix_ms = 100;
+        assert!(
+            !g.done(early),
+            "an interrupted collection of the first publication"
+        );
+        let mut answer = marker("a", 3);
+        answer.published_unix_ms = 200;
+        assert!(g.done(answer));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
     }
 
     #[test]

@@ -38,6 +38,9 @@ pub struct WireStats {
     pub transport: Duration,
     /// Broadcast latencies of the policy updates received by subscription (ms).
     pub policy_latency_ms: Vec<f64>,
+    /// Segments and markers waiting for a router now, and lost because the outbox overflowed.
+    pub held: usize,
+    pub segments_lost: u64,
 }
 
 /// Shared between the ports and the metrics.
@@ -82,12 +85,24 @@ impl Stops {
     }
 }
 
+/// How often a waiting actor asks the learner's queryable for its latest version: a restarted learner's first
+/// publication may have gone out before this actor had reconnected.
+const REQUERY: Duration = Duration::from_secs(5);
+
+/// What makes a publication news: its version and when the learner published it (a resumed learner publishes a
+/// version again, with a new time; a publication repeated for late joiners keeps its time).
+fn identity(update: &PolicyUpdate) -> (u64, u64) {
+    (update.version, update.published_unix_ms)
+}
+
 /// The learner's policy versions, over zenoh.
 pub struct ZenohPolicySource<'a> {
     bus: &'a Bus,
     updates: Subscriber<FifoChannelHandler<Sample>>,
     stops: Stops,
-    asked_latest: bool,
+    /// The publication handed out last.
+    current: Option<(u64, u64)>,
+    last_query: Option<Instant>,
     stats: SharedStats,
 }
 
@@ -102,7 +117,8 @@ impl<'a> ZenohPolicySource<'a> {
             bus,
             updates,
             stops: Stops::new(bus, interrupt)?,
-            asked_latest: false,
+            current: None,
+            last_query: None,
             stats,
         })
     }
@@ -141,34 +157,47 @@ impl<'a> ZenohPolicySource<'a> {
         Some(update)
     }
 
-    /// The newest update already received, if any.
+    fn is_news(&self, update: &PolicyUpdate) -> bool {
+        self.current != Some(identity(update))
+    }
+
+    /// The newest publication received that is news, if any.
     fn newest(&self) -> Option<PolicyUpdate> {
         let mut newest = None;
         while let Ok(Some(sample)) = self.updates.try_recv() {
-            if let Some(update) = self.decode(&sample) {
+            if let Some(update) = self.decode(&sample).filter(|u| self.is_news(u)) {
                 newest = Some(update);
             }
         }
         newest
     }
+
+    fn hand_out(&mut self, update: PolicyUpdate) -> Next {
+        self.current = Some(identity(&update));
+        Next::Policy(Box::new(update))
+    }
 }
 
 impl PolicySource for ZenohPolicySource<'_> {
     fn next(&mut self) -> Result<Next, PortError> {
-        if !self.asked_latest {
-            self.asked_latest = true;
-            if let Some(update) = self.latest() {
-                return Ok(Next::Policy(Box::new(update)));
-            }
-        }
         loop {
             if let Some(reason) = self.stops.requested(self.bus) {
                 return Ok(Next::Stop(reason));
             }
+            if self.last_query.is_none_or(|t| t.elapsed() >= REQUERY) {
+                self.last_query = Some(Instant::now());
+                if let Some(update) = self.latest().filter(|u| self.is_news(u)) {
+                    let update = self.newest().unwrap_or(update);
+                    return Ok(self.hand_out(update));
+                }
+            }
             let sample = self.updates.recv_timeout(POLL).map_err(transport)?;
-            if let Some(update) = sample.and_then(|s| self.decode(&s)) {
+            if let Some(update) = sample
+                .and_then(|s| self.decode(&s))
+                .filter(|u| self.is_news(u))
+            {
                 let update = self.newest().unwrap_or(update);
-                return Ok(Next::Policy(Box::new(update)));
+                return Ok(self.hand_out(update));
             }
         }
     }
@@ -177,7 +206,8 @@ impl PolicySource for ZenohPolicySource<'_> {
         if let Some(reason) = self.stops.requested(self.bus) {
             return Some(Next::Stop(reason));
         }
-        self.newest().map(|u| Next::Policy(Box::new(u)))
+        let newest = self.newest()?;
+        Some(self.hand_out(newest))
     }
 }
 
@@ -281,10 +311,16 @@ impl ExpertClient for ZenohExpert<'_> {
     }
 }
 
-/// An actor's segments and markers on `traj/<id>`.
+/// Messages an actor holds while it has no router (the learner is down): sent when it is back, the oldest
+/// dropped and counted as lost beyond this many.
+const OUTBOX: usize = 4096;
+
+/// An actor's segments and markers on `traj/<id>`. While the session has no router (a learner restarting), they wait
+/// in an outbox and go out, in order, once it is back: a put without a router would be dropped by zenoh silently.
 pub struct ZenohSegments<'a> {
     bus: &'a Bus,
     key: String,
+    outbox: std::collections::VecDeque<TrajMessage>,
     stats: SharedStats,
 }
 
@@ -293,18 +329,44 @@ impl<'a> ZenohSegments<'a> {
         ZenohSegments {
             bus,
             key: bus.keys.traj(actor),
+            outbox: std::collections::VecDeque::new(),
             stats,
         }
+    }
+
+    fn connected(&self) -> bool {
+        self.bus
+            .session
+            .info()
+            .routers_zid()
+            .wait()
+            .next()
+            .is_some()
     }
 }
 
 impl SegmentSink for ZenohSegments<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         let started = Instant::now();
-        self.bus
-            .put_blocking(&self.key, &message)
-            .map_err(transport)?;
-        with_stats(&self.stats, |s| s.transport += started.elapsed());
+        self.outbox.push_back(message);
+        if self.outbox.len() > OUTBOX {
+            self.outbox.pop_front();
+            with_stats(&self.stats, |s| s.segments_lost += 1);
+            tracing::warn!("no router for {OUTBOX} messages: the oldest is lost");
+        }
+        if !self.connected() {
+            with_stats(&self.stats, |s| s.held = self.outbox.len());
+            return Ok(());
+        }
+        while let Some(message) = self.outbox.pop_front() {
+            self.bus
+                .put_blocking(&self.key, &message)
+                .map_err(transport)?;
+        }
+        with_stats(&self.stats, |s| {
+            s.held = 0;
+            s.transport += started.elapsed();
+        });
         Ok(())
     }
 }

@@ -22,6 +22,10 @@ use zenoh::Wait;
 const TRAJ_QUEUE: usize = 1 << 16;
 /// How long one wait for a segment lasts before the gate and the interrupt are looked at again.
 const POLL: Duration = Duration::from_millis(250);
+/// While a live actor has sent nothing for the open epoch, the policy is published again, after this long and then
+/// at doubling intervals: an actor that missed the first publication (it was reconnecting to a restarted learner)
+/// still gets it, and actors ignore a publication they already have.
+const REPUBLISH: Duration = Duration::from_secs(3);
 
 fn transport(e: impl std::fmt::Display) -> PortError {
     PortError::Transport(e.to_string())
@@ -164,8 +168,12 @@ impl Rollouts for ZenohActors {
             self.live.iter().cloned(),
             Instant::now(),
         )
-        .expecting(self.expected.saturating_sub(self.left.len()));
+        .expecting(self.expected.saturating_sub(self.left.len()))
+        .answering(update.published_unix_ms);
         let mut last_wait_log = Instant::now();
+        let mut last_publish = Instant::now();
+        let mut republish_after = REPUBLISH;
+        let mut heard: BTreeSet<String> = BTreeSet::new();
         let closed = loop {
             if self.interrupt.is_set() {
                 return Ok(None);
@@ -175,12 +183,31 @@ impl Rollouts for ZenohActors {
                 let bytes = sample.payload().to_bytes();
                 let key = sample.key_expr().as_str();
                 match decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects) {
-                    Some(TrajMessage::Segment(segment)) => store(segment),
+                    Some(TrajMessage::Segment(segment)) => {
+                        if segment.policy_version == update.version {
+                            heard.insert(segment.actor.clone());
+                        }
+                        store(segment)
+                    }
                     Some(TrajMessage::EpochDone(marker)) => {
+                        heard.insert(marker.actor.clone());
                         gate.done(marker);
                     }
                     None => {}
                 }
+            }
+            if last_publish.elapsed() >= republish_after
+                && self.live.iter().any(|a| !heard.contains(a))
+            {
+                last_publish = Instant::now();
+                republish_after *= 2;
+                tracing::debug!(
+                    epoch = update.version,
+                    "publishing the policy again for actors not heard from"
+                );
+                self.bus
+                    .put_blocking(&self.bus.keys.policy(), update)
+                    .map_err(transport)?;
             }
             if let Some(closed) = gate.closed(Instant::now()) {
                 break closed;

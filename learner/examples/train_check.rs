@@ -42,6 +42,7 @@ fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
         actor: "c".into(),
         env: 0,
         episode: 0,
+        incarnation: 0,
         seq: 0,
         policy_version: 0,
         outcome,

@@ -130,6 +130,7 @@ pub fn synthetic_replay(n: usize, seed: u64) -> Replay {
             actor: "bench".into(),
             env: 0,
             episode: 0,
+            incarnation: 0,
             seq: 0,
             policy_version: 0,
             outcome,

@@ -92,6 +92,12 @@ impl Learner {
                 ck.path().display()
             );
             (trainer, replay, state)
+        } else if resume {
+            return Err(LearnerError::Checkpoint(format!(
+                "{} holds no checkpoint to resume (not even checkpoint.old/): nothing was started; drop --resume to \
+                 start a new run",
+                run_dir.path().display()
+            )));
         } else {
             let replay = Replay::from_config(&config);
             (
@@ -162,11 +168,13 @@ impl Learner {
     }
 
     /// Partitions D_new into D+' (laps) and D?' (failures; unfinished steps go to the dynamics-only store) and adds
-    /// them to D+ and D?. Segments are added in (actor, seq) order, whatever order the bus delivered them in, so a
+    /// them to D+ and D?. Segments are added in (actor, incarnation, seq) order, whatever order the bus delivered them in, so a
     /// distributed run with a given seed is as reproducible as an in-process one.
     pub fn partition(&mut self) {
         let mut d_new = std::mem::take(&mut self.d_new);
-        d_new.sort_by(|a, b| (&a.actor, a.seq).cmp(&(&b.actor, b.seq)));
+        d_new.sort_by(|a, b| {
+            (&a.actor, a.incarnation, a.seq).cmp(&(&b.actor, b.incarnation, b.seq))
+        });
         for segment in d_new {
             self.expert_lap_time(&segment);
             if let Err(e) = self.replay.add_segment(&segment) {

@@ -28,9 +28,10 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
         listen = ?config.bus.listen,
         "learner up; waiting for actors"
     );
-    let mut learner = Learner::open(config, run_dir, resume)?;
-    let expected = learner.config.actors.count as usize;
+    // Subscribe first: actors reconnecting to a restarted learner flush what they could not deliver at once.
+    let expected = config.actors.count as usize;
     let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
+    let mut learner = Learner::open(config, run_dir, resume)?;
     let ending = algorithm::run(&mut learner, &mut actors)?;
     let reason = match &ending {
         Ending::Interrupted => "interrupted".to_string(),

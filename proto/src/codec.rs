@@ -12,7 +12,7 @@ use serde::{de::DeserializeOwned, Serialize};
 /// The first four bytes of every payload.
 pub const MAGIC: [u8; 4] = *b"CABC";
 /// Bumped whenever a message changes shape.
-pub const SCHEMA_VERSION: u16 = 1;
+pub const SCHEMA_VERSION: u16 = 2;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 7;
 /// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
@@ -256,6 +256,7 @@ mod tests {
     fn segment() -> TrajMessage {
         TrajMessage::Segment(Segment {
             actor: "actor-0".into(),
+            incarnation: 3,
             env: 3,
             episode: 7,
             seq: 11,
@@ -277,6 +278,7 @@ mod tests {
         round_trip(TrajMessage::EpochDone(EpochDone {
             actor: "a".into(),
             version: 3,
+            published_unix_ms: 5,
             segments: 4,
             steps: 1024,
         }));

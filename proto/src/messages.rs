@@ -107,7 +107,10 @@ pub struct Segment {
     pub env: u32,
     /// Episode counter of that environment.
     pub episode: u64,
-    /// Sequence number of this segment among the actor's segments (0, 1, 2, ... over the actor's life).
+    /// The actor process's incarnation (chosen at its start): a restarted actor's segments are new segments even
+    /// though its `seq` starts again at 0.
+    pub incarnation: u64,
+    /// Sequence number of this segment among the segments of this incarnation (0, 1, 2, ...).
     pub seq: u64,
     /// Policy version that collected it.
     pub policy_version: u64,
@@ -120,6 +123,9 @@ pub struct Segment {
 pub struct EpochDone {
     pub actor: String,
     pub version: u64,
+    /// The `published_unix_ms` of the publication it answers: a learner resumed mid-epoch publishes the same version
+    /// again, and a marker of the first publication (the actor was interrupted) must not close the second.
+    pub published_unix_ms: u64,
     /// Segments and steps the actor published for this version, so the learner can check that none was lost.
     pub segments: u64,
     pub steps: u64,

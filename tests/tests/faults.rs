@@ -1,0 +1,176 @@
+//! Faults in a running distributed run (real binaries on loopback, smoke-sized): processes killed with SIGKILL and
+//! started again. Each run must go on to its last epoch with every step the actors said they published for an epoch
+//! stored, none twice (`metrics.csv`: `steps_collected` against `steps_published`; `summary.json`: duplicates).
+
+use cabc_tests::Cluster;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+fn csv_column(path: &Path, name: &str) -> Vec<u64> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let i = header.iter().position(|h| *h == name).unwrap();
+    lines
+        .map(|l| l.split(',').nth(i).unwrap().parse().unwrap_or(u64::MAX))
+        .collect()
+}
+
+/// Waits until `metrics.csv` holds `epochs` rows.
+fn wait_for_epochs(cluster: &Cluster, epochs: usize) {
+    let path = cluster.dir.join("metrics.csv");
+    let started = Instant::now();
+    while std::fs::read_to_string(&path).map_or(0, |t| t.lines().count().saturating_sub(1)) < epochs
+    {
+        assert!(
+            started.elapsed() < Duration::from_secs(240),
+            "{epochs} epochs not done:\n{}",
+            cluster.log_tail("learner")
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Value {
+    let (status, stdout) = cluster
+        .wait(learner, Duration::from_secs(400))
+        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(learner)));
+    assert!(
+        status.success(),
+        "{learner} failed:\n{}",
+        cluster.log_tail(learner)
+    );
+    let summary: serde_json::Value = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    let metrics = cluster.dir.join("metrics.csv");
+    assert_eq!(
+        csv_column(&metrics, "epoch"),
+        (0..epochs).collect::<Vec<_>>()
+    );
+    summary
+}
+
+/// An actor and the expert server are killed mid-run and started again under the same names: the restarted
+/// actor's segments are stored (a new incarnation, not duplicates of its first life's), and the run loses nothing.
+#[test]
+fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "restart", 8, "").unwrap();
+    cluster.start_all(2, false).unwrap();
+    let config = cluster.config.display().to_string();
+    wait_for_epochs(&cluster, 2);
+    cluster.kill("actor-1").unwrap();
+    cluster.kill("expert-server").unwrap();
+    cluster
+        .start(
+            "actor-1-again",
+            "actor",
+            &["--config", &config, "--id", "actor-1"],
+        )
+        .unwrap();
+    cluster
+        .start(
+            "expert-server-again",
+            "expert-server",
+            &["--config", &config, "serve", "--id", "0"],
+        )
+        .unwrap();
+    let summary = finish(&mut cluster, "learner", 8);
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    assert_eq!(summary["segments_not_stored"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    // The epoch in flight at the kill may hold the killed actor's partial segments without its marker; every other
+    // epoch stores exactly what the actors published, the restarted actor's share included.
+    let unequal: Vec<usize> = (0..8).filter(|&e| stored[e] != published[e]).collect();
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    assert!(unequal.len() <= 1, "{stored:?} vs {published:?}");
+    assert_eq!(
+        &published[6..],
+        &[256, 256],
+        "both actors publish their share at the end"
+    );
+    println!("faults: actor-1 and expert-server killed (SIGKILL) and restarted; stored {stored:?}, published {published:?}");
+}
+
+/// The learner is killed with SIGKILL mid-run and resumed from its checkpoint while the actors, the evaluator and
+/// the expert server stay up: the resumed learner publishes its policy until every live actor follows it, and every
+/// epoch in the run's record stores what the actors published for it.
+#[test]
+fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "resume", 10, "").unwrap();
+    cluster.start_all(2, false).unwrap();
+    let config = cluster.config.display().to_string();
+    let run_dir = cluster.dir.display().to_string();
+    wait_for_epochs(&cluster, 3);
+    cluster.kill("learner").unwrap();
+    let checkpointed = std::fs::read_to_string(cluster.dir.join("metrics.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    cluster
+        .start(
+            "learner-resumed",
+            "learner",
+            &[
+                "run",
+                "--config",
+                &config,
+                "--run-dir",
+                &run_dir,
+                "--resume",
+            ],
+        )
+        .unwrap();
+    let summary = finish(&mut cluster, "learner-resumed", 10);
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    assert!(
+        published.iter().all(|&p| p == 256),
+        "every epoch closed with both actors' markers: {published:?}"
+    );
+    println!(
+        "faults: learner killed (SIGKILL) after {checkpointed} recorded epochs and resumed with actors up; \
+         stored {stored:?}, published {published:?}"
+    );
+}
+
+/// `--resume` on a run folder without a checkpoint refuses instead of starting a fresh run.
+#[test]
+fn resume_without_a_checkpoint_refuses() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "nothing", 2, "").unwrap();
+    let config = cluster.config.display().to_string();
+    let run_dir = cluster.dir.display().to_string();
+    cluster
+        .start(
+            "learner",
+            "learner",
+            &[
+                "run",
+                "--config",
+                &config,
+                "--run-dir",
+                &run_dir,
+                "--resume",
+            ],
+        )
+        .unwrap();
+    let (status, _) = cluster.wait("learner", Duration::from_secs(60)).unwrap();
+    assert!(!status.success());
+    let log = cluster.log_tail("learner");
+    assert!(log.contains("no checkpoint to resume"), "{log}");
+    assert!(!cluster.dir.join("checkpoint").exists());
+}
