@@ -18,6 +18,7 @@
 //! batch dropped. Deterministic for a seed on one device: weights are initialised from the seed (cabc_models::init)
 //! and batches are shuffled by one seeded ChaCha, consumed in the order dynamics, critic, policy.
 
+mod adam;
 mod critic;
 mod dynamics;
 mod fit;
