@@ -159,6 +159,7 @@ impl Adam {
     }
 
     /// The step count of each parameter (0 before its first step), in the `VarStore`'s order.
+    #[cfg(test)]
     pub fn steps(&self) -> Vec<i64> {
         self.params
             .iter()
@@ -257,7 +258,9 @@ impl Adam {
 }
 
 /// The tensors of a state file: name -> (shape, raw little-endian bytes).
-fn parse(bytes: &[u8]) -> Result<BTreeMap<String, (Vec<i64>, &[u8])>, String> {
+type Raw<'a> = BTreeMap<String, (Vec<i64>, &'a [u8])>;
+
+fn parse(bytes: &[u8]) -> Result<Raw<'_>, String> {
     let n = bytes
         .get(..8)
         .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
