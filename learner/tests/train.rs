@@ -1,6 +1,6 @@
 //! Training: the dynamics model learns a linear system, the critic separates two blobs, L_safety pushes the policy
 //! away from what the critic marks unsafe, the critic trains on D+ and D- only, training is deterministic for a seed,
-//! and the checkpoint round-trips.
+//! and the checkpoint round-trips (a resumed run continues bit for bit).
 
 use cabc_learner::replay::Replay;
 use cabc_learner::train::{critic_examples, CriticTrainer, Trainer};
@@ -270,6 +270,62 @@ fn trainer_save_and_load_round_trip() {
     let l = fresh.train_epoch(0, &unlabelled).unwrap();
     assert_eq!((l.n_minus, l.critic), (0, None));
     assert!(!fresh.critic_trained());
+}
+
+/// Issue 13: k epochs, a checkpoint, a resume into a new trainer and one more epoch give, bit for bit, the losses and
+/// the networks of k + 1 uninterrupted epochs: Adam's moments and step counts travel in the checkpoint. Without them
+/// (an older checkpoint) the trainer still resumes, with fresh moments, and drifts from the uninterrupted run.
+#[test]
+fn resume_continues_bit_for_bit() {
+    let r = replay(8);
+    let mut c = config(8);
+    c.algorithm.lambda = 1.0;
+    let k = 2;
+    let epoch = |t: &mut Trainer, e: u64| {
+        let mut l = t.train_epoch(e, &r).unwrap();
+        l.seconds = 0.0;
+        l
+    };
+    let nets = |t: &Trainer| {
+        use cabc_models::Network;
+        [
+            t.policy_bytes(),
+            t.dynamics().to_bytes(),
+            t.critic().to_bytes(),
+        ]
+    };
+    let mut straight = Trainer::with_device(&c, Device::Cpu);
+    let straight_losses: Vec<_> = (0..=k).map(|e| epoch(&mut straight, e)).collect();
+
+    let mut first = Trainer::with_device(&c, Device::Cpu);
+    let mut losses: Vec<_> = (0..k).map(|e| epoch(&mut first, e)).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("checkpoint");
+    CheckpointWriter::new(&path)
+        .files(first.to_checkpoint())
+        .commit()
+        .unwrap();
+    drop(first);
+    let mut resumed = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
+    losses.push(epoch(&mut resumed, k));
+    assert_eq!(losses, straight_losses);
+    assert!(
+        nets(&resumed) == nets(&straight),
+        "the resumed networks differ"
+    );
+
+    // An older checkpoint, without the optimiser states: it loads, and the moments restart.
+    for name in [
+        "policy.adam.safetensors",
+        "dynamics.adam.safetensors",
+        "critic.adam.safetensors",
+    ] {
+        std::fs::remove_file(path.join(name)).unwrap();
+    }
+    let mut old = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
+    let l = epoch(&mut old, k);
+    assert_ne!(l.imitation, straight_losses[k as usize].imitation);
+    assert!(old.policy_bytes() != straight.policy_bytes());
 }
 
 /// Issue 10: with critic_every = 1 and autolabel_every = 3 the critic trains every epoch, and D? points that arrived

@@ -6,11 +6,13 @@ use cabc_models::ModelError;
 use cabc_proto::config::TrainingSection;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use tch::{nn, nn::OptimizerConfig, Device, Tensor};
+use tch::{nn, Device, Tensor};
+
+use super::adam::Adam;
 
 /// One network's optimiser and learning-rate schedule.
 pub(crate) struct Opt {
-    opt: nn::Optimizer,
+    pub adam: Adam,
     /// Fit calls so far: lr = lr0 * gamma^fits.
     pub fits: u64,
 }
@@ -19,10 +21,7 @@ impl Opt {
     /// Adam with the configured weight decay on `vs`.
     pub fn adam(vs: &nn::VarStore, t: &TrainingSection) -> Self {
         Opt {
-            opt: nn::Adam::default()
-                .wd(t.weight_decay)
-                .build(vs, t.lr)
-                .expect("Adam builds"),
+            adam: Adam::new(vs, t.lr, t.weight_decay),
             fits: 0,
         }
     }
@@ -62,7 +61,7 @@ pub(crate) fn fit<M: Default>(
     mut loss: impl FnMut(&Batch, &mut M) -> Result<Tensor, ModelError>,
 ) -> Result<(M, usize), ModelError> {
     limit_cpu_threads(device);
-    opt.opt.set_lr(opt.lr(t));
+    opt.adam.lr = opt.lr(t);
     let mut last = M::default();
     let mut samples = 0;
     for _ in 0..passes {
@@ -73,10 +72,10 @@ pub(crate) fn fit<M: Default>(
                 rows: &rows,
             };
             let l = loss(&batch, &mut last)?;
-            opt.opt.zero_grad();
+            opt.adam.zero_grad();
             l.backward();
-            opt.opt.clip_grad_norm(t.grad_clip);
-            opt.opt.step();
+            opt.adam.clip_grad_norm(t.grad_clip);
+            opt.adam.step();
             samples += t.batch_size;
         }
     }

@@ -14,10 +14,14 @@
 //! behaviour-cloning baseline.
 //!
 //! Optimisation (all numbers from `TrainingSection`): one fit loop for the three networks ([`fit`]): Adam with weight
-//! decay, gradient-norm clip, ExponentialLR stepped once per fit call, shuffled mini-batches with the last partial
-//! batch dropped. Deterministic for a seed on one device: weights are initialised from the seed (cabc_models::init)
-//! and batches are shuffled by one seeded ChaCha, consumed in the order dynamics, critic, policy.
+//! decay (`adam.rs`: libtorch's update, bit-identical to tch's `nn::Adam`, but with its moments in our hands),
+//! gradient-norm clip, ExponentialLR stepped once per fit call, shuffled mini-batches with the last partial batch
+//! dropped. Deterministic for a seed on one device: weights are initialised from the seed (cabc_models::init) and
+//! batches are shuffled by one seeded ChaCha, consumed in the order dynamics, critic, policy. Nothing is lost on
+//! resume (`state.rs`): the checkpoint holds the weights, Adam's moments and step counts, the schedules and the RNG,
+//! so a resumed run continues bit for bit as the uninterrupted one.
 
+mod adam;
 mod critic;
 mod dynamics;
 mod fit;

@@ -1,9 +1,12 @@
-//! What the trainer hands the checkpoint writer, and reads back: the three networks (safetensors) and
-//! `trainer.json` (learning-rate schedules, epoch counter, RNG). Adam's moments are not kept (tch does not expose
-//! them), so they restart on resume.
+//! What the trainer hands the checkpoint writer, and reads back: the three networks (safetensors), their Adam
+//! states (moments and step counts, `<network>.adam.safetensors`, [`Adam::to_bytes`](super::adam::Adam::to_bytes))
+//! and `trainer.json` (learning-rate schedules, epoch counter, RNG). A resumed run continues bit for bit as the
+//! uninterrupted one would have on the same device. A checkpoint without the Adam states (written before they were
+//! kept) still loads, with fresh moments and a warning.
 
+use super::fit::Opt;
 use super::{TrainError, Trainer};
-use crate::checkpoint::Checkpoint;
+use crate::checkpoint::{Checkpoint, CheckpointError};
 use cabc_models::Network;
 use cabc_proto::config::RunConfig;
 use rand::SeedableRng;
@@ -14,6 +17,9 @@ const POLICY: &str = "policy.safetensors";
 const DYNAMICS: &str = "dynamics.safetensors";
 const CRITIC: &str = "critic.safetensors";
 const STATE: &str = "trainer.json";
+const POLICY_ADAM: &str = "policy.adam.safetensors";
+const DYNAMICS_ADAM: &str = "dynamics.adam.safetensors";
+const CRITIC_ADAM: &str = "critic.adam.safetensors";
 
 /// `trainer.json`.
 #[derive(Serialize, Deserialize)]
@@ -52,6 +58,9 @@ impl Trainer {
             (POLICY, self.policy.to_bytes()),
             (DYNAMICS, self.dynamics.to_bytes()),
             (CRITIC, self.critic.to_bytes()),
+            (POLICY_ADAM, self.policy_opt.adam.to_bytes()),
+            (DYNAMICS_ADAM, self.dynamics_opt.adam.to_bytes()),
+            (CRITIC_ADAM, self.critic_opt.adam.to_bytes()),
             (
                 STATE,
                 serde_json::to_vec_pretty(&state).expect("serialises"),
@@ -70,6 +79,9 @@ impl Trainer {
         self.policy.load_bytes(&checkpoint.read(POLICY)?)?;
         self.dynamics.load_bytes(&checkpoint.read(DYNAMICS)?)?;
         self.critic.load_bytes(&checkpoint.read(CRITIC)?)?;
+        load_adam(&mut self.policy_opt, checkpoint, POLICY_ADAM)?;
+        load_adam(&mut self.dynamics_opt, checkpoint, DYNAMICS_ADAM)?;
+        load_adam(&mut self.critic_opt, checkpoint, CRITIC_ADAM)?;
         self.epochs_trained = state.epochs_trained;
         self.critic_trained = state.critic_trained;
         [
@@ -89,5 +101,29 @@ impl Trainer {
         let mut t = Trainer::new(config)?;
         t.load(checkpoint)?;
         Ok(t)
+    }
+}
+
+/// Restores one optimiser's Adam state from `name`; without that file (an older checkpoint) the moments restart.
+fn load_adam(opt: &mut Opt, checkpoint: &Checkpoint, name: &str) -> Result<(), TrainError> {
+    match checkpoint.read(name) {
+        Ok(bytes) => opt
+            .adam
+            .load_bytes(&bytes)
+            .map_err(|message| TrainError::State {
+                path: checkpoint.path().join(name).display().to_string(),
+                message,
+            }),
+        Err(CheckpointError::Io { source, .. })
+            if source.kind() == std::io::ErrorKind::NotFound =>
+        {
+            tracing::warn!(
+                "{}: no {name} (a checkpoint from before the optimiser states were kept): Adam's moments restart",
+                checkpoint.path().display()
+            );
+            opt.adam.reset();
+            Ok(())
+        }
+        Err(e) => Err(e.into()),
     }
 }
