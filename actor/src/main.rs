@@ -10,6 +10,7 @@ use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::ports::{SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments};
 use cabc_bus::{Bus, Role};
+use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
@@ -60,6 +61,7 @@ fn main() -> Result<()> {
     tracing::info!(component, run = config.run.name, "actor started");
     let stats = SharedStats::default();
     let mut source = ZenohPolicySource::new(&bus, &interrupt, stats.clone())?;
+    let check = PolicyCheck::new(PolicyArch::from_config(&config));
     let mut last = None;
     let mut after_epoch = |update: &PolicyUpdate, actor: &ActorStats| {
         let value = metrics(update, actor, &stats, bus.rejects.count());
@@ -68,7 +70,14 @@ fn main() -> Result<()> {
     };
     if cli.eval {
         let mut sink = ZenohEvals::new(&bus, &cli.id);
-        run_evaluator(&cli.id, &config, &mut source, &mut sink, &mut after_epoch)?;
+        run_evaluator(
+            &cli.id,
+            &config,
+            &check,
+            &mut source,
+            &mut sink,
+            &mut after_epoch,
+        )?;
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
         let kind = config.expert.kind.as_str();
@@ -78,6 +87,7 @@ fn main() -> Result<()> {
         let mut collector = Collector::new(&cli.id, index, &config);
         run_actor(
             &mut collector,
+            &check,
             &mut source,
             &mut expert,
             &mut sink,
@@ -126,5 +136,6 @@ fn metrics(
         "policy_latency_ms_last": latency.last(),
         "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
+        "refused_policies": actor.refused_policies,
     })
 }
