@@ -10,6 +10,7 @@ use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::ports::{SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments};
 use cabc_bus::{Bus, Role};
+use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
@@ -60,6 +61,7 @@ fn main() -> Result<()> {
     tracing::info!(component, run = config.run.name, "actor started");
     let stats = SharedStats::default();
     let mut source = ZenohPolicySource::new(&bus, &interrupt, stats.clone())?;
+    let check = PolicyCheck::new(PolicyArch::from_config(&config));
     let mut last = None;
     let mut after_epoch = |update: &PolicyUpdate, actor: &ActorStats| {
         let value = metrics(update, actor, &stats, bus.rejects.count());
@@ -68,7 +70,14 @@ fn main() -> Result<()> {
     };
     if cli.eval {
         let mut sink = ZenohEvals::new(&bus, &cli.id);
-        run_evaluator(&cli.id, &config, &mut source, &mut sink, &mut after_epoch)?;
+        run_evaluator(
+            &cli.id,
+            &config,
+            &check,
+            &mut source,
+            &mut sink,
+            &mut after_epoch,
+        )?;
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
         let kind = config.expert.kind.as_str();
@@ -82,6 +91,7 @@ fn main() -> Result<()> {
         let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
         run_actor(
             &mut collector,
+            &check,
             &mut source,
             &mut expert,
             &mut sink,
@@ -132,5 +142,6 @@ fn metrics(
         "rejected_messages": rejected,
         "segments_held": wire.held,
         "segments_lost": wire.segments_lost,
+        "refused_policies": actor.refused_policies,
     })
 }

@@ -3,10 +3,16 @@
 //! [`SegmentSink`]; or, as the evaluator, drive each version alone and report it to the [`EvalSink`].
 //!
 //! The same functions run in the `actor` binary over zenoh and in-process in a test ([`crate::local`]).
+//!
+//! A policy update is checked against the run's architecture ([`PolicyCheck`]: the update's architecture name, the
+//! weights' metadata, every tensor's shape) before anything is built from it. A refused update is counted
+//! ([`ActorStats::refused_policies`], the metrics' `refused_policies`) and otherwise ignored, as if it had not
+//! arrived: an epoch in progress goes on with its policy to its budget (a refused update does not interrupt it), and
+//! an actor done with its share waits for the next good version. The actor never exits over a bad update.
 
 use crate::collect::{Collector, Observations};
 use crate::evaluate::evaluate;
-use cabc_models::{ModelError, Observation, Policy};
+use cabc_models::{ModelError, Observation, Policy, PolicyCheck};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EpochDone, PolicyUpdate, Segment, TrajMessage};
 use cabc_proto::ports::{EvalSink, ExpertClient, Next, PolicySource, PortError, SegmentSink};
@@ -33,6 +39,8 @@ pub struct ActorStats {
     pub steps: u64,
     /// Time spent collecting (or evaluating).
     pub busy: Duration,
+    /// Policy updates refused (another architecture, malformed weights): ignored, the actor went on.
+    pub refused_policies: u64,
 }
 
 /// pi_theta(y) for a batch of observations (states, or images with the velocities).
@@ -50,14 +58,69 @@ pub fn act(policy: &Policy, input: &Observations) -> Result<Vec<[f32; 2]>, Model
     policy.act(&observations)
 }
 
-/// The policy of an update (weights for CPU inference); a bad one is logged and skipped.
-fn policy_of(update: &PolicyUpdate) -> Option<Policy> {
-    match Policy::from_bytes(&update.weights, Device::Cpu) {
-        Ok(policy) => Some(policy),
-        Err(e) => {
-            tracing::error!(version = update.version, "refusing policy weights: {e}");
-            None
+/// A [`PolicySource`] that lets through only the updates that pass the run's [`PolicyCheck`]; the others are logged
+/// and counted, never handed on (so they neither start nor interrupt an epoch).
+pub struct Checked<'a> {
+    source: &'a mut dyn PolicySource,
+    check: &'a PolicyCheck,
+    /// Updates refused so far.
+    pub refused: u64,
+}
+
+impl<'a> Checked<'a> {
+    pub fn new(source: &'a mut dyn PolicySource, check: &'a PolicyCheck) -> Self {
+        Checked {
+            source,
+            check,
+            refused: 0,
         }
+    }
+
+    /// The update when it passes the check; else counted and None.
+    fn admit(&mut self, next: Next) -> Option<Next> {
+        if let Next::Policy(update) = &next {
+            if let Err(e) = self.check.check(&update.architecture, &update.weights) {
+                self.refused += 1;
+                tracing::error!(
+                    version = update.version,
+                    refused = self.refused,
+                    "refusing a policy update: {e}"
+                );
+                return None;
+            }
+        }
+        Some(next)
+    }
+
+    /// The policy of a checked update (weights for CPU inference); None (counted) if building it still fails.
+    fn policy_of(&mut self, update: &PolicyUpdate) -> Option<Policy> {
+        match self
+            .check
+            .policy(&update.architecture, &update.weights, Device::Cpu)
+        {
+            Ok(policy) => Some(policy),
+            Err(e) => {
+                self.refused += 1;
+                tracing::error!(version = update.version, "refusing policy weights: {e}");
+                None
+            }
+        }
+    }
+}
+
+impl PolicySource for Checked<'_> {
+    fn next(&mut self) -> Result<Next, PortError> {
+        loop {
+            let next = self.source.next()?;
+            if let Some(next) = self.admit(next) {
+                return Ok(next);
+            }
+        }
+    }
+
+    fn interrupted(&mut self) -> Option<Next> {
+        let next = self.source.interrupted()?;
+        self.admit(next)
     }
 }
 
@@ -117,15 +180,17 @@ fn publish(out: &mut Vec<Segment>, sink: &mut dyn SegmentSink) -> Result<u64, Po
     Ok(steps)
 }
 
-/// A collecting actor: follows `source` until a stop, collecting each version's share. `after_epoch` runs after
-/// each version (metrics).
+/// A collecting actor: follows `source` until a stop, collecting each version's share with the updates that pass
+/// `check` (the run's architecture). `after_epoch` runs after each version (metrics).
 pub fn run_actor(
     collector: &mut Collector,
+    check: &PolicyCheck,
     source: &mut dyn PolicySource,
     expert: &mut dyn ExpertClient,
     sink: &mut dyn SegmentSink,
     mut after_epoch: impl FnMut(&PolicyUpdate, &ActorStats),
 ) -> Result<ActorStats, ActorError> {
+    let mut source = Checked::new(source, check);
     let mut stats = ActorStats::default();
     let mut pending = None;
     loop {
@@ -140,13 +205,16 @@ pub fn run_actor(
             }
             Next::Policy(update) => *update,
         };
-        let Some(policy) = policy_of(&update) else {
+        let policy = source.policy_of(&update);
+        stats.refused_policies = source.refused;
+        let Some(policy) = policy else {
             continue;
         };
         stats.versions += 1;
         let started = Instant::now();
         let (steps, interrupted) =
-            collect_epoch(collector, &update, &policy, expert, source, sink)?;
+            collect_epoch(collector, &update, &policy, expert, &mut source, sink)?;
+        stats.refused_policies = source.refused;
         stats.steps += steps;
         stats.busy += started.elapsed();
         tracing::info!(
@@ -160,14 +228,17 @@ pub fn run_actor(
     }
 }
 
-/// The evaluator: drives each new version alone from the fixed spawn and reports it, until a stop.
+/// The evaluator: drives each new version that passes `check` alone from the fixed spawn and reports it, until a
+/// stop.
 pub fn run_evaluator(
     id: &str,
     config: &RunConfig,
+    check: &PolicyCheck,
     source: &mut dyn PolicySource,
     sink: &mut dyn EvalSink,
     mut after_epoch: impl FnMut(&PolicyUpdate, &ActorStats),
 ) -> Result<ActorStats, ActorError> {
+    let mut source = Checked::new(source, check);
     let mut stats = ActorStats::default();
     loop {
         let update = match source.next()? {
@@ -177,7 +248,9 @@ pub fn run_evaluator(
             }
             Next::Policy(update) => *update,
         };
-        let Some(policy) = policy_of(&update) else {
+        let policy = source.policy_of(&update);
+        stats.refused_policies = source.refused;
+        let Some(policy) = policy else {
             continue;
         };
         stats.versions += 1;

@@ -54,6 +54,9 @@ fn zerr(e: impl std::fmt::Display) -> BusError {
     BusError::Zenoh(e.to_string())
 }
 
+/// The largest zenoh message a process reassembles: a codec header and the largest body the codec decodes.
+pub const MAX_MESSAGE: usize = codec::HEADER_LEN + codec::MAX_BODY;
+
 /// Builds the zenoh configuration of a process (endpoints from the run configuration).
 pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusError> {
     let mut config = zenoh::Config::default();
@@ -96,6 +99,14 @@ pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusEr
         "scouting/multicast/enabled",
         bus.multicast_scouting.to_string(),
     )?;
+
+    // No payload larger than the codec takes is reassembled (zenoh's default is 1 GiB).
+    set(
+        &mut config,
+        "transport/link/rx/max_message_size",
+        MAX_MESSAGE.to_string(),
+    )?;
+
     Ok(config)
 }
 
@@ -114,6 +125,12 @@ impl Rejects {
     }
     fn bump(&self) -> u64 {
         self.0.fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    /// Counts and logs (warn) a message that decoded but is refused: `why` (it came on another's key, ...).
+    pub fn refuse(&self, key: &str, why: &str) {
+        let n = self.bump();
+        tracing::warn!(key, rejected = n, "refused a message: {why}");
     }
 }
 
@@ -291,6 +308,17 @@ mod tests {
         };
         let err = zenoh_config(&bus, Role::Listen).unwrap_err().to_string();
         assert!(err.contains("listen/endpoints"), "{err}");
+    }
+
+    #[test]
+    fn zenoh_reassembles_no_message_larger_than_the_codec_takes() {
+        for role in [Role::Listen, Role::Connect] {
+            let config = zenoh_config(&BusSection::default(), role).unwrap();
+            let json = config
+                .get_json("transport/link/rx/max_message_size")
+                .unwrap();
+            assert_eq!(json, (codec::HEADER_LEN + codec::MAX_BODY).to_string());
+        }
     }
 
     #[test]

@@ -2,6 +2,14 @@
 //! joiners from a queryable on the same key), takes segments from `traj/*` until the epoch's [`EpochGate`] closes,
 //! follows the actors' liveliness, and keeps the evaluation reports of `eval/*` until the learner asks for them.
 //! What arrives while the learner trains waits in the subscriptions' queues: nothing is dropped.
+//!
+//! Each message is held to the key it came on ([`check_traj`], [`check_eval`]): a segment or marker whose `actor`
+//! is not the `<actor>` of its `traj/<actor>` key, or an evaluation report not from `eval/<id>` with `actor == id`,
+//! is refused and counted with the codec's refusals ([`crate::Rejects`]).
+//!
+//! The queues are bounded in messages: [`TRAJ_QUEUE`] segments and markers (a full epoch of every actor waits there
+//! while the learner trains; when full, zenoh's reliable delivery holds the publishers back rather than dropping),
+//! [`EVAL_QUEUE`] reports. Each message is at most [`crate::MAX_MESSAGE`] bytes (zenoh reassembles nothing larger).
 
 use crate::gate::{Closed, EpochGate};
 use crate::interrupt::Interrupt;
@@ -19,7 +27,9 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::Wait;
 
 /// Segments (and markers) that may wait while the learner trains.
-const TRAJ_QUEUE: usize = 1 << 16;
+pub const TRAJ_QUEUE: usize = 1 << 16;
+/// Evaluation reports that may wait (one per version per evaluator; the learner takes them every epoch).
+pub const EVAL_QUEUE: usize = 256;
 /// How long one wait for a segment lasts before the gate and the interrupt are looked at again.
 const POLL: Duration = Duration::from_millis(250);
 /// While a live actor has sent nothing for the open epoch, the policy is published again, after this long and then
@@ -35,6 +45,46 @@ fn transport(e: impl std::fmt::Display) -> PortError {
 pub fn actor_of_token(key: &str) -> Option<String> {
     let (_, rest) = key.split_once("/alive/actor/")?;
     Some(rest.to_string())
+}
+
+/// The `<actor>` of a key `.../traj/<actor>` (one chunk, nothing after it).
+pub fn traj_sender(key: &str) -> Option<&str> {
+    let (_, actor) = key.rsplit_once("/traj/")?;
+    (!actor.is_empty() && !actor.contains('/')).then_some(actor)
+}
+
+/// The `<id>` of a key `.../eval/<id>` (one chunk, nothing after it).
+pub fn eval_sender(key: &str) -> Option<&str> {
+    let (_, id) = key.rsplit_once("/eval/")?;
+    (!id.is_empty() && !id.contains('/')).then_some(id)
+}
+
+/// A segment's or a marker's `actor` must be the actor of the key it came on.
+pub fn check_traj(key: &str, message: &TrajMessage) -> Result<(), String> {
+    let named = match message {
+        TrajMessage::Segment(s) => &s.actor,
+        TrajMessage::EpochDone(d) => &d.actor,
+    };
+    match traj_sender(key) {
+        Some(sender) if sender == named => Ok(()),
+        Some(sender) => Err(format!("names actor `{named}` but came from `{sender}`")),
+        None => Err(format!("not an actor's key (names actor `{named}`)")),
+    }
+}
+
+/// An evaluation report counts only from an evaluator's key `eval/<id>` with `report.actor == id`.
+pub fn check_eval(key: &str, report: &EvalReport) -> Result<(), String> {
+    match eval_sender(key) {
+        Some(id) if id == report.actor => Ok(()),
+        Some(id) => Err(format!(
+            "an evaluation report of `{}` from `{id}`",
+            report.actor
+        )),
+        None => Err(format!(
+            "not an evaluator's key (report of `{}`)",
+            report.actor
+        )),
+    }
 }
 
 /// The actors of a run, as the learner sees them over zenoh.
@@ -73,6 +123,7 @@ impl ZenohActors {
         let eval = bus
             .session
             .declare_subscriber(keys.eval_all())
+            .with(FifoChannel::new(EVAL_QUEUE))
             .wait()
             .map_err(transport)?;
         let alive = bus
@@ -182,7 +233,17 @@ impl Rollouts for ZenohActors {
             if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
                 let bytes = sample.payload().to_bytes();
                 let key = sample.key_expr().as_str();
-                match decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects) {
+                let message =
+                    decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects).filter(|m| {
+                        match check_traj(key, m) {
+                            Ok(()) => true,
+                            Err(why) => {
+                                self.bus.rejects.refuse(key, &why);
+                                false
+                            }
+                        }
+                    });
+                match message {
                     Some(TrajMessage::Segment(segment)) => {
                         if segment.policy_version == update.version {
                             heard.insert(segment.actor.clone());
@@ -243,7 +304,10 @@ impl Rollouts for ZenohActors {
             let bytes = sample.payload().to_bytes();
             let key = sample.key_expr().as_str();
             if let Some(report) = decode_sample::<EvalReport>(key, &bytes, &self.bus.rejects) {
-                reports.push(report);
+                match check_eval(key, &report) {
+                    Ok(()) => reports.push(report),
+                    Err(why) => self.bus.rejects.refuse(key, &why),
+                }
             }
         }
         reports
@@ -283,5 +347,68 @@ mod tests {
         );
         assert_eq!(actor_of_token("cabc/r/alive/eval/e"), None);
         assert_eq!(actor_of_token("cabc/r/alive/learner"), None);
+    }
+
+    fn marker(actor: &str) -> TrajMessage {
+        TrajMessage::EpochDone(cabc_proto::messages::EpochDone {
+            actor: actor.into(),
+            version: 1,
+            published_unix_ms: 0,
+            segments: 0,
+            steps: 0,
+        })
+    }
+
+    fn segment(actor: &str) -> TrajMessage {
+        TrajMessage::Segment(Segment {
+            actor: actor.into(),
+            incarnation: 0,
+            env: 0,
+            episode: 0,
+            seq: 0,
+            policy_version: 0,
+            outcome: cabc_proto::messages::Outcome::Lap,
+            steps: Vec::new(),
+        })
+    }
+
+    fn report(actor: &str) -> EvalReport {
+        EvalReport {
+            actor: actor.into(),
+            version: 0,
+            laps: 0,
+            lap_times: Vec::new(),
+            end_reason: cabc_proto::messages::EndReason::Stall,
+            steps: 0,
+            line: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn senders_are_read_from_their_keys() {
+        assert_eq!(traj_sender("cabc/r/traj/actor-1"), Some("actor-1"));
+        assert_eq!(traj_sender("cabc/r/traj/"), None);
+        assert_eq!(traj_sender("cabc/r/traj/a/b"), None);
+        assert_eq!(traj_sender("cabc/r/eval/a"), None);
+        assert_eq!(eval_sender("cabc/r/eval/eval-0"), Some("eval-0"));
+        assert_eq!(eval_sender("cabc/r/traj/eval-0"), None);
+        assert_eq!(eval_sender("cabc/r/eval/x/y"), None);
+    }
+
+    #[test]
+    fn segments_and_markers_must_come_on_their_actor_key() {
+        let key = "cabc/r/traj/actor-1";
+        assert!(check_traj(key, &segment("actor-1")).is_ok());
+        assert!(check_traj(key, &marker("actor-1")).is_ok());
+        assert!(check_traj(key, &segment("actor-2")).is_err());
+        assert!(check_traj(key, &marker("actor-2")).is_err());
+        assert!(check_traj("cabc/r/eval/actor-1", &segment("actor-1")).is_err());
+    }
+
+    #[test]
+    fn evaluation_reports_count_only_from_their_evaluator() {
+        assert!(check_eval("cabc/r/eval/eval-0", &report("eval-0")).is_ok());
+        assert!(check_eval("cabc/r/eval/eval-0", &report("eval-1")).is_err());
+        assert!(check_eval("cabc/r/traj/eval-0", &report("eval-0")).is_err());
     }
 }

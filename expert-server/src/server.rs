@@ -1,4 +1,9 @@
 //! The zenoh queryable over [`Relabeller`]: decode, answer in parallel, reply; metrics and liveliness.
+//!
+//! Bounded work: at most [`MAX_IN_FLIGHT`] requests are decoded, solved or waiting for the solver at once; one
+//! beyond is answered "busy" at once and counted (`busy_refusals`), and the actor asks again (it retries every
+//! 0.5 s). A request's batch size is read from its length prefix and checked against `expert.max_batch` before it
+//! is decoded ([`codec::decode_request`]), so memory and work per request are bounded too.
 
 use anyhow::{Context, Result};
 use cabc_bus::{decode_sample, encoding_of, Bus, Role};
@@ -6,10 +11,33 @@ use cabc_expert::relabel::{BatchStats, Expert, Relabeller};
 use cabc_proto::codec::{self};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
-use cabc_proto::messages::{ExpertReply, ExpertRequest, Stop};
+use cabc_proto::messages::{ExpertReply, Stop};
 use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+
+/// Requests in this server at once (decoding, solving or queued for the solver threads). An actor has one request
+/// out at a time (two around a timeout), so this serves 32 or more actors per server without a refusal.
+pub const MAX_IN_FLIGHT: usize = 64;
+
+/// Admission of requests: a permit per request in flight, none beyond [`MAX_IN_FLIGHT`].
+struct Admission {
+    permits: Arc<Semaphore>,
+}
+
+impl Admission {
+    fn new(max: usize) -> Self {
+        Admission {
+            permits: Arc::new(Semaphore::new(max)),
+        }
+    }
+
+    /// A permit held until the request is answered; None when the server is full.
+    fn admit(&self) -> Option<OwnedSemaphorePermit> {
+        self.permits.clone().try_acquire_owned().ok()
+    }
+}
 
 #[derive(clap::Args, Default)]
 pub struct ServeArgs {
@@ -32,6 +60,8 @@ struct Metrics {
     failures: u64,
     cold_starts: u64,
     refused: u64,
+    /// Requests refused because [`MAX_IN_FLIGHT`] were already in the server.
+    busy: u64,
     max_batch: usize,
     /// Recent per-item solve times (µs), for percentiles.
     recent_us: Vec<u32>,
@@ -65,6 +95,7 @@ impl Metrics {
             "failures": self.failures,
             "cold_starts": self.cold_starts,
             "refused_requests": self.refused,
+            "busy_refusals": self.busy,
             "rejected_messages": rejects,
             "streams_held": cache.0,
             "streams_evicted": cache.1,
@@ -96,6 +127,8 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
     let keys = Keys::new(&config.run.name)?;
     let component = format!("expert-server/{}", args.id);
     let kind = expert.kind();
+    let max_batch = config.expert.max_batch;
+    let admission = Admission::new(MAX_IN_FLIGHT);
     let relabeller = Arc::new(Relabeller::new(
         expert,
         config.expert.max_streams,
@@ -123,24 +156,40 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
         tokio::select! {
             query = queryable.recv_async() => {
                 let Ok(query) = query else { break };
+                let Some(permit) = admission.admit() else {
+                    let busy = {
+                        let mut m = metrics.lock().unwrap_or_else(|e| e.into_inner());
+                        m.busy += 1;
+                        m.busy
+                    };
+                    if busy == 1 || busy.is_multiple_of(100) {
+                        tracing::warn!(busy, "{MAX_IN_FLIGHT} requests in flight: refusing more until one is answered");
+                    }
+                    if let Err(e) = query.reply_err("busy: too many requests in flight, ask again").await {
+                        tracing::warn!("replying with an error: {e}");
+                    }
+                    continue;
+                };
                 let relabeller = relabeller.clone();
                 let metrics = metrics.clone();
                 let rejects = bus.rejects.clone();
                 tokio::spawn(async move {
+                    let _permit = permit;
                     // Residence time in this server, from receipt to reply: what the client subtracts from its
                     // round trip to get the time on the wire.
                     let received = Instant::now();
                     let bytes = query.payload().map(|p| p.to_bytes().to_vec()).unwrap_or_default();
-                    let Some(request) = decode_sample::<ExpertRequest>(query.key_expr().as_str(), &bytes, &rejects) else {
-                        let why = match codec::decode::<ExpertRequest>(&bytes) {
-                            Err(e) => e.to_string(),
-                            Ok(_) => "unreadable request".into(),
-                        };
+                    let request = match codec::decode_request(&bytes, max_batch) {
+                        Ok(request) => request,
+                        Err(e) => {
+                        let why = e.to_string();
+                        rejects.refuse(query.key_expr().as_str(), &why);
                         metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
                         if let Err(e) = query.reply_err(format!("refused: {why}")).await {
                             tracing::warn!("replying with an error: {e}");
                         }
                         return;
+                        }
                     };
                     let started = Instant::now();
                     let answered = tokio::task::spawn_blocking(move || relabeller.answer(&request)).await;
@@ -198,4 +247,18 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
     drop(queryable);
     bus.close().await?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_more_than_the_maximum_requests_are_admitted() {
+        let admission = Admission::new(3);
+        let held: Vec<_> = (0..3).map(|_| admission.admit().unwrap()).collect();
+        assert!(admission.admit().is_none());
+        drop(held);
+        assert!(admission.admit().is_some());
+    }
 }

@@ -4,7 +4,7 @@
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
 use crate::plots;
-use crate::replay::Replay;
+use crate::replay::{Frames, Replay};
 use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
 use crate::train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};
 use cabc_models::device::parse_device;
@@ -58,6 +58,10 @@ pub struct Learner {
     last_eval: Option<EvalReport>,
     expert_streams: HashSet<(String, u32, u64)>,
     failed_segments: u64,
+    /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
+    published: Option<u64>,
+    /// Evaluation reports refused (a version not published yet).
+    refused_evals: u64,
     bar: ProgressBar,
 }
 
@@ -82,6 +86,7 @@ impl Learner {
                 .map_err(|e| LearnerError::Checkpoint(e.to_string()))
                 .and_then(|bytes| {
                     Replay::from_bytes(&bytes)
+                        .map(|replay| replay.with_frames(Frames::of(&config)))
                         .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
                 })?;
             tracing::info!(
@@ -124,6 +129,8 @@ impl Learner {
             last_eval: None,
             expert_streams: HashSet::new(),
             failed_segments: 0,
+            published: None,
+            refused_evals: 0,
             bar,
         })
     }
@@ -136,6 +143,7 @@ impl Learner {
             self.history.pop_first();
         }
         self.progress(epoch, "collecting");
+        self.published = Some(epoch);
         PolicyUpdate {
             version: epoch,
             beta: self.config.beta(epoch),
@@ -154,8 +162,19 @@ impl Learner {
         )
     }
 
-    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate).
+    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment the replay would not
+    /// take (images not of the run's observation size, [`Replay::check_segment`]) is refused and counted in
+    /// `segments_not_stored` before the ledger sees it, and before it waits in D_new.
     pub fn store(&mut self, segment: Segment) {
+        if let Err(e) = self.replay.check_segment(&segment) {
+            self.failed_segments += 1;
+            tracing::warn!(
+                actor = segment.actor,
+                seq = segment.seq,
+                "segment refused: {e}"
+            );
+            return;
+        }
         if !self.state.ledger.admit(&segment) {
             tracing::warn!(
                 actor = segment.actor,
@@ -226,8 +245,23 @@ impl Learner {
         Some((removed, report.rho))
     }
 
-    /// An evaluation report: counts toward early stopping when it completed `eval_laps` laps.
+    /// An evaluation report: counts toward early stopping when it completed `eval_laps` laps. A report of a version
+    /// not published yet is refused and counted (`refused_evals`); the bus already checked that it came from an
+    /// evaluator under its own name.
     pub fn on_eval(&mut self, report: EvalReport) {
+        if self
+            .published
+            .is_none_or(|published| report.version > published)
+        {
+            self.refused_evals += 1;
+            tracing::warn!(
+                actor = report.actor,
+                version = report.version,
+                published = ?self.published,
+                "evaluation report of a version not published: refused"
+            );
+            return;
+        }
         let summary = EvalSummary::of(&report);
         tracing::info!(
             version = report.version,
@@ -321,6 +355,8 @@ impl Learner {
             "row": self.state.rows.last(),
             "live_actors": collected.live,
             "rejected_messages": rejected,
+            "segments_not_stored": self.failed_segments,
+            "refused_evals": self.refused_evals,
         })
         .to_string()
     }
@@ -416,6 +452,7 @@ impl Learner {
             "segments_stored": self.state.ledger.stored_segments,
             "duplicate_segments": self.state.ledger.duplicates,
             "segments_not_stored": self.failed_segments,
+            "refused_evals": self.refused_evals,
             "rejected_messages": rejected,
             "d_plus": self.replay.len_plus(),
             "d_uncertain": self.replay.len_uncertain(),

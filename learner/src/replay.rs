@@ -14,7 +14,7 @@
 //! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
 
 use crate::autolabel::AutolabelReport;
-use cabc_proto::config::RunConfig;
+use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{Image, Outcome, Segment, Step, ACTION_DIM, STATE_DIM};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -223,9 +223,58 @@ pub struct AddCounts {
     pub dynamics_only: usize,
 }
 
+/// The images a run's steps carry: every segment is held to it before anything of it is stored, so a segment
+/// from the bus with images of another size (or none, or unasked-for ones) is refused, not stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Frames {
+    /// Whatever size the first image has (a replay made without a configuration: tests, tools).
+    #[default]
+    Any,
+    /// A full-state run: no step carries an image.
+    None,
+    /// A camera run: every step carries a `width` x `height` RGB image (`observation.width/height`).
+    Rgb { width: u16, height: u16 },
+}
+
+impl Frames {
+    /// The images of a run configuration's observation.
+    pub fn of(config: &RunConfig) -> Self {
+        match config.observation.kind {
+            ObservationKind::State => Frames::None,
+            ObservationKind::Camera => Frames::Rgb {
+                width: config.observation.width,
+                height: config.observation.height,
+            },
+        }
+    }
+
+    fn check(self, image: Option<&Image>) -> Result<(), ReplayError> {
+        match (self, image) {
+            (Frames::Any, _) | (Frames::None, None) => Ok(()),
+            (Frames::Rgb { width, height }, Some(i))
+                if i.width == width
+                    && i.height == height
+                    && i.rgb.len() == width as usize * height as usize * 3 =>
+            {
+                Ok(())
+            }
+            (Frames::Rgb { width, height }, Some(i)) => Err(ReplayError::ImageSize {
+                want_w: width,
+                want_h: height,
+                got_w: i.width,
+                got_h: i.height,
+                bytes: i.rgb.len(),
+            }),
+            _ => Err(ReplayError::ImagePresence),
+        }
+    }
+}
+
 /// D+, D?, D- and the dynamics-only store, with the eviction RNG.
 #[derive(Clone, Debug)]
 pub struct Replay {
+    /// The images every step must carry (not saved: it is the configuration's).
+    frames: Frames,
     pub plus: Store,
     pub uncertain: Store,
     pub dynamics_only: Store,
@@ -268,6 +317,7 @@ impl Replay {
     /// Empty buffers of `capacity` steps each.
     pub fn new(capacity: usize, seed: u64) -> Self {
         Replay {
+            frames: Frames::Any,
             plus: Store::new(capacity),
             uncertain: Store::new(capacity),
             dynamics_only: Store::new(capacity),
@@ -277,9 +327,16 @@ impl Replay {
         }
     }
 
-    /// Capacity `replay.capacity`, seed derived from `run.seed`.
+    /// Capacity `replay.capacity`, seed derived from `run.seed`, images of `observation` ([`Frames::of`]).
     pub fn from_config(config: &RunConfig) -> Self {
         Replay::new(config.replay.capacity, config.run.seed ^ 0x5245_504c_4159)
+            .with_frames(Frames::of(config))
+    }
+
+    /// The same replay, holding every segment to `frames`.
+    pub fn with_frames(mut self, frames: Frames) -> Self {
+        self.frames = frames;
+        self
     }
 
     pub fn len_plus(&self) -> usize {
@@ -306,9 +363,40 @@ impl Replay {
 
     /// Partitions a segment by its outcome (algorithm.md 2): Lap -> D+, Failure / ExpertFailure -> D?,
     /// Incomplete -> dynamics-only. A step whose expert failed never becomes a label: it goes to D? whatever the
-    /// outcome (the reference's behaviour). The whole segment is checked before anything is stored.
+    /// outcome (the reference's behaviour). The whole segment is checked before anything is stored
+    /// ([`Replay::check_segment`]).
     pub fn add_segment(&mut self, segment: &Segment) -> Result<AddCounts, ReplayError> {
+        self.check_segment(segment)?;
+        let mut counts = AddCounts::default();
         for step in &segment.steps {
+            let which = Self::which(segment.outcome, step);
+            let store = match which {
+                Which::Plus => {
+                    counts.plus += 1;
+                    &mut self.plus
+                }
+                Which::Uncertain => {
+                    counts.uncertain += 1;
+                    &mut self.uncertain
+                }
+                Which::DynamicsOnly => {
+                    counts.dynamics_only += 1;
+                    &mut self.dynamics_only
+                }
+            };
+            store.push_step(step, &mut self.rng);
+        }
+        self.added.plus += counts.plus;
+        self.added.uncertain += counts.uncertain;
+        self.added.dynamics_only += counts.dynamics_only;
+        Ok(counts)
+    }
+
+    /// Whether [`Replay::add_segment`] would take `segment`: every image of the run's size ([`Frames`]) and of the
+    /// size its store already holds, all of the segment's images alike.
+    pub fn check_segment(&self, segment: &Segment) -> Result<(), ReplayError> {
+        for step in &segment.steps {
+            self.frames.check(step.image.as_ref())?;
             self.store_for(segment.outcome, step)
                 .check_image(step.image.as_ref())?;
         }
@@ -333,29 +421,7 @@ impl Replay {
                 }
             }
         }
-        let mut counts = AddCounts::default();
-        for step in &segment.steps {
-            let which = Self::which(segment.outcome, step);
-            let store = match which {
-                Which::Plus => {
-                    counts.plus += 1;
-                    &mut self.plus
-                }
-                Which::Uncertain => {
-                    counts.uncertain += 1;
-                    &mut self.uncertain
-                }
-                Which::DynamicsOnly => {
-                    counts.dynamics_only += 1;
-                    &mut self.dynamics_only
-                }
-            };
-            store.push_step(step, &mut self.rng);
-        }
-        self.added.plus += counts.plus;
-        self.added.uncertain += counts.uncertain;
-        self.added.dynamics_only += counts.dynamics_only;
-        Ok(counts)
+        Ok(())
     }
 
     fn which(outcome: Outcome, step: &Step) -> Which {
@@ -449,6 +515,7 @@ impl Replay {
         rng.set_stream(saved.rng_stream);
         rng.set_word_pos(saved.rng_word_pos);
         Ok(Replay {
+            frames: Frames::Any,
             plus: saved.plus,
             uncertain: saved.uncertain,
             dynamics_only: saved.dynamics_only,

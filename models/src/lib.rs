@@ -24,5 +24,5 @@ pub use device::{cuda_available, parse_device};
 pub use dynamics::Dynamics;
 pub use error::ModelError;
 pub use mlp::Mlp;
-pub use policy::{Observation, Policy, PolicyArch, PolicyInput};
+pub use policy::{Observation, Policy, PolicyArch, PolicyCheck, PolicyInput};
 pub use weights::Network;

@@ -5,6 +5,23 @@
 use cabc_proto::config::MlpSize;
 use tch::{nn, nn::Module, Tensor};
 
+/// Hidden layers an MLP here may have (from 5 the reference adds BatchNorm).
+pub const MAX_LAYERS: usize = 4;
+/// The widest hidden layer an architecture name may ask for: a name read from bytes cannot make an actor build a
+/// network of any size it likes.
+pub const MAX_WIDTH: usize = 4096;
+
+/// Parameters of an MLP `in_dim -> size -> out_dim` (weights and biases); None on overflow.
+pub fn params(in_dim: usize, out_dim: usize, size: MlpSize) -> Option<usize> {
+    let mut n = 0usize;
+    let mut dim = in_dim;
+    for _ in 0..size.layers {
+        n = n.checked_add(dim.checked_add(1)?.checked_mul(size.width)?)?;
+        dim = size.width;
+    }
+    n.checked_add(dim.checked_add(1)?.checked_mul(out_dim)?)
+}
+
 /// Linear layers; ReLU between them, none after the last.
 #[derive(Debug)]
 pub struct Mlp {
@@ -16,7 +33,7 @@ impl Mlp {
     /// [`crate::init::kaiming_normal`] fills them (every network constructor does).
     pub fn new(p: &nn::Path, in_dim: i64, out_dim: i64, size: MlpSize) -> Mlp {
         assert!(
-            size.layers < 5,
+            size.layers <= MAX_LAYERS,
             "MLPs of 5 or more hidden layers need BatchNorm (reference), not built here"
         );
         let config = nn::LinearConfig {

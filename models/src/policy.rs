@@ -9,9 +9,10 @@
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
 use crate::weights::Network;
-use crate::{weights, Mlp, ModelError};
+use crate::{mlp, weights, Mlp, ModelError};
 use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, VisionTrunk};
 use cabc_proto::messages::{velocity_of, Image, ACTION_DIM, STATE_DIM};
+use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 use tch::{nn, nn::Module, nn::ModuleT, Device, Kind, Tensor};
@@ -62,12 +63,14 @@ impl fmt::Display for PolicyArch {
     }
 }
 
+/// An MLP size from its name, within what [`Mlp`] builds ([`mlp::MAX_LAYERS`], [`mlp::MAX_WIDTH`]).
 fn parse_mlp(s: &str) -> Option<MlpSize> {
     let (l, w) = s.strip_prefix("mlp-")?.split_once('x')?;
-    Some(MlpSize {
+    let size = MlpSize {
         layers: l.parse().ok()?,
         width: w.parse().ok()?,
-    })
+    };
+    (size.layers <= mlp::MAX_LAYERS && (1..=mlp::MAX_WIDTH).contains(&size.width)).then_some(size)
 }
 
 impl FromStr for PolicyArch {
@@ -209,9 +212,25 @@ impl Policy {
         Policy { vs, arch, net }
     }
 
-    /// A policy built from weights alone: the architecture is read from the bytes (the actor's entry point).
+    /// A policy built from weights alone: the architecture is read from the bytes. Refused before anything is built
+    /// when the name is not one of [`PolicyArch`]'s or the bytes hold fewer values than its MLP head alone (so the
+    /// size of what is built follows the bytes' length, not a name). An actor uses [`PolicyCheck`] instead, which
+    /// also holds the weights to the run's architecture.
     pub fn from_bytes(bytes: &[u8], device: Device) -> Result<Self, ModelError> {
         let arch: PolicyArch = weights::architecture_of(bytes)?.parse()?;
+        let (in_dim, mlp) = match arch {
+            PolicyArch::State { mlp } => (STATE_DIM, mlp),
+            PolicyArch::Camera { trunk, mlp } => {
+                (Trunk::features(trunk) as usize + VELOCITY_DIM, mlp)
+            }
+        };
+        let head = mlp::params(in_dim, ACTION_DIM, mlp).and_then(|n| n.checked_mul(4));
+        if head.is_none_or(|head| head > bytes.len()) {
+            return Err(ModelError::MalformedWeights(format!(
+                "{} bytes cannot hold the weights of {arch}",
+                bytes.len()
+            )));
+        }
         let mut policy = Policy::new(arch, device, 0);
         policy.load_bytes(bytes)?;
         Ok(policy)
@@ -319,5 +338,55 @@ impl Network for Policy {
     /// The architecture's name (`PolicyUpdate.architecture`).
     fn architecture(&self) -> String {
         self.arch.to_string()
+    }
+}
+
+/// The run's policy architecture with its tensors' shapes: weights received from the bus are checked against it
+/// (the update's architecture name, the name in the weights' metadata, every tensor's shape) before anything is
+/// built from them, so a malformed or foreign update is a typed error, never a panic or a network of its own size.
+#[derive(Clone, Debug)]
+pub struct PolicyCheck {
+    arch: PolicyArch,
+    name: String,
+    shapes: BTreeMap<String, Vec<i64>>,
+}
+
+impl PolicyCheck {
+    /// The check for `arch` (a run configuration's, [`PolicyArch::from_config`]; built once to learn the shapes).
+    pub fn new(arch: PolicyArch) -> Self {
+        let template = Policy::new(arch, Device::Cpu, 0);
+        PolicyCheck {
+            arch,
+            name: arch.to_string(),
+            shapes: weights::shapes_of(&template.vs),
+        }
+    }
+
+    pub fn arch(&self) -> PolicyArch {
+        self.arch
+    }
+
+    /// Checks an update's `architecture` and its weights against the run's architecture; builds nothing.
+    pub fn check(&self, architecture: &str, bytes: &[u8]) -> Result<(), ModelError> {
+        if architecture != self.name {
+            return Err(ModelError::ArchitectureMismatch {
+                expected: self.name.clone(),
+                found: architecture.to_string(),
+            });
+        }
+        weights::check(bytes, &self.name, &self.shapes)
+    }
+
+    /// The policy of checked weights: [`PolicyCheck::check`], then the run's architecture filled with them.
+    pub fn policy(
+        &self,
+        architecture: &str,
+        bytes: &[u8],
+        device: Device,
+    ) -> Result<Policy, ModelError> {
+        self.check(architecture, bytes)?;
+        let mut policy = Policy::new(self.arch, device, 0);
+        policy.load_bytes(bytes)?;
+        Ok(policy)
     }
 }

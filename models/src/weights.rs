@@ -80,16 +80,26 @@ struct Parsed<'a> {
     tensors: BTreeMap<String, (Vec<i64>, &'a [u8])>,
 }
 
+/// Elements of a tensor of `shape`; None for a negative dimension or an overflow (bytes from the bus may declare
+/// any shape: nothing is allocated from it before it is checked against the bytes present).
+fn numel(shape: &[i64]) -> Option<usize> {
+    shape
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(usize::try_from(d).ok()?))
+}
+
+/// Reads the header; every tensor's declared size is checked against the bytes present. Allocates in proportion to
+/// the header's length only, never to a declared shape or offset.
 fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
     let bad = |why: &str| ModelError::MalformedWeights(why.to_string());
-    if bytes.len() < 8 {
-        return Err(bad("shorter than the 8-byte header length"));
-    }
-    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
-    let header = bytes
-        .get(8..8usize.saturating_add(n))
+    let (len, rest) = bytes
+        .split_first_chunk::<8>()
+        .ok_or_else(|| bad("shorter than the 8-byte header length"))?;
+    let n = usize::try_from(u64::from_le_bytes(*len))
+        .ok()
+        .filter(|&n| n <= rest.len())
         .ok_or_else(|| bad("header length beyond the end"))?;
-    let data = &bytes[8 + n..];
+    let (header, data) = rest.split_at(n);
     let header: Map<String, Value> =
         serde_json::from_slice(header).map_err(|e| bad(&format!("header JSON: {e}")))?;
     let architecture = header
@@ -114,11 +124,14 @@ fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
             .get("data_offsets")
             .and_then(|s| serde_json::from_value(s.clone()).ok())
             .ok_or_else(|| bad(&format!("tensor `{name}`: no data_offsets")))?;
-        let numel: i64 = shape.iter().product();
-        if end < start || end > data.len() || (end - start) as i64 != 4 * numel {
-            return Err(bad(&format!("tensor `{name}`: data_offsets do not fit")));
-        }
-        tensors.insert(name.clone(), (shape, &data[start..end]));
+        let want = numel(&shape)
+            .and_then(|n| n.checked_mul(4))
+            .ok_or_else(|| bad(&format!("tensor `{name}`: shape {shape:?} is not a size")))?;
+        let raw = data
+            .get(start..end)
+            .filter(|raw| raw.len() == want)
+            .ok_or_else(|| bad(&format!("tensor `{name}`: data_offsets do not fit")))?;
+        tensors.insert(name.clone(), (shape, raw));
     }
     Ok(Parsed {
         architecture,
@@ -131,6 +144,54 @@ pub fn architecture_of(bytes: &[u8]) -> Result<String, ModelError> {
     Ok(parse(bytes)?.architecture)
 }
 
+/// Checks `bytes` against a network's architecture name and its tensors' shapes (name -> shape), without building
+/// or allocating anything from them: weights from the bus go through this before a network is touched.
+pub fn check(
+    bytes: &[u8],
+    architecture: &str,
+    shapes: &BTreeMap<String, Vec<i64>>,
+) -> Result<(), ModelError> {
+    check_parsed(&parse(bytes)?, architecture, shapes)
+}
+
+fn check_parsed(
+    parsed: &Parsed<'_>,
+    architecture: &str,
+    shapes: &BTreeMap<String, Vec<i64>>,
+) -> Result<(), ModelError> {
+    if parsed.architecture != architecture {
+        return Err(ModelError::ArchitectureMismatch {
+            expected: architecture.to_string(),
+            found: parsed.architecture.clone(),
+        });
+    }
+    for (name, expected) in shapes {
+        let (shape, _) = parsed
+            .tensors
+            .get(name)
+            .ok_or_else(|| ModelError::MissingTensor(name.clone()))?;
+        if shape != expected {
+            return Err(ModelError::ShapeMismatch {
+                name: name.clone(),
+                expected: expected.clone(),
+                found: shape.clone(),
+            });
+        }
+    }
+    if let Some(extra) = parsed.tensors.keys().find(|k| !shapes.contains_key(*k)) {
+        return Err(ModelError::UnexpectedTensor(extra.clone()));
+    }
+    Ok(())
+}
+
+/// The shapes of `vs`'s variables (what [`check`] compares weights against).
+pub fn shapes_of(vs: &nn::VarStore) -> BTreeMap<String, Vec<i64>> {
+    vs.variables()
+        .into_iter()
+        .map(|(name, t)| (name, t.size()))
+        .collect()
+}
+
 /// Copies the weights in `bytes` into `vs`. Refuses another architecture's weights, and missing, extra or
 /// differently shaped tensors, before it changes anything.
 pub fn load_bytes(
@@ -139,42 +200,22 @@ pub fn load_bytes(
     bytes: &[u8],
 ) -> Result<(), ModelError> {
     let parsed = parse(bytes)?;
-    if parsed.architecture != architecture {
-        return Err(ModelError::ArchitectureMismatch {
-            expected: architecture.to_string(),
-            found: parsed.architecture,
-        });
-    }
-    let vars = vs.variables();
-    for (name, var) in &vars {
-        let (shape, _) = parsed
-            .tensors
-            .get(name)
-            .ok_or_else(|| ModelError::MissingTensor(name.clone()))?;
-        if *shape != var.size() {
-            return Err(ModelError::ShapeMismatch {
-                name: name.clone(),
-                expected: var.size(),
-                found: shape.clone(),
-            });
-        }
-    }
-    if let Some(extra) = parsed.tensors.keys().find(|k| !vars.contains_key(*k)) {
-        return Err(ModelError::UnexpectedTensor(extra.clone()));
-    }
+    check_parsed(&parsed, architecture, &shapes_of(vs))?;
     tch::no_grad(|| {
-        for (name, mut var) in vars {
-            let (shape, raw) = &parsed.tensors[&name];
+        for (name, mut var) in vs.variables() {
+            let Some((shape, raw)) = parsed.tensors.get(&name) else {
+                continue; // checked above: every variable has its tensor
+            };
             let values: Vec<f32> = raw
                 .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect();
             let t = Tensor::from_slice(&values)
-                .reshape(shape.as_slice())
-                .to_kind(var.kind())
-                .to_device(var.device());
-            var.copy_(&t);
+                .f_reshape(shape.as_slice())?
+                .f_to_kind(var.kind())?
+                .f_to_device(var.device())?;
+            var.f_copy_(&t)?;
         }
-    });
-    Ok(())
+        Ok(())
+    })
 }

@@ -61,6 +61,12 @@ pub enum DecodeError {
         message: &'static str,
         reason: String,
     },
+    #[error("{message} of {len} items, more than the {max} taken")]
+    TooMany {
+        message: &'static str,
+        len: u64,
+        max: usize,
+    },
 }
 
 /// Encodes a message with its header. Encoding plain data cannot fail short of memory exhaustion.
@@ -101,6 +107,36 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
         reason,
     })?;
     Ok(message)
+}
+
+/// Decodes an [`ExpertRequest`] of at most `max_batch` queries. The batch size, the length prefix of `queries`
+/// right after the header and `request_id`, is read and checked before anything is decoded, so a request that
+/// claims a billion queries costs a few bytes of reading.
+pub fn decode_request(bytes: &[u8], max_batch: usize) -> Result<ExpertRequest, DecodeError> {
+    let kind = check_header(bytes)?;
+    if kind != ExpertRequest::KIND {
+        return Err(DecodeError::WrongKind {
+            expected: ExpertRequest::NAME,
+            expected_kind: ExpertRequest::KIND,
+            found: kind,
+        });
+    }
+    // `request_id` then the length of `queries`, as the encoding of (u64, u64) reads them.
+    let ((_, len), _): ((u64, u64), usize) =
+        bincode::serde::decode_from_slice(&bytes[HEADER_LEN..], config()).map_err(|e| {
+            DecodeError::Malformed {
+                message: ExpertRequest::NAME,
+                reason: e.to_string(),
+            }
+        })?;
+    if len > max_batch as u64 {
+        return Err(DecodeError::TooMany {
+            message: ExpertRequest::NAME,
+            len,
+            max: max_batch,
+        });
+    }
+    decode(bytes)
 }
 
 /// Checks magic and schema version; returns the message kind.
@@ -414,6 +450,49 @@ mod tests {
         bytes.extend_from_slice(&[0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff]);
         assert!(decode::<Stop>(&bytes).is_err());
         assert!(decode::<TrajMessage>(&bytes).is_err());
+    }
+
+    #[test]
+    fn the_batch_size_is_checked_before_a_request_is_decoded() {
+        let query = ExpertQuery {
+            stream: StreamId {
+                actor: "a".into(),
+                env: 0,
+                episode: 0,
+            },
+            start: true,
+            vehicle: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+            frenet: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+        };
+        let request = |n| ExpertRequest {
+            request_id: 300,
+            queries: vec![query.clone(); n],
+        };
+        assert_eq!(decode_request(&encode(&request(4)), 4), Ok(request(4)));
+        assert!(matches!(
+            decode_request(&encode(&request(5)), 4),
+            Err(DecodeError::TooMany { len: 5, max: 4, .. })
+        ));
+        // A request claiming 10^9 queries in a few bytes: refused from its prefix, in no time.
+        let mut bytes = encode(&request(0));
+        bytes.truncate(bytes.len() - 1);
+        bytes.push(252); // varint: a u32 follows
+        bytes.extend_from_slice(&1_000_000_000u32.to_le_bytes());
+        let started = std::time::Instant::now();
+        assert_eq!(
+            decode_request(&bytes, 1024),
+            Err(DecodeError::TooMany {
+                message: "ExpertRequest",
+                len: 1_000_000_000,
+                max: 1024
+            })
+        );
+        assert!(started.elapsed() < std::time::Duration::from_millis(50));
+        assert!(matches!(
+            decode_request(&encode(&Stop { reason: "".into() }), 4),
+            Err(DecodeError::WrongKind { .. })
+        ));
+        assert!(decode_request(&bytes[..HEADER_LEN + 2], 4).is_err());
     }
 
     #[test]
