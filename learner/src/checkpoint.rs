@@ -100,6 +100,7 @@ impl CheckpointWriter {
             let _ = std::fs::remove_dir_all(&old);
             std::fs::rename(&self.dir, &old).map_err(io(&self.dir))?;
         }
+        crate::fault::point("checkpoint-between-renames");
         std::fs::rename(&tmp, &self.dir).map_err(io(&tmp))?;
         if let Some(parent) = self.dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             sync_dir(parent)?;

@@ -19,6 +19,7 @@ pub mod autolabel;
 pub mod bench;
 pub mod checkpoint;
 pub mod demo;
+pub mod fault;
 pub mod hull;
 pub mod kdtree;
 pub mod learner;

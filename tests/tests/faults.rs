@@ -174,3 +174,58 @@ fn resume_without_a_checkpoint_refuses() {
     assert!(log.contains("no checkpoint to resume"), "{log}");
     assert!(!cluster.dir.join("checkpoint").exists());
 }
+
+/// The learner is killed with SIGKILL five times at moments spread over its epochs (some land while it commits a
+/// checkpoint: `checkpoint.tmp/` or `checkpoint.old/` is left behind) and resumed each time with the actors up: the
+/// run still ends with every recorded epoch holding what the actors published for it.
+#[test]
+fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "kills", 14, "").unwrap();
+    cluster.start_all(2, false).unwrap();
+    let config = cluster.config.display().to_string();
+    let run_dir = cluster.dir.display().to_string();
+    let mut label = "learner".to_string();
+    let mut during_commit = 0;
+    for kill in 0..5u64 {
+        wait_for_epochs(&cluster, 2 + 2 * kill as usize);
+        // A delay that moves through the epoch from one kill to the next.
+        std::thread::sleep(Duration::from_millis(37 * kill * kill));
+        cluster.kill(&label).unwrap();
+        if ["checkpoint.tmp", "checkpoint.old"]
+            .iter()
+            .any(|d| cluster.dir.join(d).exists())
+        {
+            during_commit += 1;
+        }
+        label = format!("learner-{kill}");
+        cluster
+            .start(
+                &label,
+                "learner",
+                &[
+                    "run",
+                    "--config",
+                    &config,
+                    "--run-dir",
+                    &run_dir,
+                    "--resume",
+                ],
+            )
+            .unwrap();
+    }
+    let summary = finish(&mut cluster, &label, 14);
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    assert!(published.iter().all(|&p| p == 256), "{published:?}");
+    println!(
+        "faults: learner killed 5 times (SIGKILL), {during_commit} of them during a checkpoint commit; \
+         stored {stored:?}, published {published:?}"
+    );
+}
