@@ -87,6 +87,18 @@ fn check_run(cluster: &mut Cluster, epochs: u64) -> serde_json::Value {
     summary
 }
 
+/// The checks ran while the run was still going (else the run is too short for this machine).
+fn assert_running(cluster: &mut Cluster) {
+    if !(cluster.running("learner") && cluster.running("actor-1")) {
+        let learner = cluster.wait("learner", Duration::from_secs(60));
+        panic!(
+            "the run ended before the checks were done: {learner:?}\n{}\n{}",
+            cluster.log_tail("learner"),
+            cluster.log_tail("actor-1")
+        );
+    }
+}
+
 fn mtls_cluster(tmp: &Path, name: &str, epochs: u64, listen: &str, connect: &str) -> Cluster {
     let certs = tmp.join("certs");
     let extra = format!(
@@ -306,14 +318,7 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
         (tried, tried - through, connections)
     });
 
-    if !(cluster.running("learner") && cluster.running("actor-1")) {
-        let learner = cluster.wait("learner", Duration::from_secs(60));
-        panic!(
-            "the run ended before the forger was done: {learner:?}\n{}\n{}",
-            cluster.log_tail("learner"),
-            cluster.log_tail("actor-1")
-        );
-    }
+    assert_running(&mut cluster);
     let summary = check_run(&mut cluster, epochs);
     let versions = csv_column(&cluster.dir.join("evals.csv"), "version");
     let mut unique = versions.clone();
@@ -371,4 +376,49 @@ fn actors_in_another_network_namespace_join_over_tls() {
     );
     drop(cluster);
     drop(pair);
+}
+
+/// `mode = "password"`: TLS that authenticates the learner, a password per process; the run completes, and a
+/// wrong password or an unknown user gets no session.
+#[test]
+fn a_password_run_completes_and_refuses_wrong_passwords() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let certs = tmp.path().join("certs");
+    make_certs(&certs, &["--actors", "2", "--passwords"]).unwrap();
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    let extra = format!(
+        "[bus.security]\nmode = \"password\"\ncerts = \"{}\"\n",
+        certs.display()
+    );
+    let mut cluster = Cluster::on(tmp.path(), "pw", 80, &endpoint, &endpoint, &extra).unwrap();
+    cluster.start_all(2, false).unwrap();
+    wait_for_epochs(&cluster, 1);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let refused = runtime.block_on(async {
+        let mut wrong = client(&cluster.config, "actor/actor-0", false);
+        wrong
+            .insert_json5("transport/auth/usrpwd/password", "\"wrong\"")
+            .unwrap();
+        let mut stranger = client(&cluster.config, "actor/actor-0", false);
+        stranger
+            .insert_json5("transport/auth/usrpwd/user", "\"nobody\"")
+            .unwrap();
+        let good = zenoh::open(client(&cluster.config, "actor/actor-1", false)).await;
+        assert!(good.is_ok(), "actor-1's password is refused");
+        good.unwrap().close().await.unwrap();
+        let (wrong, stranger) = tokio::join!(zenoh::open(wrong), zenoh::open(stranger));
+        wrong.is_err() as u64 + stranger.is_err() as u64
+    });
+    assert!(
+        cluster.running("learner"),
+        "the run ended before the checks"
+    );
+    check_run(&mut cluster, 80);
+    println!("password mode: bad logins tried 2, refused {refused}");
+    assert_eq!(refused, 2);
 }
