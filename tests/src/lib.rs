@@ -78,7 +78,7 @@ pub struct Cluster {
 
 impl Cluster {
     /// A smoke-sized run named `name` in `dir`, on its own loopback port; `extra` is appended to the TOML (sections
-    /// other than run, expert, algorithm, collection, replay, networks, training and bus).
+    /// other than run, expert, algorithm, collection, replay, networks, training and bus; `[bus.security]` is fine).
     pub fn new(dir: &Path, name: &str, max_epochs: u64, extra: &str) -> Result<Self> {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
         Self::on(dir, name, max_epochs, &endpoint, &endpoint, extra)
