@@ -82,7 +82,7 @@ fn main() -> Result<()> {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
         let kind = config.expert.kind.as_str();
         let mut expert = ZenohExpert::new(&bus, kind, timeout, &interrupt, stats.clone())?;
-        let mut sink = ZenohSegments::new(&bus, &cli.id, stats.clone());
+        let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone());
         let index = cli.index.unwrap_or_else(|| trailing_number(&cli.id));
         // Restarts under the same id are new incarnations (the learner's ledger keys segments by both).
         let incarnation = std::time::SystemTime::now()
@@ -140,7 +140,6 @@ fn metrics(
         "policy_latency_ms_last": latency.last(),
         "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
-        "segments_held": wire.held,
         "segments_lost": wire.segments_lost,
         "refused_policies": actor.refused_policies,
     })

@@ -1,7 +1,8 @@
 //! cabc-bus: the zenoh side of cabc, shared by the three binaries.
 //!
 //! * [`open`]: a zenoh session from the run configuration's `[bus]` section (the learner listens, the others
-//!   connect; multicast scouting off unless asked for, so a loopback run never meets strangers);
+//!   connect; multicast scouting off unless asked for, so a loopback run never meets strangers), with
+//!   [`security`]'s TLS, passwords and access control when `[bus.security]` asks for them;
 //! * [`Bus`]: typed publishing over the codec (every payload carries its zenoh encoding), JSON metrics, a
 //!   liveliness token, and the [`Rejects`] counter of refused messages;
 //! * [`decode_sample`]: decode an incoming payload, counting and logging it when it is foreign or malformed;
@@ -15,6 +16,7 @@ pub mod gate;
 pub mod interrupt;
 pub mod ports;
 pub mod rollouts;
+pub mod security;
 
 use cabc_proto::codec::{self, Message};
 use cabc_proto::config::BusSection;
@@ -57,8 +59,15 @@ fn zerr(e: impl std::fmt::Display) -> BusError {
 /// The largest zenoh message a process reassembles: a codec header and the largest body the codec decodes.
 pub const MAX_MESSAGE: usize = codec::HEADER_LEN + codec::MAX_BODY;
 
-/// Builds the zenoh configuration of a process (endpoints from the run configuration).
-pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusError> {
+/// Builds the zenoh configuration of the process `component` (`learner`, `actor/<id>`, ...): endpoints from the
+/// run configuration, and with `[bus.security]` its certificate (or password) and, for the learner, the access
+/// control of `keys`'s run.
+pub fn zenoh_config(
+    bus: &BusSection,
+    role: Role,
+    keys: &Keys,
+    component: &str,
+) -> Result<zenoh::Config, BusError> {
     let mut config = zenoh::Config::default();
     let set = |config: &mut zenoh::Config, key: &'static str, value: String| {
         config
@@ -107,12 +116,36 @@ pub fn zenoh_config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusEr
         MAX_MESSAGE.to_string(),
     )?;
 
+    if bus.security.enabled() {
+        // Command-line endpoints (`--connect`) bypass the configuration's validation.
+        let plain = bus
+            .listen
+            .iter()
+            .chain(&bus.connect)
+            .find(|e| !e.starts_with("tls/"));
+        if let Some(e) = plain {
+            return Err(BusError::Config {
+                key: "bus.listen / bus.connect",
+                value: e.clone(),
+                why: "bus.security needs tls/ endpoints".into(),
+            });
+        }
+    }
+    for (key, value) in security::settings(&bus.security, keys, role, component)? {
+        set(&mut config, key, value)?;
+    }
     Ok(config)
 }
 
-/// Opens a zenoh session.
-pub async fn open(bus: &BusSection, role: Role) -> Result<Session, BusError> {
-    zenoh::open(zenoh_config(bus, role)?).await.map_err(zerr)
+/// Opens the zenoh session of the process `component`.
+pub async fn open(
+    bus: &BusSection,
+    role: Role,
+    keys: &Keys,
+    component: &str,
+) -> Result<Session, BusError> {
+    let config = zenoh_config(bus, role, keys, component)?;
+    zenoh::open(config).await.map_err(zerr)
 }
 
 /// Counts messages refused by the codec (foreign, malformed, other schema), per process.
@@ -177,7 +210,7 @@ impl Bus {
         keys: Keys,
         component: &str,
     ) -> Result<Bus, BusError> {
-        let session = open(bus, role).await?;
+        let session = open(bus, role, &keys, component).await?;
         let alive = session
             .liveliness()
             .declare_token(keys.alive(component))
@@ -199,7 +232,8 @@ impl Bus {
         keys: Keys,
         component: &str,
     ) -> Result<Bus, BusError> {
-        let session = zenoh::open(zenoh_config(bus, role)?).wait().map_err(zerr)?;
+        let config = zenoh_config(bus, role, &keys, component)?;
+        let session = zenoh::open(config).wait().map_err(zerr)?;
         let alive = session
             .liveliness()
             .declare_token(keys.alive(component))
@@ -276,11 +310,20 @@ impl Bus {
 mod tests {
     use super::*;
 
+    fn config(bus: &BusSection, role: Role) -> Result<zenoh::Config, BusError> {
+        let component = if role == Role::Listen {
+            "learner"
+        } else {
+            "actor/actor-0"
+        };
+        zenoh_config(bus, role, &Keys::new("r").unwrap(), component)
+    }
+
     #[test]
     fn config_of_each_role_is_valid() {
         let bus = BusSection::default();
-        zenoh_config(&bus, Role::Listen).unwrap();
-        zenoh_config(&bus, Role::Connect).unwrap();
+        config(&bus, Role::Listen).unwrap();
+        config(&bus, Role::Connect).unwrap();
     }
 
     #[test]
@@ -290,10 +333,12 @@ mod tests {
             connect: vec!["tcp/10.0.0.1:7447".into()],
             ..BusSection::default()
         };
-        let config = zenoh_config(&bus, Role::Listen).unwrap();
-        let json = config.get_json("connect/endpoints").unwrap();
+        let json = config(&bus, Role::Listen)
+            .unwrap()
+            .get_json("connect/endpoints")
+            .unwrap();
         assert!(json.contains("tcp/10.0.0.1:7447"), "{json}");
-        let json = zenoh_config(&BusSection::default(), Role::Listen)
+        let json = config(&BusSection::default(), Role::Listen)
             .unwrap()
             .get_json("connect/endpoints")
             .unwrap();
@@ -306,18 +351,19 @@ mod tests {
             listen: vec!["not an endpoint".into()],
             ..BusSection::default()
         };
-        let err = zenoh_config(&bus, Role::Listen).unwrap_err().to_string();
+        let err = config(&bus, Role::Listen).unwrap_err().to_string();
         assert!(err.contains("listen/endpoints"), "{err}");
     }
 
     #[test]
     fn zenoh_reassembles_no_message_larger_than_the_codec_takes() {
         for role in [Role::Listen, Role::Connect] {
-            let config = zenoh_config(&BusSection::default(), role).unwrap();
+            let keys = Keys::new("r").unwrap();
+            let config = zenoh_config(&BusSection::default(), role, &keys, "learner").unwrap();
             let json = config
                 .get_json("transport/link/rx/max_message_size")
                 .unwrap();
-            assert_eq!(json, (codec::HEADER_LEN + codec::MAX_BODY).to_string());
+            assert_eq!(json, MAX_MESSAGE.to_string());
         }
     }
 

@@ -38,8 +38,7 @@ pub struct WireStats {
     pub transport: Duration,
     /// Broadcast latencies of the policy updates received by subscription (ms).
     pub policy_latency_ms: Vec<f64>,
-    /// Segments and markers waiting for a router now, and lost because the outbox overflowed.
-    pub held: usize,
+    /// Segments and markers not sent because the actor was interrupted while no router was up.
     pub segments_lost: u64,
 }
 
@@ -311,25 +310,25 @@ impl ExpertClient for ZenohExpert<'_> {
     }
 }
 
-/// Messages an actor holds while it has no router (the learner is down): sent when it is back, the oldest
-/// dropped and counted as lost beyond this many.
-const OUTBOX: usize = 4096;
+/// How often an actor without a router looks again.
+const RECONNECT_POLL: Duration = Duration::from_millis(200);
 
-/// An actor's segments and markers on `traj/<id>`. While the session has no router (a learner restarting), they wait
-/// in an outbox and go out, in order, once it is back: a put without a router would be dropped by zenoh silently.
+/// An actor's segments and markers on `traj/<id>`. While the session has no router (a learner restarting), a put
+/// waits for it to be back: zenoh would drop a put without a router silently, and an actor has nothing else to do
+/// then (its expert is out of reach too). Interrupted while waiting, the message is counted as lost, never as sent.
 pub struct ZenohSegments<'a> {
     bus: &'a Bus,
     key: String,
-    outbox: std::collections::VecDeque<TrajMessage>,
+    interrupt: Interrupt,
     stats: SharedStats,
 }
 
 impl<'a> ZenohSegments<'a> {
-    pub fn new(bus: &'a Bus, actor: &str, stats: SharedStats) -> Self {
+    pub fn new(bus: &'a Bus, actor: &str, interrupt: &Interrupt, stats: SharedStats) -> Self {
         ZenohSegments {
             bus,
             key: bus.keys.traj(actor),
-            outbox: std::collections::VecDeque::new(),
+            interrupt: interrupt.clone(),
             stats,
         }
     }
@@ -348,25 +347,24 @@ impl<'a> ZenohSegments<'a> {
 impl SegmentSink for ZenohSegments<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         let started = Instant::now();
-        self.outbox.push_back(message);
-        if self.outbox.len() > OUTBOX {
-            self.outbox.pop_front();
-            with_stats(&self.stats, |s| s.segments_lost += 1);
-            tracing::warn!("no router for {OUTBOX} messages: the oldest is lost");
+        let mut warned = false;
+        while !self.connected() {
+            if self.interrupt.is_set() {
+                with_stats(&self.stats, |s| s.segments_lost += 1);
+                return Err(PortError::Stopped(
+                    "interrupted while no router was up".into(),
+                ));
+            }
+            if !warned {
+                warned = true;
+                tracing::warn!("no router: holding the segment until the learner is back");
+            }
+            std::thread::sleep(RECONNECT_POLL);
         }
-        if !self.connected() {
-            with_stats(&self.stats, |s| s.held = self.outbox.len());
-            return Ok(());
-        }
-        while let Some(message) = self.outbox.pop_front() {
-            self.bus
-                .put_blocking(&self.key, &message)
-                .map_err(transport)?;
-        }
-        with_stats(&self.stats, |s| {
-            s.held = 0;
-            s.transport += started.elapsed();
-        });
+        self.bus
+            .put_blocking(&self.key, &message)
+            .map_err(transport)?;
+        with_stats(&self.stats, |s| s.transport += started.elapsed());
         Ok(())
     }
 }

@@ -174,6 +174,42 @@ impl ZenohActors {
         self.bus
     }
 
+    /// One message of `traj/*`: checked against its key, a segment to `store`, a marker to the gate.
+    fn take_in(
+        &self,
+        sample: &Sample,
+        version: u64,
+        gate: &mut EpochGate,
+        heard: &mut BTreeSet<String>,
+        store: &mut dyn FnMut(Segment),
+    ) {
+        let bytes = sample.payload().to_bytes();
+        let key = sample.key_expr().as_str();
+        let message =
+            decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects).filter(
+                |m| match check_traj(key, m) {
+                    Ok(()) => true,
+                    Err(why) => {
+                        self.bus.rejects.refuse(key, &why);
+                        false
+                    }
+                },
+            );
+        match message {
+            Some(TrajMessage::Segment(segment)) => {
+                if segment.policy_version == version {
+                    heard.insert(segment.actor.clone());
+                }
+                store(segment)
+            }
+            Some(TrajMessage::EpochDone(marker)) => {
+                heard.insert(marker.actor.clone());
+                gate.done(marker);
+            }
+            None => {}
+        }
+    }
+
     /// Applies the liveliness changes that arrived (to the gate too, when an epoch is open).
     fn follow_liveliness(&mut self, mut gate: Option<&mut EpochGate>) {
         while let Ok(Some(sample)) = self.alive.try_recv() {
@@ -231,31 +267,7 @@ impl Rollouts for ZenohActors {
             }
             self.follow_liveliness(Some(&mut gate));
             if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
-                let bytes = sample.payload().to_bytes();
-                let key = sample.key_expr().as_str();
-                let message =
-                    decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects).filter(|m| {
-                        match check_traj(key, m) {
-                            Ok(()) => true,
-                            Err(why) => {
-                                self.bus.rejects.refuse(key, &why);
-                                false
-                            }
-                        }
-                    });
-                match message {
-                    Some(TrajMessage::Segment(segment)) => {
-                        if segment.policy_version == update.version {
-                            heard.insert(segment.actor.clone());
-                        }
-                        store(segment)
-                    }
-                    Some(TrajMessage::EpochDone(marker)) => {
-                        heard.insert(marker.actor.clone());
-                        gate.done(marker);
-                    }
-                    None => {}
-                }
+                self.take_in(&sample, update.version, &mut gate, &mut heard, store);
             }
             if last_publish.elapsed() >= republish_after
                 && self.live.iter().any(|a| !heard.contains(a))
@@ -278,6 +290,11 @@ impl Rollouts for ZenohActors {
                 tracing::info!(epoch = update.version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
             }
         };
+        // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
+        // its liveliness went.
+        while let Ok(Some(sample)) = self.traj.try_recv() {
+            self.take_in(&sample, update.version, &mut gate, &mut heard, store);
+        }
         let (missing, timed_out) = match closed {
             Closed::AllDone => (Vec::new(), false),
             Closed::Timeout { missing } => {

@@ -8,6 +8,9 @@
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+mod security;
+pub use security::{SecurityMode, SecuritySection};
+
 /// Which expert relabels the states.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -348,6 +351,8 @@ pub struct BusSection {
     pub epoch_timeout_s: f64,
     /// zenoh multicast scouting; off by default, so that a loopback run never meets strangers.
     pub multicast_scouting: bool,
+    /// TLS, passwords and access control (`[bus.security]`); off by default.
+    pub security: SecuritySection,
 }
 
 impl Default for BusSection {
@@ -357,6 +362,7 @@ impl Default for BusSection {
             connect: vec!["tcp/127.0.0.1:7447".into()],
             epoch_timeout_s: 120.0,
             multicast_scouting: false,
+            security: SecuritySection::default(),
         }
     }
 }
@@ -410,10 +416,11 @@ pub const PRESETS: &[(&str, &str)] = &[
 impl RunConfig {
     /// Parses TOML; `origin` names the source in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let config: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+        let mut config: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
             origin: origin.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
+        config.bus.security.resolve(config.actors.count, None);
         config.validate(origin)?;
         Ok(config)
     }
@@ -431,7 +438,11 @@ impl RunConfig {
             path: path.display().to_string(),
             source,
         })?;
-        Self::from_toml(&text, &path.display().to_string())
+        let mut config = Self::from_toml(&text, &path.display().to_string())?;
+        let folder = path.parent().filter(|p| !p.as_os_str().is_empty());
+        let security = &mut config.bus.security;
+        security.resolve(config.actors.count, Some(folder.unwrap_or(Path::new("."))));
+        Ok(config)
     }
 
     /// [`RunConfig::load`], or with `baseline` the behaviour-cloning baseline of the same run: lambda = 0, under the
@@ -544,6 +555,10 @@ impl RunConfig {
                 "[]".into(),
                 "need at least one endpoint",
             );
+        }
+        let (listen, connect) = (&self.bus.listen, &self.bus.connect);
+        if let Err((key, value, why)) = self.bus.security.check(listen, connect) {
+            return invalid(key, value, why);
         }
         Ok(())
     }

@@ -2,7 +2,10 @@
 //!
 //! [`Cluster`] starts the learner, expert servers and actors of a run as child processes, each with its log in
 //! the run folder, and stops them all when dropped. The binaries are the release builds in `target/release`
-//! (`deploy/test.sh` builds them first).
+//! (`deploy/test.sh` builds them first). [`make_certs`] runs `deploy/make-certs.sh`; [`netns`] makes a pair of
+//! network namespaces for runs over a (virtual) network.
+
+pub mod netns;
 
 use anyhow::{bail, Context, Result};
 use std::net::TcpListener;
@@ -48,6 +51,24 @@ pub fn free_port() -> u16 {
         .expect("a free loopback port")
 }
 
+/// Runs `deploy/make-certs.sh ARGS OUT` (a CA and per-component certificates for `[bus.security]`).
+pub fn make_certs(out: &Path, args: &[&str]) -> Result<()> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/make-certs.sh");
+    let output = Command::new("bash")
+        .arg(&script)
+        .args(args)
+        .arg(out)
+        .output()
+        .with_context(|| format!("running {}", script.display()))?;
+    if !output.status.success() {
+        bail!(
+            "make-certs.sh failed: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    Ok(())
+}
+
 /// A run's child processes; all are killed on drop.
 pub struct Cluster {
     pub dir: PathBuf,
@@ -57,10 +78,22 @@ pub struct Cluster {
 
 impl Cluster {
     /// A smoke-sized run named `name` in `dir`, on its own loopback port; `extra` is appended to the TOML (sections
-    /// other than run, expert, algorithm, collection, replay, networks, training and bus).
+    /// other than run, expert, algorithm, collection, replay, networks, training and bus; `[bus.security]` is fine).
     pub fn new(dir: &Path, name: &str, max_epochs: u64, extra: &str) -> Result<Self> {
-        let port = free_port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        Self::on(dir, name, max_epochs, &endpoint, &endpoint, extra)
+    }
+
+    /// [`Cluster::new`] with the learner listening on `listen` and the others connecting to `connect` (for
+    /// instance `tls/...` endpoints with a `[bus.security]` section in `extra`).
+    pub fn on(
+        dir: &Path,
+        name: &str,
+        max_epochs: u64,
+        listen: &str,
+        connect: &str,
+        extra: &str,
+    ) -> Result<Self> {
         let text = format!(
             "[run]\nname = \"{name}\"\nexperiment = \"smoke\"\nseed = 7\nmax_epochs = {max_epochs}\nruns_dir = \"{}\"\n\n\
              [expert]\nkind = \"pid\"\n\n\
@@ -69,7 +102,7 @@ impl Cluster {
              [replay]\ncapacity = 20000\n\n\
              [networks]\npolicy = {{ layers = 2, width = 32 }}\ndynamics = {{ layers = 2, width = 32 }}\ncritic = {{ layers = 2, width = 32 }}\n\n\
              [training]\ninitial_passes = 2\ndynamics_every = 1\ncritic_every = 2\naux_passes = 2\ncritic_min_uncertain = 4\ndevice = \"cpu\"\n\n\
-             [bus]\nlisten = [\"{endpoint}\"]\nconnect = [\"{endpoint}\"]\nepoch_timeout_s = 30.0\n\n{extra}",
+             [bus]\nlisten = [\"{listen}\"]\nconnect = [\"{connect}\"]\nepoch_timeout_s = 30.0\n\n{extra}",
             dir.display()
         );
         std::fs::create_dir_all(dir)?;
@@ -84,9 +117,30 @@ impl Cluster {
 
     /// Starts a binary with `args`; its stderr goes to `<dir>/<label>.log`.
     pub fn start(&mut self, label: &str, binary: &str, args: &[&str]) -> Result<()> {
+        self.start_in(label, &[], binary, args)
+    }
+
+    /// [`Cluster::start`] under a wrapper command (e.g. `ip netns exec <ns>`, which execs the binary, so the
+    /// child is the binary itself).
+    pub fn start_in(
+        &mut self,
+        label: &str,
+        wrapper: &[&str],
+        binary: &str,
+        args: &[&str],
+    ) -> Result<()> {
         std::fs::create_dir_all(&self.dir)?;
         let log = std::fs::File::create(self.dir.join(format!("{label}.log")))?;
-        let child = Command::new(bin(binary)?)
+        let program = bin(binary)?;
+        let mut command = match wrapper.split_first() {
+            Some((first, rest)) => {
+                let mut c = Command::new(first);
+                c.args(rest).arg(&program);
+                c
+            }
+            None => Command::new(&program),
+        };
+        let child = command
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
@@ -99,27 +153,33 @@ impl Cluster {
 
     /// The learner, one PID expert server, `actors` actors and an eval actor.
     pub fn start_all(&mut self, actors: usize, resume: bool) -> Result<()> {
+        self.start_all_in(actors, resume, &[], &[])
+    }
+
+    /// [`Cluster::start_all`] with the learner and the expert server under `servers` and the actors under
+    /// `actors_in` (wrappers as in [`Cluster::start_in`]).
+    pub fn start_all_in(
+        &mut self,
+        actors: usize,
+        resume: bool,
+        servers: &[&str],
+        actors_in: &[&str],
+    ) -> Result<()> {
         let config = self.config.display().to_string();
         let run_dir = self.dir.display().to_string();
         let mut learner = vec!["run", "--config", &config, "--run-dir", &run_dir];
         if resume {
             learner.push("--resume");
         }
-        self.start("learner", "learner", &learner)?;
-        self.start(
-            "expert-server",
-            "expert-server",
-            &["--config", &config, "serve", "--id", "0"],
-        )?;
+        self.start_in("learner", servers, "learner", &learner)?;
+        let serve = ["--config", &config, "serve", "--id", "0"];
+        self.start_in("expert-server", servers, "expert-server", &serve)?;
         for i in 0..actors {
             let id = format!("actor-{i}");
-            self.start(&id, "actor", &["--config", &config, "--id", &id])?;
+            self.start_in(&id, actors_in, "actor", &["--config", &config, "--id", &id])?;
         }
-        self.start(
-            "eval",
-            "actor",
-            &["--config", &config, "--id", "eval", "--eval"],
-        )
+        let eval = ["--config", &config, "--id", "eval", "--eval"];
+        self.start_in("eval", actors_in, "actor", &eval)
     }
 
     /// Kills one child (as a crash would).
@@ -132,6 +192,14 @@ impl Cluster {
         child.kill()?;
         child.wait()?;
         Ok(())
+    }
+
+    /// Whether a child is still running.
+    pub fn running(&mut self, label: &str) -> bool {
+        self.children
+            .iter_mut()
+            .find(|(l, _)| l == label)
+            .is_some_and(|(_, c)| matches!(c.try_wait(), Ok(None)))
     }
 
     /// Waits for a child to exit; returns its status and stdout.

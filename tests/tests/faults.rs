@@ -229,3 +229,68 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
          stored {stored:?}, published {published:?}"
     );
 }
+
+/// The learner dies in the middle of a checkpoint commit, between its two renames (`CABC_FAULT` aborts it there, as
+/// a SIGKILL would): no `checkpoint/` exists, only `checkpoint.old/`. `--resume` continues from that previous
+/// checkpoint with the actors still up, and the run ends with nothing lost.
+#[test]
+fn the_learner_killed_during_a_checkpoint_resumes_from_the_previous_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "commit", 8, "").unwrap();
+    let config = cluster.config.display().to_string();
+    let run_dir = cluster.dir.display().to_string();
+    let learner = ["run", "--config", &config, "--run-dir", &run_dir];
+    cluster
+        .start_in(
+            "learner",
+            &["env", "CABC_FAULT=checkpoint-between-renames:4"],
+            "learner",
+            &learner,
+        )
+        .unwrap();
+    cluster
+        .start(
+            "expert-server",
+            "expert-server",
+            &["--config", &config, "serve", "--id", "0"],
+        )
+        .unwrap();
+    for id in ["actor-0", "actor-1"] {
+        cluster
+            .start(id, "actor", &["--config", &config, "--id", id])
+            .unwrap();
+    }
+    let (status, _) = cluster.wait("learner", Duration::from_secs(120)).unwrap();
+    assert!(!status.success(), "the fault point aborts the learner");
+    assert!(cluster
+        .log_tail("learner")
+        .contains("CABC_FAULT: aborting at checkpoint-between-renames"));
+    assert!(
+        !cluster.dir.join("checkpoint").exists(),
+        "between the renames"
+    );
+    assert!(cluster.dir.join("checkpoint.old/state.json").exists());
+    let mut resumed = learner.to_vec();
+    resumed.push("--resume");
+    cluster
+        .start("learner-resumed", "learner", &resumed)
+        .unwrap();
+    let summary = finish(&mut cluster, "learner-resumed", 8);
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    assert!(published.iter().all(|&p| p == 256), "{published:?}");
+    assert!(
+        !cluster.dir.join("checkpoint.old").exists(),
+        "the next commit clears it"
+    );
+    println!(
+        "faults: learner aborted between the renames of its 4th checkpoint, resumed from checkpoint.old; \
+         stored {stored:?}, published {published:?}"
+    );
+}

@@ -96,3 +96,64 @@ fn steps_are_split_between_actors() {
     c.actors.count = 3;
     assert_eq!(c.steps_per_actor(1), 342);
 }
+
+#[test]
+fn bus_security_is_off_by_default_and_fills_in_the_ids() {
+    assert_eq!(RunConfig::default().bus.security.mode, SecurityMode::None);
+    let text = "[actors]\ncount = 3\n\n[bus]\nlisten = [\"tls/0.0.0.0:7447\"]\nconnect = [\"tls/a:7447\"]\n\n\
+                [bus.security]\nmode = \"mtls\"\ncerts = \"/c\"\n";
+    let c = RunConfig::from_toml(text, "t.toml").unwrap();
+    assert_eq!(c.bus.security.actors, ["actor-0", "actor-1", "actor-2"]);
+    assert_eq!(c.bus.security.evaluators, ["eval"]);
+    assert_eq!(c.bus.security.expert_servers, ["0"]);
+    assert_eq!(RunConfig::from_toml(&c.to_toml(), "rt").unwrap(), c);
+}
+
+#[test]
+fn bus_security_refuses_plain_endpoints_and_bad_ids() {
+    let err = RunConfig::from_toml("[bus.security]\nmode = \"mtls\"\n", "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("bus.listen") && err.contains("tcp/127.0.0.1:7447"),
+        "{err}"
+    );
+    let tls = "[bus]\nlisten = [\"tls/0.0.0.0:1\"]\nconnect = [\"tls/a:1\"]\n\n[bus.security]\nmode = \"password\"\n";
+    let err = RunConfig::from_toml(&format!("{tls}evaluators = [\"a/b\"]\n"), "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("bus.security.evaluators") && err.contains("a/b"),
+        "{err}"
+    );
+    let err = RunConfig::from_toml(&format!("{tls}actors = [\"x\", \"x\"]\n"), "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("distinct"), "{err}");
+    let err = RunConfig::from_toml(&format!("{tls}mode2 = 1\n"), "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("mode2"), "{err}");
+}
+
+#[test]
+fn certs_are_resolved_against_the_configuration_file() {
+    let dir = std::env::temp_dir().join(format!("cabc-cfg-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("run.toml");
+    let tls = "[bus]\nlisten = [\"tls/0.0.0.0:1\"]\nconnect = [\"tls/a:1\"]\n\n[bus.security]\nmode = \"mtls\"\n";
+    std::fs::write(&path, format!("{tls}certs = \"my-certs\"\n")).unwrap();
+    let c = RunConfig::load(path.to_str().unwrap()).unwrap();
+    let expected = std::fs::canonicalize(&dir).unwrap().join("my-certs");
+    assert_eq!(Path::new(&c.bus.security.certs), expected);
+    std::fs::write(&path, format!("{tls}certs = \"/abs\"\n")).unwrap();
+    assert_eq!(
+        RunConfig::load(path.to_str().unwrap())
+            .unwrap()
+            .bus
+            .security
+            .certs,
+        "/abs"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
