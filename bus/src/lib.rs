@@ -1,6 +1,6 @@
 //! cabc-bus: the zenoh side of cabc, shared by the three binaries.
 //!
-//! * [`open`]: a zenoh session from the run configuration's `[bus]` section (the learner listens, the others
+//! * [`zenoh_config`] and [`Bus::join`]: a zenoh session from the run configuration's `[bus]` section (the learner listens, the others
 //!   connect; multicast scouting off unless asked for, so a loopback run never meets strangers), with
 //!   [`security`]'s TLS, passwords and access control when `[bus.security]` asks for them;
 //! * [`Bus`]: typed publishing over the codec (every payload carries its zenoh encoding), JSON metrics, a
@@ -137,17 +137,6 @@ pub fn zenoh_config(
     Ok(config)
 }
 
-/// Opens the zenoh session of the process `component`.
-pub async fn open(
-    bus: &BusSection,
-    role: Role,
-    keys: &Keys,
-    component: &str,
-) -> Result<Session, BusError> {
-    let config = zenoh_config(bus, role, keys, component)?;
-    zenoh::open(config).await.map_err(zerr)
-}
-
 /// Counts messages refused by the codec (foreign, malformed, other schema), per process.
 #[derive(Clone, Default, Debug)]
 pub struct Rejects(Arc<AtomicU64>);
@@ -203,29 +192,8 @@ pub struct Bus {
 }
 
 impl Bus {
-    /// Opens the session and declares the liveliness token `alive/<component>`.
-    pub async fn connect(
-        bus: &BusSection,
-        role: Role,
-        keys: Keys,
-        component: &str,
-    ) -> Result<Bus, BusError> {
-        let session = open(bus, role, &keys, component).await?;
-        let alive = session
-            .liveliness()
-            .declare_token(keys.alive(component))
-            .await
-            .map_err(zerr)?;
-        Ok(Bus {
-            session,
-            keys,
-            rejects: Rejects::default(),
-            component: component.to_string(),
-            _alive: alive,
-        })
-    }
-
-    /// [`Bus::connect`] for a blocking caller (no async runtime needed).
+    /// Opens the session of the process `component` and declares its liveliness token `alive/<component>`.
+    /// Blocking (zenoh's own runtime does the work), so async callers use it too, at start-up.
     pub fn join(
         bus: &BusSection,
         role: Role,

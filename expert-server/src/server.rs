@@ -134,8 +134,7 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
         config.expert.max_streams,
         config.expert.max_batch,
     ));
-    let bus = Bus::connect(&config.bus, Role::Connect, keys.clone(), &component)
-        .await
+    let bus = Bus::join(&config.bus, Role::Connect, keys.clone(), &component)
         .context("joining the bus")?;
     let key = keys.expert(kind.as_str());
     let queryable = bus
