@@ -2,7 +2,8 @@
 # Installs everything the build needs, idempotently (a second run takes a second):
 #   * libtorch 2.13.0, from `pip install torch==2.13.0` into .deps/torch (git-ignored): the only way to get
 #     libtorch here. tch finds it through LIBTORCH, set in .cargo/config.toml; binaries carry an rpath to it.
-#   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable.
+#   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable;
+#   * openssl (deploy/make-certs.sh), when missing and apt is usable.
 # Prints what it does; fails with a message that names what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -38,6 +39,14 @@ if ! pkg-config --exists fontconfig freetype2 2>/dev/null; then
     apt-get update -qq && apt-get install -y -qq pkg-config libfontconfig1-dev libfreetype-dev fonts-dejavu-core >/dev/null
   else
     die "fontconfig and freetype development files are missing: install pkg-config, libfontconfig1-dev and libfreetype-dev"
+  fi
+fi
+if ! command -v openssl >/dev/null; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    say "installing openssl (deploy/make-certs.sh, the secure bus and its tests)"
+    apt-get update -qq && apt-get install -y -qq openssl >/dev/null
+  else
+    die "openssl is missing: install it (deploy/make-certs.sh makes the bus's certificates with it)"
   fi
 fi
 say "ready (LIBTORCH=$torch_dir/torch, set for cargo in .cargo/config.toml)"
