@@ -92,6 +92,35 @@ impl<'a> Checked<'a> {
         Some(next)
     }
 
+    /// The next version that passes the check, with its policy (`pending` first: a version that interrupted the last
+    /// epoch); None on a stop. Refused versions are counted in `stats` and skipped.
+    fn next_policy(
+        &mut self,
+        pending: Option<Next>,
+        stats: &mut ActorStats,
+    ) -> Result<Option<(PolicyUpdate, Policy)>, ActorError> {
+        let mut pending = pending;
+        loop {
+            let next = match pending.take() {
+                Some(next) => next,
+                None => self.next()?,
+            };
+            let update = match next {
+                Next::Stop(reason) => {
+                    tracing::info!("stop: {reason}");
+                    return Ok(None);
+                }
+                Next::Policy(update) => *update,
+            };
+            let policy = self.policy_of(&update);
+            stats.refused_policies = self.refused;
+            if let Some(policy) = policy {
+                stats.versions += 1;
+                return Ok(Some((update, policy)));
+            }
+        }
+    }
+
     /// The policy of a checked update (weights for CPU inference); None (counted) if building it still fails.
     fn policy_of(&mut self, update: &PolicyUpdate) -> Option<Policy> {
         match self
@@ -193,24 +222,7 @@ pub fn run_actor(
     let mut source = Checked::new(source, check);
     let mut stats = ActorStats::default();
     let mut pending = None;
-    loop {
-        let next = match pending.take() {
-            Some(next) => next,
-            None => source.next()?,
-        };
-        let update = match next {
-            Next::Stop(reason) => {
-                tracing::info!("stop: {reason}");
-                return Ok(stats);
-            }
-            Next::Policy(update) => *update,
-        };
-        let policy = source.policy_of(&update);
-        stats.refused_policies = source.refused;
-        let Some(policy) = policy else {
-            continue;
-        };
-        stats.versions += 1;
+    while let Some((update, policy)) = source.next_policy(pending.take(), &mut stats)? {
         let started = Instant::now();
         let (steps, interrupted) =
             collect_epoch(collector, &update, &policy, expert, &mut source, sink)?;
@@ -226,6 +238,7 @@ pub fn run_actor(
         pending = interrupted;
         after_epoch(&update, &stats);
     }
+    Ok(stats)
 }
 
 /// The evaluator: drives each new version that passes `check` alone from the fixed spawn and reports it, until a
@@ -240,20 +253,7 @@ pub fn run_evaluator(
 ) -> Result<ActorStats, ActorError> {
     let mut source = Checked::new(source, check);
     let mut stats = ActorStats::default();
-    loop {
-        let update = match source.next()? {
-            Next::Stop(reason) => {
-                tracing::info!("stop: {reason}");
-                return Ok(stats);
-            }
-            Next::Policy(update) => *update,
-        };
-        let policy = source.policy_of(&update);
-        stats.refused_policies = source.refused;
-        let Some(policy) = policy else {
-            continue;
-        };
-        stats.versions += 1;
+    while let Some((update, policy)) = source.next_policy(None, &mut stats)? {
         let started = Instant::now();
         let report = evaluate(id, update.version, config, |input| Ok(act(&policy, input)?))
             .map_err(ActorError::Evaluate)?;
@@ -269,4 +269,5 @@ pub fn run_evaluator(
         sink.report(report)?;
         after_epoch(&update, &stats);
     }
+    Ok(stats)
 }

@@ -20,14 +20,23 @@ use tch::{Device, Kind, Tensor};
 /// Track length (m), simulator.md 2.1.
 const TRACK_LENGTH: f64 = 17.461_412_207_630_154;
 
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// What `learner bench` measures (also its command-line arguments).
+#[derive(Clone, Debug, Serialize, Deserialize, clap::Args)]
 pub struct BenchOptions {
+    /// D+ size for the auto-labelling figures.
+    #[arg(long = "plus", default_value_t = 100_000)]
     pub n_plus: usize,
+    /// D? size for the auto-labelling figures.
+    #[arg(long = "uncertain", default_value_t = 20_000)]
     pub n_uncertain: usize,
     /// Training samples (D+ size) for the throughput figures.
+    #[arg(long = "train", default_value_t = 100_000)]
     pub n_train: usize,
+    /// Seed of the synthetic data.
+    #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Also run the training figures on CUDA when present.
+    /// `--cpu-only`: skip the CUDA training figures even when a GPU is present (`cuda`: run them).
+    #[arg(long = "cpu-only", action = clap::ArgAction::SetFalse)]
     pub cuda: bool,
 }
 

@@ -71,15 +71,8 @@ enum Command {
     },
     /// Throughput of auto-labelling and training.
     Bench {
-        #[arg(long, default_value_t = 100_000)]
-        plus: usize,
-        #[arg(long, default_value_t = 20_000)]
-        uncertain: usize,
-        #[arg(long, default_value_t = 100_000)]
-        train: usize,
-        /// Skip the CUDA figures even when a GPU is present.
-        #[arg(long)]
-        cpu_only: bool,
+        #[command(flatten)]
+        options: BenchOptions,
         #[arg(long)]
         json: bool,
     },
@@ -129,22 +122,7 @@ fn main() -> anyhow::Result<()> {
             report.log();
             print_json(json, &report)
         }
-        Command::Bench {
-            plus,
-            uncertain,
-            train,
-            cpu_only,
-            json,
-        } => {
-            let options = BenchOptions {
-                n_plus: plus,
-                n_uncertain: uncertain,
-                n_train: train,
-                cuda: !cpu_only,
-                ..Default::default()
-            };
-            print_json(json, &run_bench(&options))
-        }
+        Command::Bench { options, json } => print_json(json, &run_bench(&options)),
     }
 }
 

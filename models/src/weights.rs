@@ -13,7 +13,6 @@ use tch::{nn, Device, Kind, Tensor};
 /// The metadata key holding the architecture's name.
 pub const ARCHITECTURE_KEY: &str = "architecture";
 
-/// Serialises every variable of `vs` (trainable or not, e.g. batch-norm statistics) as f32.
 /// A network with named weights: the policy, the dynamics model and the critic share their weight handling here.
 pub trait Network {
     fn var_store(&self) -> &nn::VarStore;
@@ -37,32 +36,43 @@ pub trait Network {
     }
 }
 
+/// Serialises every variable of `vs` (trainable or not, e.g. batch-norm statistics) as f32.
 pub fn to_bytes(vs: &nn::VarStore, architecture: &str) -> Vec<u8> {
     let named: BTreeMap<String, Tensor> = vs.variables().into_iter().collect();
     let mut header = Map::new();
     let mut data: Vec<u8> = Vec::new();
     for (name, t) in &named {
-        let t = t
-            .detach()
-            .to_device(Device::Cpu)
-            .to_kind(Kind::Float)
-            .contiguous()
-            .view(-1);
-        let values = Vec::<f32>::try_from(&t).expect("a float tensor converts to Vec<f32>");
         let start = data.len();
-        for v in values {
-            data.extend_from_slice(&v.to_le_bytes());
-        }
-        let shape: Vec<i64> = named[name].size();
+        data.extend_from_slice(&f32_le_bytes(t));
+        let shape: Vec<i64> = t.size();
         header.insert(
             name.clone(),
             json!({"dtype": "F32", "shape": shape, "data_offsets": [start, data.len()]}),
         );
     }
-    header.insert(
-        "__metadata__".into(),
+    frame(
+        header,
         json!({ ARCHITECTURE_KEY: architecture, "format": "pt" }),
-    );
+        &data,
+    )
+}
+
+/// A tensor's values as little-endian f32 bytes (on the CPU, contiguous, flattened).
+pub fn f32_le_bytes(t: &Tensor) -> Vec<u8> {
+    let flat = t
+        .detach()
+        .to_device(Device::Cpu)
+        .to_kind(Kind::Float)
+        .contiguous()
+        .view(-1);
+    let values = Vec::<f32>::try_from(&flat).expect("a float tensor converts to Vec<f32>");
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// A safetensors file: `header` (name -> {dtype, shape, data_offsets} into `data`) with `metadata`, padded to 8
+/// bytes, then `data`.
+pub fn frame(mut header: Map<String, Value>, metadata: Value, data: &[u8]) -> Vec<u8> {
+    header.insert("__metadata__".into(), metadata);
     let mut header = serde_json::to_vec(&Value::Object(header)).expect("JSON serialises");
     while header.len() % 8 != 0 {
         header.push(b' ');
@@ -70,7 +80,7 @@ pub fn to_bytes(vs: &nn::VarStore, architecture: &str) -> Vec<u8> {
     let mut out = Vec::with_capacity(8 + header.len() + data.len());
     out.extend_from_slice(&(header.len() as u64).to_le_bytes());
     out.extend_from_slice(&header);
-    out.extend_from_slice(&data);
+    out.extend_from_slice(data);
     out
 }
 

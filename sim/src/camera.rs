@@ -378,6 +378,24 @@ impl Camera {
     pub fn image(&self) -> &Frame {
         &self.image
     }
+
+    /// Renders the view from the Frenet pose (s, x_tran, e_psi) of `track` (`cabc-sim render`); returns the global
+    /// pose with the frame. A non-finite coordinate is refused.
+    pub fn render_frenet(
+        &mut self,
+        track: &Track,
+        (s, x_tran, e_psi): (f64, f64, f64),
+        sun: Sun,
+    ) -> Result<(Frame, Pose), String> {
+        if !(s.is_finite() && x_tran.is_finite() && e_psi.is_finite()) {
+            return Err("s, x_tran and e_psi must be finite".into());
+        }
+        let pose = track.local_to_global(s, x_tran, e_psi);
+        Ok((
+            self.render_owned(&TrackLookup::new(track, 0.01), pose, sun),
+            pose,
+        ))
+    }
 }
 
 #[inline]

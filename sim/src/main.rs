@@ -3,9 +3,9 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::{bail, Context, Result};
-use cabc_sim::camera::{Camera, Sun, TrackLookup, REFERENCE_FOV_DEG};
-use cabc_sim::rollout::{parse_pair, rollout, RolloutOptions};
+use anyhow::{Context, Result};
+use cabc_sim::camera::{Camera, Sun, REFERENCE_FOV_DEG};
+use cabc_sim::rollout::{parse_pair, parse_size, rollout, RolloutOptions};
 use cabc_sim::{bench, map, trace, Track};
 use clap::{Parser, Subcommand};
 
@@ -72,24 +72,6 @@ enum Cmd {
     },
 }
 
-fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .with_context(|| format!("expected a size \"WxH\", got {s:?}"))?;
-    let w: usize = w
-        .trim()
-        .parse()
-        .with_context(|| format!("bad width {w:?}"))?;
-    let h: usize = h
-        .trim()
-        .parse()
-        .with_context(|| format!("bad height {h:?}"))?;
-    if w == 0 || h == 0 || w > 8192 || h > 8192 {
-        bail!("image size must be within 1..=8192 on each side, got {w}x{h}");
-    }
-    Ok((w, h))
-}
-
 fn parse_sun(s: &str) -> Result<Sun> {
     let (az, el) = parse_pair(s).context("bad --sun (expected \"AZ,EL\" in degrees)")?;
     Ok(Sun {
@@ -119,14 +101,11 @@ fn main() -> Result<()> {
             fov,
             out: path,
         } => {
-            if !(s.is_finite() && x_tran.is_finite() && e_psi.is_finite()) {
-                bail!("--s, --x-tran and --e-psi must be finite");
-            }
             let sun = sun.unwrap_or_default();
-            let track = Track::l_track_barc();
-            let pose = track.local_to_global(s, x_tran, e_psi);
-            Camera::new(w, h, fov)
-                .render(&TrackLookup::new(&track, 0.01), pose, sun)
+            let (frame, pose) = Camera::new(w, h, fov)
+                .render_frenet(&Track::l_track_barc(), (s, x_tran, e_psi), sun)
+                .map_err(|e| anyhow::anyhow!("--s, --x-tran, --e-psi: {e}"))?;
+            frame
                 .write_png(&path)
                 .with_context(|| format!("writing {}", path.display()))?;
             writeln!(

@@ -43,6 +43,25 @@ impl RolloutPolicy {
     }
 }
 
+/// An image size "WxH" (command-line arguments), each side within 1..=8192.
+pub fn parse_size(s: &str) -> Result<(usize, usize)> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("expected a size \"WxH\", got {s:?}"))?;
+    let w: usize = w
+        .trim()
+        .parse()
+        .with_context(|| format!("bad width {w:?}"))?;
+    let h: usize = h
+        .trim()
+        .parse()
+        .with_context(|| format!("bad height {h:?}"))?;
+    if w == 0 || h == 0 || w > 8192 || h > 8192 {
+        bail!("image size must be within 1..=8192 on each side, got {w}x{h}");
+    }
+    Ok((w, h))
+}
+
 /// Two finite numbers "A,B".
 pub fn parse_pair(s: &str) -> Result<(f64, f64)> {
     let (a, b) = s

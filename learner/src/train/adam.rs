@@ -24,7 +24,7 @@
 
 use serde_json::{json, Map, Value};
 use std::collections::BTreeMap;
-use tch::{nn, Device, Kind, Tensor};
+use tch::{nn, Tensor};
 
 /// libtorch's defaults (`AdamOptions`).
 const BETA1: f64 = 0.9;
@@ -173,14 +173,7 @@ impl Adam {
         for p in &self.params {
             let Some(m) = &p.state else { continue };
             for (suffix, t) in [("exp_avg", &m.exp_avg), ("exp_avg_sq", &m.exp_avg_sq)] {
-                let flat = t
-                    .detach()
-                    .to_device(Device::Cpu)
-                    .to_kind(Kind::Float)
-                    .contiguous()
-                    .view(-1);
-                let values = Vec::<f32>::try_from(&flat).expect("a float tensor");
-                let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+                let bytes = cabc_models::weights::f32_le_bytes(t);
                 tensors.insert(format!("{}.{suffix}", p.name), ("F32", t.size(), bytes));
             }
             let step = m.step.to_le_bytes().to_vec();
@@ -196,16 +189,7 @@ impl Adam {
                 json!({"dtype": dtype, "shape": shape, "data_offsets": [start, data.len()]}),
             );
         }
-        header.insert("__metadata__".into(), json!({ "format": FORMAT }));
-        let mut header = serde_json::to_vec(&Value::Object(header)).expect("JSON serialises");
-        while header.len() % 8 != 0 {
-            header.push(b' ');
-        }
-        let mut out = Vec::with_capacity(8 + header.len() + data.len());
-        out.extend_from_slice(&(header.len() as u64).to_le_bytes());
-        out.extend_from_slice(&header);
-        out.extend_from_slice(&data);
-        out
+        cabc_models::weights::frame(header, json!({ "format": FORMAT }), &data)
     }
 
     /// Restores what [`Adam::to_bytes`] wrote. Refuses a file that does not match these variables (unknown or missing
@@ -307,6 +291,7 @@ fn parse(bytes: &[u8]) -> Result<Raw<'_>, String> {
 mod tests {
     use super::*;
     use tch::nn::{Module, OptimizerConfig};
+    use tch::{Device, Kind};
 
     /// Two identical linear layers; one trained by tch's Adam, the other by ours.
     fn pair() -> (nn::VarStore, nn::VarStore, nn::Sequential, nn::Sequential) {
