@@ -69,6 +69,17 @@ pub fn make_certs(out: &Path, args: &[&str]) -> Result<()> {
     Ok(())
 }
 
+/// A scratch folder for one test, removed afterwards unless `CABC_KEEP_TEST_DIRS=1` (then its path is printed,
+/// so that the logs of a failed run can be read).
+pub fn test_dir() -> tempfile::TempDir {
+    let mut dir = tempfile::tempdir().expect("a temporary folder");
+    if std::env::var("CABC_KEEP_TEST_DIRS").is_ok_and(|v| v == "1") {
+        dir.disable_cleanup(true);
+        eprintln!("test folder kept: {}", dir.path().display());
+    }
+    dir
+}
+
 /// A run's child processes; all are killed on drop.
 pub struct Cluster {
     pub dir: PathBuf,
@@ -77,7 +88,8 @@ pub struct Cluster {
 }
 
 impl Cluster {
-    /// A smoke-sized run named `name` in `dir`, on its own loopback port; `extra` is appended to the TOML (sections
+    /// A smoke-sized run named `name` in `dir`, on its own loopback port, that never stops early (it runs
+    /// `max_epochs`); `extra` is appended to the TOML (sections
     /// other than run, expert, algorithm, collection, replay, networks, training and bus; `[bus.security]` is fine).
     pub fn new(dir: &Path, name: &str, max_epochs: u64, extra: &str) -> Result<Self> {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
@@ -98,7 +110,7 @@ impl Cluster {
             "[run]\nname = \"{name}\"\nexperiment = \"smoke\"\nseed = 7\nmax_epochs = {max_epochs}\nruns_dir = \"{}\"\n\n\
              [expert]\nkind = \"pid\"\n\n\
              [algorithm]\nlambda = 1.0\nrho = 1.0\nautolabel_every = 2\n\n\
-             [collection]\nsteps_per_epoch = 256\ninitial_steps = 256\neval_laps = 2\n\n\
+             [collection]\nsteps_per_epoch = 256\ninitial_steps = 256\neval_laps = 2\nearly_stop_successes = 1000\n\n\
              [replay]\ncapacity = 20000\n\n\
              [networks]\npolicy = {{ layers = 2, width = 32 }}\ndynamics = {{ layers = 2, width = 32 }}\ncritic = {{ layers = 2, width = 32 }}\n\n\
              [training]\ninitial_passes = 2\ndynamics_every = 1\ncritic_every = 2\naux_passes = 2\ncritic_min_uncertain = 4\ndevice = \"cpu\"\n\n\
@@ -239,7 +251,24 @@ impl Cluster {
         let text =
             std::fs::read_to_string(self.dir.join(format!("{label}.log"))).unwrap_or_default();
         let lines: Vec<&str> = text.lines().collect();
-        lines[lines.len().saturating_sub(30)..].join("\n")
+        let tail = lines.len().saturating_sub(30);
+        // Errors and panics from before the tail too: they are what a failing test needs to show.
+        let earlier: Vec<&str> = lines[..tail]
+            .iter()
+            .filter(|l| {
+                l.contains("ERROR") || l.contains("panicked") || l.contains("allocation of")
+            })
+            .take(20)
+            .copied()
+            .collect();
+        let mut out = String::new();
+        if !earlier.is_empty() {
+            out.push_str("[errors before the tail]\n");
+            out.push_str(&earlier.join("\n"));
+            out.push_str("\n[tail]\n");
+        }
+        out.push_str(&lines[tail..].join("\n"));
+        out
     }
 }
 
