@@ -3,12 +3,16 @@
 //! The driver (the actor binary, or a test in-process) repeats:
 //! [`Collector::queries`] → ask the expert → [`Collector::observations`] → run the policy → [`Collector::step`],
 //! publishing the segments each step completes, until the epoch's budget is spent; then [`Collector::end_epoch`].
+//! With `collection.episodes = "carry"` (the default) an episode goes on across epoch boundaries: what is staged at
+//! the end of an epoch stays staged, and its lap or failure is cut in a later epoch (with that epoch's version).
+//! With `"reset"` every epoch starts new episodes and flushes what is staged as incomplete, as the reference does.
 //! The applied action is `beta * expert + (1 - beta) * policy` when the expert solved its problem, else the
 //! policy's action (as the reference does); the stored label is always the expert's action.
 
 use crate::eyes::Eyes;
 use crate::segment::{Segmenter, SeqCounter, StepEnd};
-use cabc_proto::config::{ObservationKind, RunConfig, Spawn};
+use crate::sensor::Sensor;
+use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
@@ -45,6 +49,9 @@ pub fn make_env(max_laps: u32) -> Env {
     )
 }
 
+/// Mixed into the run seed for the sensors' random streams.
+pub(crate) const SENSOR_SEED: u64 = 0x5e_4503;
+
 fn f32s<const N: usize>(x: &[f64; N]) -> [f32; N] {
     x.map(|v| v as f32)
 }
@@ -57,7 +64,12 @@ pub struct Collector {
     stream_start: Vec<bool>,
     seq: SeqCounter,
     spawn: Spawn,
+    episodes: Episodes,
+    /// Whether the environments have started their first episodes.
+    started: bool,
     eyes: Option<Eyes>,
+    /// The noise n_k on what the policy sees (none by default).
+    sensor: Sensor,
     states: Vec<[f32; 6]>,
     /// The images of the last [`Collector::observations`], moved into the steps by [`Collector::step`].
     images: Vec<Image>,
@@ -91,7 +103,14 @@ impl Collector {
             stream_start: vec![true; k],
             seq: SeqCounter::default(),
             spawn: config.collection.spawn,
+            episodes: config.collection.episodes,
+            started: false,
             eyes,
+            // Its own stream, after the environments' (actor k's envs use streams k*K .. k*K+K-1).
+            sensor: Sensor::new(
+                &config.observation,
+                Env::rng(config.run.seed ^ SENSOR_SEED, index),
+            ),
             states: Vec::with_capacity(k),
             images: Vec::with_capacity(k),
             before: Vec::with_capacity(k),
@@ -130,11 +149,20 @@ impl Collector {
         self.taken
     }
 
-    /// Starts an epoch: every environment starts a new episode (the reference resets at each epoch).
+    /// Steps staged in all environments (taken, not yet in a segment).
+    pub fn staged(&self) -> u64 {
+        self.segmenters.iter().map(|s| s.staged() as u64).sum()
+    }
+
+    /// Starts an epoch. The first epoch starts every environment's episode; later ones go on with them, unless
+    /// episodes are reset at each epoch (the reference).
     pub fn begin_epoch(&mut self) {
         self.taken = 0;
-        for i in 0..self.envs.len() {
-            self.reset(i);
+        if !self.started || self.episodes == Episodes::Reset {
+            for i in 0..self.envs.len() {
+                self.reset(i);
+            }
+            self.started = true;
         }
     }
 
@@ -168,14 +196,16 @@ impl Collector {
             .collect()
     }
 
-    /// Observations of the first `active` environments (images rendered when the run observes images).
+    /// Observations of the first `active` environments (images rendered when the run observes images), with the
+    /// sensor's noise.
     pub fn observations(&mut self, active: usize) -> Observations<'_> {
         self.states.clear();
         self.images.clear();
         for env in &self.envs.envs()[..active] {
-            self.states.push(f32s(&env.observation().state));
+            self.states
+                .push(self.sensor.state(f32s(&env.observation().state)));
             if let Some(eyes) = &mut self.eyes {
-                self.images.push(eyes.see(env));
+                self.images.push(self.sensor.image(eyes.see(env)));
             }
         }
         Observations {
@@ -245,10 +275,13 @@ impl Collector {
         }
     }
 
-    /// The budget is spent: flush every environment's staged steps as incomplete.
+    /// The budget is spent. Episodes reset at each epoch: every environment's staged steps are flushed as
+    /// incomplete. Episodes carried: they stay staged for the next epoch.
     pub fn end_epoch(&mut self, version: u64, out: &mut Vec<Segment>) {
-        for s in &mut self.segmenters {
-            s.finish(version, &mut self.seq, out);
+        if self.episodes == Episodes::Reset {
+            for s in &mut self.segmenters {
+                s.finish(version, &mut self.seq, out);
+            }
         }
     }
 }

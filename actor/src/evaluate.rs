@@ -3,6 +3,7 @@
 
 use crate::collect::{end_reason, make_env, Observations};
 use crate::eyes::Eyes;
+use crate::sensor::Sensor;
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, EvalReport};
 use cabc_sim::env::{Env, Spawn};
@@ -24,14 +25,25 @@ pub fn evaluate(
     env.reset(Spawn::Fixed, &mut rng);
     let mut eyes = (config.observation.kind == ObservationKind::Camera)
         .then(|| Eyes::new(&config.observation));
+    // The sensor's noise, from a stream of its own per version.
+    let mut sensor = Sensor::new(
+        &config.observation,
+        Env::rng(
+            config.run.seed ^ crate::collect::SENSOR_SEED ^ 0xe7a1,
+            version,
+        ),
+    );
     let mut line: Vec<[f32; 2]> = Vec::new();
     let max_steps = STEPS_PER_LAP_LIMIT * laps_wanted.max(1) as u64;
     let mut steps = 0u64;
     let end_reason = loop {
         let obs = env.observation();
         line.push([obs.pose[0] as f32, obs.pose[1] as f32]);
-        let state = [obs.state.map(|v| v as f32)];
-        let images: Vec<_> = eyes.as_mut().map(|e| vec![e.see(&env)]).unwrap_or_default();
+        let state = [sensor.state(obs.state.map(|v| v as f32))];
+        let images: Vec<_> = eyes
+            .as_mut()
+            .map(|e| vec![sensor.image(e.see(&env))])
+            .unwrap_or_default();
         let action = act(&Observations {
             states: &state,
             images: &images,

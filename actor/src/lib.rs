@@ -9,3 +9,4 @@ pub mod eyes;
 pub mod local;
 pub mod run;
 pub mod segment;
+pub mod sensor;

@@ -59,13 +59,19 @@ impl PolicySource for Current {
 struct Store<'a> {
     store: &'a mut dyn FnMut(Segment),
     steps_published: u64,
+    steps_taken: u64,
+    steps_staged: u64,
 }
 
 impl SegmentSink for Store<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         match message {
             TrajMessage::Segment(segment) => (self.store)(segment),
-            TrajMessage::EpochDone(done) => self.steps_published += done.steps,
+            TrajMessage::EpochDone(done) => {
+                self.steps_published += done.steps;
+                self.steps_taken += done.taken;
+                self.steps_staged += done.staged;
+            }
         }
         Ok(())
     }
@@ -82,6 +88,8 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
         let mut sink = Store {
             store,
             steps_published: 0,
+            steps_taken: 0,
+            steps_staged: 0,
         };
         for collector in &mut self.collectors {
             collect_epoch(
@@ -103,6 +111,8 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
         }
         Ok(Some(Collected {
             steps_published: sink.steps_published,
+            steps_taken: sink.steps_taken,
+            steps_staged: sink.steps_staged,
             timed_out: false,
             missing: Vec::new(),
             live: self

@@ -196,6 +196,8 @@ pub fn collect_epoch(
         published_unix_ms: update.published_unix_ms,
         segments: collector.segments_cut() - first_seq,
         steps: published,
+        taken: collector.taken(),
+        staged: collector.staged(),
     }))?;
     Ok((published, interrupted))
 }

@@ -1,19 +1,20 @@
 //! The collector end to end without a bus: the PID lane follower answers as the expert, a fixed function stands in
 //! for the policy, and the segments of three epochs must come out exactly as they did before the collector stepped
-//! `sim::EnvBatch` (a digest of every number of every segment).
+//! `sim::EnvBatch` (a digest of every number of every segment; recorded with episodes reset at each epoch). With
+//! episodes carried across epochs, a lap longer than an epoch's budget lands in D+ whole.
 
 use cabc_actor::collect::Collector;
-use cabc_proto::config::{ObservationKind, RunConfig};
+use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{ExpertAnswer, Outcome, Segment};
 use cabc_sim::pid::PidLaneFollower;
 use std::hash::{Hash, Hasher};
 
-fn answer(n: usize, frenet: &[f64; 6]) -> ExpertAnswer {
+/// The PID's answer to query `n`; every `fail_every`th query fails (expert-failure segments and patience).
+fn answer(n: usize, fail_every: usize, frenet: &[f64; 6]) -> ExpertAnswer {
     let u = PidLaneFollower::new(1.2).action(frenet[0], frenet[4], frenet[5]);
     ExpertAnswer {
         action: u,
-        // Every 37th query fails, so expert-failure segments and patience are exercised too.
-        success: n % 37 != 36,
+        success: n % fail_every != fail_every - 1,
         status: String::new(),
         iterations: 0,
         solve_time_us: 0,
@@ -22,9 +23,21 @@ fn answer(n: usize, frenet: &[f64; 6]) -> ExpertAnswer {
 
 /// Collects three epochs and returns the segments.
 fn collect(config: &RunConfig, budget: u64) -> Vec<Segment> {
+    collect_epochs(config, budget, 3, 0.6, 37).0
+}
+
+/// Collects `epochs` epochs of `budget` steps under the mixture `beta`, every `fail_every`th expert query failing;
+/// returns the segments and the steps still staged at the end.
+fn collect_epochs(
+    config: &RunConfig,
+    budget: u64,
+    epochs: u64,
+    beta: f64,
+    fail_every: usize,
+) -> (Vec<Segment>, u64) {
     let mut collector = Collector::new("golden", 1, config);
     let (mut out, mut n) = (Vec::new(), 0usize);
-    for version in 0..3u64 {
+    for version in 0..epochs {
         collector.begin_epoch();
         while collector.taken() < budget {
             let active = collector.active(budget);
@@ -33,7 +46,7 @@ fn collect(config: &RunConfig, budget: u64) -> Vec<Segment> {
                 .iter()
                 .map(|q| {
                     n += 1;
-                    answer(n, &q.frenet)
+                    answer(n, fail_every, &q.frenet)
                 })
                 .collect();
             let input = collector.observations(active);
@@ -48,11 +61,19 @@ fn collect(config: &RunConfig, budget: u64) -> Vec<Segment> {
                     ]
                 })
                 .collect();
-            collector.step(&answers, &policy, 0.6, version, &mut out);
+            collector.step(&answers, &policy, beta, version, &mut out);
         }
         collector.end_epoch(version, &mut out);
     }
-    out
+    let staged = collector.staged();
+    (out, staged)
+}
+
+/// The smoke configuration with the reference's collection (the digests were recorded with it).
+fn reference(name: &str) -> RunConfig {
+    let mut config = RunConfig::load(name).unwrap();
+    config.collection.episodes = Episodes::Reset;
+    config
 }
 
 /// A hash of every number of every segment. std's hasher is deterministic but may change with the toolchain: if a
@@ -68,7 +89,7 @@ fn digest(segments: &[Segment]) -> u64 {
 
 #[test]
 fn state_collection_is_unchanged() {
-    let config = RunConfig::load("smoke").unwrap();
+    let config = reference("smoke");
     let segments = collect(&config, 1500);
     let steps: usize = segments.iter().map(|s| s.steps.len()).sum();
     assert_eq!(steps, 4500);
@@ -84,7 +105,7 @@ fn state_collection_is_unchanged() {
 
 #[test]
 fn camera_collection_is_unchanged() {
-    let mut config = RunConfig::load("smoke").unwrap();
+    let mut config = reference("smoke");
     config.observation.kind = ObservationKind::Camera;
     (config.observation.width, config.observation.height) = (16, 12);
     let segments = collect(&config, 301);
@@ -98,4 +119,56 @@ fn camera_collection_is_unchanged() {
         "{} segments",
         segments.len()
     );
+}
+
+/// One environment, 64 steps an epoch, the expert driving from the fixed spawn: a PID lap takes about 180 steps,
+/// so with episodes reset at each epoch no lap ever completes; carried across epochs, the first lap lands whole
+/// (from the spawn round to the start line, every step of it) and nothing is lost at the boundaries.
+#[test]
+fn an_episode_crosses_epoch_boundaries_and_its_lap_lands_whole() {
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.actors.envs_per_actor = 1;
+    config.collection.spawn = Spawn::Fixed;
+    config.expert.patience = 1000;
+    let (budget, epochs) = (64, 8);
+
+    config.collection.episodes = Episodes::Carry;
+    let (segments, staged) = collect_epochs(&config, budget, epochs, 1.0, usize::MAX);
+    let steps: u64 = segments.iter().map(|s| s.steps.len() as u64).sum();
+    assert_eq!(steps + staged, budget * epochs, "a step was lost");
+    assert!(segments.iter().all(|s| s.outcome != Outcome::Incomplete));
+    let lap = segments
+        .iter()
+        .find(|s| s.outcome == Outcome::Lap)
+        .expect("a lap in 512 steps of the expert");
+    assert!(
+        lap.steps.len() as u64 > 2 * budget,
+        "{} steps",
+        lap.steps.len()
+    );
+    // Whole: the lap's steps follow one another, from the spawn to the start line.
+    let length = cabc_sim::track::Track::l_track_barc().length() as f32;
+    let first = &lap.steps[0];
+    assert!(first.state[3] < 0.2, "starts at s = {}", first.state[3]);
+    for pair in lap.steps.windows(2) {
+        assert_eq!(pair[0].next_state, pair[1].state, "a gap in the lap");
+    }
+    let last = lap.steps.last().unwrap();
+    assert!(
+        last.state[3] > 0.9 * length,
+        "ends at s = {} of {length}",
+        last.state[3]
+    );
+    // Its episode ran across epochs: the steps of versions before the lap's cut are in it.
+    assert!(
+        lap.policy_version >= 2,
+        "cut at version {}",
+        lap.policy_version
+    );
+
+    config.collection.episodes = Episodes::Reset;
+    let (segments, staged) = collect_epochs(&config, budget, epochs, 1.0, usize::MAX);
+    assert_eq!(staged, 0);
+    assert!(segments.iter().all(|s| s.outcome != Outcome::Lap));
+    assert!(segments.iter().all(|s| s.steps.len() as u64 <= budget));
 }

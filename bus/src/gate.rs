@@ -130,6 +130,8 @@ mod tests {
             published_unix_ms: 0,
             segments: 1,
             steps: 10,
+            taken: 10,
+            staged: 0,
         }
     }
 

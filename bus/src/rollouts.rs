@@ -309,6 +309,8 @@ impl Rollouts for ZenohActors {
         };
         Ok(Some(Collected {
             steps_published: gate.markers().map(|m| m.steps).sum(),
+            steps_taken: gate.markers().map(|m| m.taken).sum(),
+            steps_staged: gate.markers().map(|m| m.staged).sum(),
             missing,
             timed_out,
             live: self.live.iter().cloned().collect(),
@@ -373,6 +375,8 @@ mod tests {
             published_unix_ms: 0,
             segments: 0,
             steps: 0,
+            taken: 0,
+            staged: 0,
         })
     }
 

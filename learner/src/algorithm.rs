@@ -28,7 +28,7 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j).
         let update = learner.policy_update(j);
         // Rollout pi_collect to collect D_new.
-        let before = learner.counts();
+        let before = learner.begin_epoch();
         let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))?
         else {
             return Ok(Ending::Interrupted);

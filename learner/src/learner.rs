@@ -58,6 +58,8 @@ pub struct Learner {
     last_eval: Option<EvalReport>,
     expert_streams: HashSet<(String, u32, u64)>,
     failed_segments: u64,
+    /// Steps in incomplete segments since the last [`Learner::counts`].
+    incomplete_steps: u64,
     /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
     published: Option<u64>,
     /// Evaluation reports refused (a version not published yet).
@@ -129,6 +131,7 @@ impl Learner {
             last_eval: None,
             expert_streams: HashSet::new(),
             failed_segments: 0,
+            incomplete_steps: 0,
             published: None,
             refused_evals: 0,
             bar,
@@ -154,8 +157,10 @@ impl Learner {
         }
     }
 
-    /// Stored steps and segments so far (an epoch's row reports the difference).
-    pub fn counts(&self) -> (u64, u64) {
+    /// Starts an epoch's bookkeeping: returns the stored steps and segments so far (the epoch's row reports the
+    /// difference) and zeroes the epoch's count of incomplete steps.
+    pub fn begin_epoch(&mut self) -> (u64, u64) {
+        self.incomplete_steps = 0;
         (
             self.state.ledger.stored_steps,
             self.state.ledger.stored_segments,
@@ -196,6 +201,9 @@ impl Learner {
         });
         for segment in d_new {
             self.expert_lap_time(&segment);
+            if segment.outcome == Outcome::Incomplete {
+                self.incomplete_steps += segment.steps.len() as u64;
+            }
             if let Err(e) = self.replay.add_segment(&segment) {
                 self.failed_segments += 1;
                 tracing::warn!(
@@ -305,6 +313,9 @@ impl Learner {
             steps_collected: self.state.ledger.stored_steps - steps_before,
             steps_published: collected.steps_published,
             segments: self.state.ledger.stored_segments - segments_before,
+            steps_taken: collected.steps_taken,
+            steps_staged: collected.steps_staged,
+            incomplete_steps: self.incomplete_steps,
             d_plus: self.replay.len_plus(),
             d_uncertain: self.replay.len_uncertain(),
             d_minus: self.replay.len_minus(),

@@ -42,6 +42,12 @@ pub struct EpochRow {
     /// Steps the actors said they published for this epoch (their markers).
     pub steps_published: u64,
     pub segments: u64,
+    /// Steps the actors took in the epoch (their markers): the epoch's budget when every actor finished its share.
+    pub steps_taken: u64,
+    /// Steps the actors had taken but still staged at the end of the epoch (unfinished laps carried on).
+    pub steps_staged: u64,
+    /// Steps stored this epoch in incomplete segments (cut by the budget: dynamics only, never labelled).
+    pub incomplete_steps: u64,
     pub d_plus: usize,
     pub d_uncertain: usize,
     /// D-: what the last auto-labelling left in D? (the critic's negatives), held until the next labelling.
@@ -65,19 +71,23 @@ pub struct EpochRow {
     pub eval_laps: Option<u32>,
 }
 
-const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
+const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,steps_taken,steps_staged,incomplete_steps,incomplete_share,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
 
 impl EpochRow {
     fn csv(&self) -> String {
         let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
         let optf = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         format!(
-            "{},{:.6},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
             self.epoch,
             self.beta,
             self.steps_collected,
             self.steps_published,
             self.segments,
+            self.steps_taken,
+            self.steps_staged,
+            self.incomplete_steps,
+            self.incomplete_steps as f64 / self.steps_collected.max(1) as f64,
             self.d_plus,
             self.d_uncertain,
             self.d_minus,

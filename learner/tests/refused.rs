@@ -109,7 +109,7 @@ fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
     learner.store(segment(0, vec![step(image(2, 1, 6))]));
     learner.store(segment(0, vec![step(None)]));
     learner.partition();
-    assert_eq!(learner.counts(), (1, 1));
+    assert_eq!(learner.begin_epoch(), (1, 1));
     let summary = learner.finish("test", true, 0).unwrap();
     assert_eq!(summary["segments_not_stored"], 1, "{summary}");
     assert_eq!(summary["refused_evals"], 3, "{summary}");

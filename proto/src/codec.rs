@@ -12,7 +12,7 @@ use serde::{de::DeserializeOwned, Serialize};
 /// The first four bytes of every payload.
 pub const MAGIC: [u8; 4] = *b"CABC";
 /// Bumped whenever a message changes shape.
-pub const SCHEMA_VERSION: u16 = 2;
+pub const SCHEMA_VERSION: u16 = 3;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 7;
 /// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
@@ -317,6 +317,8 @@ mod tests {
             published_unix_ms: 5,
             segments: 4,
             steps: 1024,
+            taken: 1030,
+            staged: 17,
         }));
         round_trip(PolicyUpdate {
             version: 9,

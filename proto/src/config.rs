@@ -74,6 +74,19 @@ impl std::str::FromStr for Spawn {
     }
 }
 
+/// What an epoch boundary does to the actors' episodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Episodes {
+    /// Episodes go on across epoch boundaries (the mixture changes at the boundary; the labels are the expert's
+    /// either way), so an episode's length does not depend on how many actors and environments share the epoch's
+    /// budget, and a lap started before a boundary lands in D+ whole once it completes.
+    Carry,
+    /// The reference's collection: every environment starts a new episode at each epoch, and what is staged when
+    /// the budget runs out is flushed as incomplete (dynamics only, never labelled).
+    Reset,
+}
+
 /// When the dynamics model and the critic train.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -150,6 +163,11 @@ pub struct ObservationSection {
     /// Horizontal field of view in degrees.
     pub fov_deg: f64,
     pub trunk: VisionTrunk,
+    /// Sensor noise n_k (the paper's output equation), standard deviation per state dimension [v_long, v_tran,
+    /// omega, s, x_tran, e_psi] of what the policy sees; zeros (the default) for none.
+    pub state_noise_std: [f64; 6],
+    /// Sensor noise on the camera image: standard deviation per channel, in intensity units (0..255); 0 for none.
+    pub pixel_noise_std: f64,
 }
 
 impl Default for ObservationSection {
@@ -160,6 +178,8 @@ impl Default for ObservationSection {
             height: 224,
             fov_deg: 110.0,
             trunk: VisionTrunk::Resnet18,
+            state_noise_std: [0.0; 6],
+            pixel_noise_std: 0.0,
         }
     }
 }
@@ -205,6 +225,8 @@ pub struct CollectionSection {
     /// Environment steps in epoch 0 (reference `initial_traj_len`).
     pub initial_steps: u64,
     pub spawn: Spawn,
+    /// Whether episodes go on across epoch boundaries.
+    pub episodes: Episodes,
     /// Maximum laps of an episode (the env truncates after it).
     pub max_laps: u32,
     /// Evaluation: laps a policy must complete from the fixed spawn.
@@ -219,6 +241,7 @@ impl Default for CollectionSection {
             steps_per_epoch: 1024,
             initial_steps: 1024,
             spawn: Spawn::Random,
+            episodes: Episodes::Carry,
             max_laps: 50,
             eval_laps: 50,
             early_stop_successes: 2,
@@ -411,6 +434,12 @@ pub const PRESETS: &[(&str, &str)] = &[
     ("v-b", include_str!("../../deploy/configs/v-b.toml")),
     ("v-c", include_str!("../../deploy/configs/v-c.toml")),
     ("smoke", include_str!("../../deploy/configs/smoke.toml")),
+    ("v-a-cpu", include_str!("../../deploy/configs/v-a-cpu.toml")),
+    ("v-c-cpu", include_str!("../../deploy/configs/v-c-cpu.toml")),
+    (
+        "smoke-camera",
+        include_str!("../../deploy/configs/smoke-camera.toml"),
+    ),
 ];
 
 impl RunConfig {
@@ -425,7 +454,8 @@ impl RunConfig {
         Ok(config)
     }
 
-    /// A preset name (`v-a`, `v-b`, `v-c`, `smoke`) or a path to a TOML file.
+    /// A preset name ([`PRESETS`]: `v-a`, `v-b`, `v-c`, `smoke`, `v-a-cpu`, `v-c-cpu`, `smoke-camera`) or a path to a
+    /// TOML file.
     pub fn load(name_or_path: &str) -> Result<Self, ConfigError> {
         if let Some((name, text)) = PRESETS.iter().find(|(n, _)| *n == name_or_path) {
             return Self::from_toml(text, &format!("preset {name}"));
@@ -547,6 +577,19 @@ impl RunConfig {
                 "observation.width/height",
                 format!("{}x{}", self.observation.width, self.observation.height),
                 "images must be at least 16x16",
+            );
+        }
+        let noise = &self.observation;
+        if !noise
+            .state_noise_std
+            .iter()
+            .chain([&noise.pixel_noise_std])
+            .all(|s| s.is_finite() && *s >= 0.0)
+        {
+            return invalid(
+                "observation.state_noise_std / pixel_noise_std",
+                format!("{:?} / {}", noise.state_noise_std, noise.pixel_noise_std),
+                "standard deviations must be finite and >= 0",
             );
         }
         if self.bus.listen.is_empty() || self.bus.connect.is_empty() {

@@ -129,6 +129,11 @@ pub struct EpochDone {
     /// Segments and steps the actor published for this version, so the learner can check that none was lost.
     pub segments: u64,
     pub steps: u64,
+    /// Steps the actor took with this version (its share of the budget, unless a newer version interrupted it).
+    pub taken: u64,
+    /// Steps taken but still staged when the actor was done with this version (an unfinished lap, carried into the
+    /// next epoch's segments when episodes go on across epochs).
+    pub staged: u64,
 }
 
 /// What an actor publishes on `traj/<actor>`.

@@ -57,6 +57,11 @@ pub trait EvalSink {
 pub struct Collected {
     /// Steps the actors said they published with this version (their markers).
     pub steps_published: u64,
+    /// Steps the actors took with this version (their markers).
+    pub steps_taken: u64,
+    /// Steps the actors had taken but still staged when they were done (their markers): unfinished laps that later
+    /// epochs' segments carry.
+    pub steps_staged: u64,
     /// Whether the timeout closed the epoch (an actor missing or not yet seen).
     pub timed_out: bool,
     /// Actors alive when the epoch closed that had not said they were done.

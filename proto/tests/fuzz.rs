@@ -165,6 +165,8 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 published_unix_ms: 0,
                 segments: 4,
                 steps: 1024,
+                taken: 1024,
+                staged: 0,
             })),
         ),
         (

@@ -33,7 +33,7 @@ fn every_binary_answers_help_and_version() {
 
 #[test]
 fn a_bad_configuration_is_refused_with_key_and_line() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = cabc_tests::test_dir();
     let path = dir.path().join("bad.toml");
     std::fs::write(&path, "[run]\nname = \"x\"\n\n[algorithm]\nlamda = 2.0\n").unwrap();
     let path = path.display().to_string();

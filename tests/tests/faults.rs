@@ -54,7 +54,7 @@ fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Valu
 /// actor's segments are stored (a new incarnation, not duplicates of its first life's), and the run loses nothing.
 #[test]
 fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "restart", 8, "").unwrap();
     cluster.start_all(2, false).unwrap();
     let config = cluster.config.display().to_string();
@@ -90,7 +90,7 @@ fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
     );
     assert!(unequal.len() <= 1, "{stored:?} vs {published:?}");
     assert_eq!(
-        &published[6..],
+        &csv_column(&metrics, "steps_taken")[6..],
         &[256, 256],
         "both actors publish their share at the end"
     );
@@ -102,7 +102,7 @@ fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
 /// epoch in the run's record stores what the actors published for it.
 #[test]
 fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "resume", 10, "").unwrap();
     cluster.start_all(2, false).unwrap();
     let config = cluster.config.display().to_string();
@@ -137,9 +137,10 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
         stored.iter().zip(&published).all(|(s, p)| s >= p),
         "{stored:?} vs {published:?}"
     );
+    let taken = csv_column(&metrics, "steps_taken");
     assert!(
-        published.iter().all(|&p| p == 256),
-        "every epoch closed with both actors' markers: {published:?}"
+        taken.iter().all(|&t| t == 256),
+        "every epoch closed with both actors' markers: {taken:?}"
     );
     println!(
         "faults: learner killed (SIGKILL) after {checkpointed} recorded epochs and resumed with actors up; \
@@ -150,7 +151,7 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
 /// `--resume` on a run folder without a checkpoint refuses instead of starting a fresh run.
 #[test]
 fn resume_without_a_checkpoint_refuses() {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "nothing", 2, "").unwrap();
     let config = cluster.config.display().to_string();
     let run_dir = cluster.dir.display().to_string();
@@ -180,7 +181,7 @@ fn resume_without_a_checkpoint_refuses() {
 /// run still ends with every recorded epoch holding what the actors published for it.
 #[test]
 fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "kills", 14, "").unwrap();
     cluster.start_all(2, false).unwrap();
     let config = cluster.config.display().to_string();
@@ -223,7 +224,8 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
         stored.iter().zip(&published).all(|(s, p)| s >= p),
         "{stored:?} vs {published:?}"
     );
-    assert!(published.iter().all(|&p| p == 256), "{published:?}");
+    let taken = csv_column(&metrics, "steps_taken");
+    assert!(taken.iter().all(|&t| t == 256), "{taken:?}");
     println!(
         "faults: learner killed 5 times (SIGKILL), {during_commit} of them during a checkpoint commit; \
          stored {stored:?}, published {published:?}"
@@ -235,7 +237,7 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
 /// checkpoint with the actors still up, and the run ends with nothing lost.
 #[test]
 fn the_learner_killed_during_a_checkpoint_resumes_from_the_previous_one() {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "commit", 8, "").unwrap();
     let config = cluster.config.display().to_string();
     let run_dir = cluster.dir.display().to_string();
@@ -284,7 +286,8 @@ fn the_learner_killed_during_a_checkpoint_resumes_from_the_previous_one() {
         stored.iter().zip(&published).all(|(s, p)| s >= p),
         "{stored:?} vs {published:?}"
     );
-    assert!(published.iter().all(|&p| p == 256), "{published:?}");
+    let taken = csv_column(&metrics, "steps_taken");
+    assert!(taken.iter().all(|&t| t == 256), "{taken:?}");
     assert!(
         !cluster.dir.join("checkpoint.old").exists(),
         "the next commit clears it"

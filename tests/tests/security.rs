@@ -63,9 +63,10 @@ fn check_run(cluster: &mut Cluster, epochs: u64) -> serde_json::Value {
     let metrics = cluster.dir.join("metrics.csv");
     let stored = csv_column(&metrics, "steps_collected");
     assert_eq!(stored, csv_column(&metrics, "steps_published"));
+    let taken = csv_column(&metrics, "steps_taken");
     assert!(
-        stored.iter().all(|s| s.parse::<u64>().unwrap() >= 256),
-        "{stored:?}"
+        taken.iter().all(|s| s.parse::<u64>().unwrap() >= 256),
+        "{taken:?}"
     );
     let timeouts = csv_column(&metrics, "closed_by_timeout");
     assert!(timeouts.iter().all(|t| t == "false"), "{timeouts:?}");
@@ -197,6 +198,8 @@ fn forgeries(keys: &Keys, per_kind: u64) -> Vec<(String, Vec<u8>)> {
             published_unix_ms: 0,
             segments: 1,
             steps: FORGED + i,
+            taken: FORGED + i,
+            staged: 0,
         });
         out.push((keys.traj("actor-1"), encode(&done)));
     }
@@ -222,7 +225,7 @@ fn client(config: &Path, component: &str, no_cert: bool) -> zenoh::Config {
 #[test]
 fn an_mtls_run_completes_and_refuses_forged_messages() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     make_certs(&tmp.path().join("certs"), &["--actors", "2", "--observer"]).unwrap();
     let endpoint = format!("tls/127.0.0.1:{}", free_port());
     // Long enough to be running still when the forger is done (about 8 s; an epoch takes 0.25 s here).
@@ -358,7 +361,7 @@ fn actors_in_another_network_namespace_join_over_tls() {
             return;
         }
     };
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     make_certs(
         &tmp.path().join("certs"),
         &["--host", SERVER_IP, "--actors", "2"],
@@ -390,7 +393,7 @@ fn actors_in_another_network_namespace_join_over_tls() {
 #[ignore = "zenoh 1.10.2 usrpwd: the router intermittently aborts while refusing wrong logins (see the doc)"]
 fn a_password_run_completes_and_refuses_wrong_passwords() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = cabc_tests::test_dir();
     let certs = tmp.path().join("certs");
     make_certs(&certs, &["--actors", "2", "--passwords"]).unwrap();
     let endpoint = format!("tls/127.0.0.1:{}", free_port());
