@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # README command 1: a local multi-process training run on loopback.
 #
-#   deploy/run-local.sh [--baseline] [--resume|--fresh] [PRESET|CONFIG.toml] [-- extra learner args]
+#   deploy/run-local.sh [--baseline] [--resume|--fresh] [--set KEY=VALUE ...] [PRESET|CONFIG.toml] [-- extra learner args]
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
 # eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
 # Default preset: v-b (MPCC expert, full state, lambda 10, rho 1). --baseline runs the same with lambda = 0.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
+# --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -14,12 +15,14 @@ cd "$root"
 config=v-b
 baseline=0
 learner_args=()
+sets=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --baseline) baseline=1 ;;
     --resume) learner_args+=(--resume) ;;
     --fresh) learner_args+=(--fresh) ;;
-    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+    --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
+    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
@@ -38,12 +41,13 @@ done
 extra=()
 [ "$baseline" = 1 ] && extra+=(--baseline)
 # The learner resolves the configuration (preset or file), writes it into the run folder and prints the folder.
-run_dir=$("$bin/learner" prepare --config "$config" "${extra[@]}")
+run_dir=$("$bin/learner" prepare --config "$config" "${extra[@]}" "${sets[@]}")
 cfg="$run_dir/config.toml"
 logs="$run_dir/logs"
 mkdir -p "$logs"
 actors=$("$bin/learner" show --config "$cfg" actors.count)
-echo "[run-local] run folder $run_dir; $actors actors + 1 eval actor; logs in $logs" >&2
+evaluators=$("$bin/learner" show --config "$cfg" actors.evaluators)
+echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s); logs in $logs" >&2
 
 pids=()
 cleanup() {
@@ -67,8 +71,16 @@ for i in $(seq 0 $((actors - 1))); do
   "$bin/actor" --config "$cfg" --id "actor-$i" 2> "$logs/actor-$i.log" &
   pids+=($!)
 done
-"$bin/actor" --config "$cfg" --id eval --eval 2> "$logs/eval.log" &
-pids+=($!)
+if [ "$evaluators" = 1 ]; then
+  "$bin/actor" --config "$cfg" --id eval --eval 2> "$logs/eval.log" &
+  pids+=($!)
+else
+  # Evaluator i evaluates the versions v with v mod evaluators = i.
+  for i in $(seq 0 $((evaluators - 1))); do
+    "$bin/actor" --config "$cfg" --id "eval-$i" --eval 2> "$logs/eval-$i.log" &
+    pids+=($!)
+  done
+fi
 
 status=0
 wait "$learner_pid" || status=$?

@@ -8,7 +8,9 @@ use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
 use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::ports::{SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments};
+use cabc_bus::ports::{
+    Shard, SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments,
+};
 use cabc_bus::{Bus, Role};
 use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::RunConfig;
@@ -55,12 +57,30 @@ fn main() -> Result<()> {
     tch::set_num_threads(1);
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
+    let shard = cli.eval.then(|| Shard {
+        index: cli.index.unwrap_or_else(|| trailing_number(&cli.id)),
+        count: config.actors.evaluators as u64,
+    });
+    if let Some(shard) = shard.filter(|s| s.index >= s.count) {
+        anyhow::bail!(
+            "evaluator {} has index {} but the run has actors.evaluators = {}: use ids eval-0 .. eval-{} (or --index)",
+            cli.id,
+            shard.index,
+            shard.count,
+            shard.count - 1
+        );
+    }
     let role = if cli.eval { "eval" } else { "actor" };
     let component = format!("{role}/{}", cli.id);
     let bus = Bus::join(&config.bus, Role::Connect, keys, &component).context("joining the bus")?;
     tracing::info!(component, run = config.run.name, "actor started");
     let stats = SharedStats::default();
-    let mut source = ZenohPolicySource::new(&bus, &interrupt, stats.clone())?;
+    let source = ZenohPolicySource::new(&bus, &interrupt, stats.clone())?;
+    // An evaluator takes every version of its shard in order; a collector skips to the newest.
+    let mut source = match shard {
+        Some(shard) => source.every_version(shard),
+        None => source,
+    };
     let check = PolicyCheck::new(PolicyArch::from_config(&config));
     let mut last = None;
     let mut after_epoch = |update: &PolicyUpdate, actor: &ActorStats| {
@@ -68,7 +88,11 @@ fn main() -> Result<()> {
         bus.metrics_blocking(&value.to_string());
         last = Some(value);
     };
-    if cli.eval {
+    if let Some(shard) = shard {
+        tracing::info!(
+            ?shard,
+            "evaluating every version v with v mod count = index"
+        );
         let mut sink = ZenohEvals::new(&bus, &cli.id);
         run_evaluator(
             &cli.id,
@@ -141,6 +165,7 @@ fn metrics(
         "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
         "segments_lost": wire.segments_lost,
+        "versions_skipped": wire.versions_skipped,
         "refused_policies": actor.refused_policies,
     })
 }

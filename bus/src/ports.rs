@@ -1,7 +1,8 @@
 //! The actor's ports of Algorithm 1 over zenoh (blocking; no async runtime in the caller):
 //!
 //! * [`ZenohPolicySource`]: the learner's latest version on start (its queryable), then `policy` updates, and
-//!   `control` stops;
+//!   `control` stops; a collector skips to the newest version, an evaluator ([`ZenohPolicySource::every_version`])
+//!   takes every version of its shard in order;
 //! * [`ZenohExpert`]: a batch query on `expert/<kind>`, waiting and retrying while no server answers;
 //! * [`ZenohSegments`], [`ZenohEvals`]: reliable puts on `traj/<id>` and `eval/<id>`.
 //!
@@ -40,6 +41,8 @@ pub struct WireStats {
     pub policy_latency_ms: Vec<f64>,
     /// Segments and markers not sent because the actor was interrupted while no router was up.
     pub segments_lost: u64,
+    /// Versions an evaluator dropped unevaluated because it fell too far behind ([`MAX_PENDING_BYTES`]).
+    pub versions_skipped: u64,
 }
 
 /// Shared between the ports and the metrics.
@@ -94,6 +97,27 @@ fn identity(update: &PolicyUpdate) -> (u64, u64) {
     (update.version, update.published_unix_ms)
 }
 
+/// The evaluators' share of the versions: evaluator `index` of `count` evaluates the versions v with
+/// v mod count = index (explicit, so that several evaluators keep up with a slow evaluation between them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u64,
+    pub count: u64,
+}
+
+impl Shard {
+    pub fn owns(&self, version: u64) -> bool {
+        version % self.count.max(1) == self.index
+    }
+}
+
+/// How far back an evaluator asks for versions it missed.
+pub const MAX_GAP: u64 = 64;
+
+/// The weights an evaluator holds at most for versions it has not evaluated yet; past it, the oldest are dropped
+/// (logged and counted in `versions_skipped`).
+pub const MAX_PENDING_BYTES: usize = 256 << 20;
+
 /// The learner's policy versions, over zenoh.
 pub struct ZenohPolicySource<'a> {
     bus: &'a Bus,
@@ -103,6 +127,14 @@ pub struct ZenohPolicySource<'a> {
     current: Option<(u64, u64)>,
     last_query: Option<Instant>,
     stats: SharedStats,
+    /// An evaluator's shard: every version of it, in order, none skipped but by [`MAX_PENDING_BYTES`].
+    every: Option<Shard>,
+    /// An evaluator's versions not handed out yet.
+    pending: std::collections::BTreeMap<u64, PolicyUpdate>,
+    /// The last version an evaluator handed out.
+    last_version: Option<u64>,
+    /// The versions of its shard an evaluator asked the learner for (each once).
+    asked: Option<u64>,
 }
 
 impl<'a> ZenohPolicySource<'a> {
@@ -119,16 +151,120 @@ impl<'a> ZenohPolicySource<'a> {
             current: None,
             last_query: None,
             stats,
+            every: None,
+            pending: Default::default(),
+            last_version: None,
+            asked: None,
         })
+    }
+
+    /// An evaluator's source: every version of `shard`, oldest first, each once (a version published again by a
+    /// resumed learner is not evaluated twice), instead of skipping to the newest.
+    pub fn every_version(mut self, shard: Shard) -> Self {
+        self.every = Some(shard);
+        self
+    }
+
+    /// Keeps an update for an evaluator, if it is of its shard and newer than what it handed out.
+    fn keep(&mut self, update: PolicyUpdate, shard: Shard) {
+        let version = update.version;
+        if !shard.owns(version) || self.last_version.is_some_and(|last| version <= last) {
+            return;
+        }
+        self.pending.insert(version, update);
+        let mut bytes: usize = self.pending.values().map(|u| u.weights.len()).sum();
+        while bytes > MAX_PENDING_BYTES && self.pending.len() > 1 {
+            let Some((skipped, update)) = self.pending.pop_first() else {
+                break;
+            };
+            bytes -= update.weights.len();
+            with_stats(&self.stats, |s| s.versions_skipped += 1);
+            tracing::warn!(
+                version = skipped,
+                pending = self.pending.len(),
+                "evaluator too far behind: version skipped unevaluated (start more evaluators: actors.evaluators)"
+            );
+        }
+    }
+
+    /// Asks the learner for the versions of `shard` this evaluator missed (it joined late, or was restarted): those
+    /// before the newest it holds and after the last it handed out, at most [`MAX_GAP`] back. A version the learner
+    /// no longer holds is skipped, logged and counted.
+    fn fill_gaps(&mut self, shard: Shard) {
+        let Some(&newest) = self.pending.keys().next_back() else {
+            return;
+        };
+        let after = self.last_version.max(self.asked);
+        let first = after
+            .map_or(0, |v| v + 1)
+            .max(newest.saturating_sub(MAX_GAP));
+        for version in (first..newest).filter(|&v| shard.owns(v)) {
+            if self.pending.contains_key(&version) {
+                continue;
+            }
+            match self.ask(Some(version)) {
+                Some(update) if update.version == version => self.keep(update, shard),
+                _ => {
+                    with_stats(&self.stats, |s| s.versions_skipped += 1);
+                    tracing::warn!(
+                        version,
+                        "the learner no longer holds this version: not evaluated"
+                    );
+                }
+            }
+        }
+        self.asked = Some(newest);
+    }
+
+    /// The next version of an evaluator's shard, in order.
+    fn next_of_shard(&mut self, shard: Shard) -> Result<Next, PortError> {
+        loop {
+            if let Some(reason) = self.stops.requested(self.bus) {
+                return Ok(Next::Stop(reason));
+            }
+            if self.last_query.is_none_or(|t| t.elapsed() >= REQUERY) {
+                self.last_query = Some(Instant::now());
+                if let Some(update) = self.latest() {
+                    self.keep(update, shard);
+                }
+            }
+            while let Ok(Some(sample)) = self.updates.try_recv() {
+                if let Some(update) = self.decode(&sample) {
+                    self.keep(update, shard);
+                }
+            }
+            self.fill_gaps(shard);
+            if let Some((version, update)) = self.pending.pop_first() {
+                self.last_version = Some(version);
+                return Ok(self.hand_out(update));
+            }
+            if let Some(update) = self
+                .updates
+                .recv_timeout(POLL)
+                .map_err(transport)?
+                .and_then(|s| self.decode(&s))
+            {
+                self.keep(update, shard);
+            }
+        }
     }
 
     /// The learner's latest version, if it is up (late joiners start at once).
     fn latest(&self) -> Option<PolicyUpdate> {
+        self.ask(None)
+    }
+
+    /// The learner's latest version, or `version` if the learner still holds it.
+    fn ask(&self, version: Option<u64>) -> Option<PolicyUpdate> {
         let key = self.bus.keys.policy();
+        let selector = match version {
+            Some(v) => format!("{key}?version={v}"),
+            None => key.clone(),
+        };
         let replies = self
             .bus
             .session
-            .get(&key)
+            .get(&selector)
             .timeout(Duration::from_secs(3))
             .wait()
             .ok()?;
@@ -179,6 +315,9 @@ impl<'a> ZenohPolicySource<'a> {
 
 impl PolicySource for ZenohPolicySource<'_> {
     fn next(&mut self) -> Result<Next, PortError> {
+        if let Some(shard) = self.every {
+            return self.next_of_shard(shard);
+        }
         loop {
             if let Some(reason) = self.stops.requested(self.bus) {
                 return Ok(Next::Stop(reason));
@@ -204,6 +343,10 @@ impl PolicySource for ZenohPolicySource<'_> {
     fn interrupted(&mut self) -> Option<Next> {
         if let Some(reason) = self.stops.requested(self.bus) {
             return Some(Next::Stop(reason));
+        }
+        if self.every.is_some() {
+            // An evaluation is not interrupted by a newer version: it waits its turn.
+            return None;
         }
         let newest = self.newest()?;
         Some(self.hand_out(newest))

@@ -17,7 +17,7 @@ use crate::{decode_sample, encoding_of, Bus};
 use cabc_proto::codec;
 use cabc_proto::messages::{EvalReport, PolicyUpdate, Segment, TrajMessage};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use zenoh::handlers::{FifoChannel, FifoChannelHandler};
@@ -36,6 +36,9 @@ const POLL: Duration = Duration::from_millis(250);
 /// at doubling intervals: an actor that missed the first publication (it was reconnecting to a restarted learner)
 /// still gets it, and actors ignore a publication they already have.
 const REPUBLISH: Duration = Duration::from_secs(3);
+
+/// The publications the policy queryable holds, at most this many bytes (always the latest).
+const HELD_BYTES: usize = 256 << 20;
 
 fn transport(e: impl std::fmt::Display) -> PortError {
     PortError::Transport(e.to_string())
@@ -94,7 +97,9 @@ pub struct ZenohActors {
     eval: Subscriber<FifoChannelHandler<Sample>>,
     alive: Subscriber<FifoChannelHandler<Sample>>,
     _policy: Queryable<()>,
-    latest: Arc<Mutex<Vec<u8>>>,
+    /// The encoded publications of the last versions (the queryable's answers): the latest for late joiners, any
+    /// held version for an evaluator that missed it (`policy?version=<v>`).
+    published: Arc<Mutex<BTreeMap<u64, Vec<u8>>>>,
     live: BTreeSet<String>,
     /// Actors that left and did not come back.
     left: BTreeSet<String>,
@@ -133,16 +138,24 @@ impl ZenohActors {
             .history(true)
             .wait()
             .map_err(transport)?;
-        let latest: Arc<Mutex<Vec<u8>>> = Arc::default();
-        let answer = latest.clone();
+        let published: Arc<Mutex<BTreeMap<u64, Vec<u8>>>> = Arc::default();
+        let answer = published.clone();
         let policy = bus
             .session
             .declare_queryable(keys.policy())
             .callback(move |query| {
-                let latest = answer.lock().unwrap_or_else(|e| e.into_inner()).clone();
-                if latest.is_empty() {
+                let held = answer.lock().unwrap_or_else(|e| e.into_inner());
+                let wanted = query.parameters().get("version");
+                let bytes = match wanted.map(str::parse::<u64>) {
+                    None => held.last_key_value().map(|(_, b)| b.clone()),
+                    Some(Ok(version)) => held.get(&version).cloned(),
+                    Some(Err(_)) => None,
+                };
+                drop(held);
+                // No reply: nothing published yet, or a version no longer held (the asker logs it).
+                let Some(latest) = bytes else {
                     return;
-                }
+                };
                 let key = query.key_expr().clone();
                 if let Err(e) = query
                     .reply(key, latest)
@@ -160,7 +173,7 @@ impl ZenohActors {
             eval,
             alive,
             _policy: policy,
-            latest,
+            published,
             live: BTreeSet::new(),
             left: BTreeSet::new(),
             expected,
@@ -244,7 +257,16 @@ impl Rollouts for ZenohActors {
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<Collected>, PortError> {
-        *self.latest.lock().unwrap_or_else(|e| e.into_inner()) = codec::encode(update);
+        {
+            let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
+            held.insert(update.version, codec::encode(update));
+            let mut bytes: usize = held.values().map(Vec::len).sum();
+            while bytes > HELD_BYTES && held.len() > 1 {
+                if let Some((_, dropped)) = held.pop_first() {
+                    bytes -= dropped.len();
+                }
+            }
+        }
         self.bus
             .put_blocking(&self.bus.keys.policy(), update)
             .map_err(transport)?;

@@ -31,8 +31,9 @@ pub enum LearnerError {
 /// The replay's file in the checkpoint.
 const REPLAY: &str = "replay.bin";
 
-/// Policy versions whose weights are kept (the early stop keeps the one that succeeded).
-const HISTORY: usize = 8;
+/// Published versions whose weights are kept until their evaluation arrives (the best evaluated one is written to
+/// `best-policy.safetensors`, whatever its version); past this many the oldest are dropped, logged.
+const PENDING_WEIGHTS: usize = 64;
 
 /// The fits of one epoch (None: the network did not train this epoch).
 #[derive(Debug)]
@@ -64,6 +65,8 @@ pub struct Learner {
     published: Option<u64>,
     /// Evaluation reports refused (a version not published yet).
     refused_evals: u64,
+    /// Evaluation reports of a version already evaluated (ignored).
+    duplicate_evals: u64,
     bar: ProgressBar,
 }
 
@@ -134,6 +137,7 @@ impl Learner {
             incomplete_steps: 0,
             published: None,
             refused_evals: 0,
+            duplicate_evals: 0,
             bar,
         })
     }
@@ -142,8 +146,14 @@ impl Learner {
     pub fn policy_update(&mut self, epoch: u64) -> PolicyUpdate {
         let weights = self.trainer.policy_bytes();
         self.history.insert(epoch, weights.clone());
-        while self.history.len() > HISTORY {
-            self.history.pop_first();
+        while self.history.len() > PENDING_WEIGHTS {
+            if let Some((version, _)) = self.history.pop_first() {
+                tracing::warn!(
+                    version,
+                    "no evaluation of version {version} yet after {PENDING_WEIGHTS} versions: its weights are dropped \
+                     (it cannot become best-policy.safetensors)"
+                );
+            }
         }
         self.progress(epoch, "collecting");
         self.published = Some(epoch);
@@ -270,7 +280,30 @@ impl Learner {
             );
             return;
         }
+        if self.state.evals.iter().any(|e| e.version == report.version) {
+            self.duplicate_evals += 1;
+            tracing::warn!(
+                actor = report.actor,
+                version = report.version,
+                "a second evaluation of a version: ignored (early stopping counts distinct versions)"
+            );
+            return;
+        }
         let summary = EvalSummary::of(&report);
+        let weights = self.history.remove(&report.version);
+        if self.state.evals.iter().all(|e| summary.better_than(e)) {
+            match weights {
+                Some(weights) => {
+                    if let Err(e) = self.run_dir.write_file("best-policy.safetensors", &weights) {
+                        tracing::warn!("saving the best policy: {e}");
+                    }
+                }
+                None => tracing::warn!(
+                    version = report.version,
+                    "the best evaluation so far, but its weights are no longer held"
+                ),
+            }
+        }
         tracing::info!(
             version = report.version,
             laps = report.laps,
@@ -284,11 +317,6 @@ impl Learner {
                 && self.early_stop.is_none()
             {
                 self.early_stop = Some(report.version);
-                if let Some(weights) = self.history.get(&report.version) {
-                    if let Err(e) = self.run_dir.write_file("best-policy.safetensors", weights) {
-                        tracing::warn!("saving the early-stopped policy: {e}");
-                    }
-                }
             }
         }
         self.state.evals.push(summary);
@@ -421,6 +449,14 @@ impl Learner {
     ) -> Result<serde_json::Value, LearnerError> {
         self.bar.finish_and_clear();
         tracing::info!("run ends: {reason}");
+        let not_evaluated = self.not_evaluated();
+        if !not_evaluated.is_empty() {
+            // The rule by which a version goes unevaluated: the run ended before its report arrived.
+            tracing::warn!(
+                ?not_evaluated,
+                "the run ends before these versions' evaluations arrived"
+            );
+        }
         if !interrupted {
             self.state.stopped = Some(reason.to_string());
             self.write_outputs(true)?;
@@ -428,6 +464,13 @@ impl Learner {
         let summary = self.summary(reason, rejected);
         self.run_dir.write_summary(&summary)?;
         Ok(summary)
+    }
+
+    /// Published versions with no evaluation report.
+    fn not_evaluated(&self) -> Vec<u64> {
+        let evaluated: HashSet<u64> = self.state.evals.iter().map(|e| e.version).collect();
+        let published = self.published.map_or(0, |p| p + 1);
+        (0..published).filter(|v| !evaluated.contains(v)).collect()
     }
 
     fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
@@ -442,7 +485,8 @@ impl Learner {
             .state
             .evals
             .iter()
-            .max_by_key(|e| (e.laps, std::cmp::Reverse(e.version)));
+            .reduce(|best, e| if e.better_than(best) { e } else { best });
+        let not_evaluated = self.not_evaluated();
         let expert = cabc_proto::stats::mean_std(&self.state.expert_lap_times);
         let epochs = self.state.rows.len();
         let epoch_s: Vec<f64> = self.state.rows.iter().map(|r| r.epoch_s).collect();
@@ -464,6 +508,8 @@ impl Learner {
             "duplicate_segments": self.state.ledger.duplicates,
             "segments_not_stored": self.failed_segments,
             "refused_evals": self.refused_evals,
+            "duplicate_evals": self.duplicate_evals,
+            "versions_not_evaluated": not_evaluated,
             "rejected_messages": rejected,
             "d_plus": self.replay.len_plus(),
             "d_uncertain": self.replay.len_uncertain(),

@@ -49,6 +49,9 @@ enum Command {
         config: String,
         #[arg(long)]
         baseline: bool,
+        /// A configuration value, `key=value` (e.g. `run.seed=3`); repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
     },
     /// Print one value of a configuration (dotted key, e.g. actors.count).
     Show {
@@ -97,8 +100,14 @@ fn main() -> anyhow::Result<()> {
                 RunDir::prepare(&config, run_dir, fresh).context("preparing the run folder")?;
             cabc_learner::serve::run(config, run_dir, resume)
         }
-        Command::Prepare { config, baseline } => {
-            let config = load(&config, baseline)?;
+        Command::Prepare {
+            config,
+            baseline,
+            set,
+        } => {
+            let config = load(&config, baseline)?
+                .with_overrides(&set)
+                .context("applying --set")?;
             let run_dir =
                 RunDir::prepare(&config, None, false).context("preparing the run folder")?;
             println!("{}", run_dir.path().display());

@@ -139,6 +139,19 @@ pub struct EvalSummary {
 }
 
 impl EvalSummary {
+    /// The better of two evaluations: more laps, then a lower mean lap time (ties: the earlier one stays best).
+    pub fn better_than(&self, other: &EvalSummary) -> bool {
+        match self.laps.cmp(&other.laps) {
+            std::cmp::Ordering::Greater => true,
+            std::cmp::Ordering::Less => false,
+            std::cmp::Ordering::Equal => match (self.lap_mean, other.lap_mean) {
+                (Some(a), Some(b)) => a < b,
+                (Some(_), None) => true,
+                _ => false,
+            },
+        }
+    }
+
     pub fn of(report: &EvalReport) -> Self {
         let ms = mean_std(&report.lap_times);
         let fold = |f: fn(f64, f64) -> f64| report.lap_times.iter().copied().reduce(f);

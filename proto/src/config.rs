@@ -349,6 +349,9 @@ pub struct ActorsSection {
     pub count: u32,
     /// Environments each actor steps in lockstep.
     pub envs_per_actor: u32,
+    /// Evaluator processes (`actor --eval`): evaluator i evaluates every version v with v mod evaluators = i, so
+    /// that several keep up with a slow evaluation (a 50-lap camera run) between them.
+    pub evaluators: u32,
     /// An evaluation stores the driven line subsampled to at most this many points.
     pub eval_line_points: usize,
 }
@@ -358,6 +361,7 @@ impl Default for ActorsSection {
         ActorsSection {
             count: 2,
             envs_per_actor: 4,
+            evaluators: 1,
             eval_line_points: 2000,
         }
     }
@@ -426,6 +430,8 @@ pub enum ConfigError {
     },
     #[error("no preset named `{0}`; presets: {presets}", presets = PRESETS.iter().map(|p| p.0).collect::<Vec<_>>().join(", "))]
     UnknownPreset(String),
+    #[error("--set {setting}: {why}")]
+    Override { setting: String, why: String },
 }
 
 /// The presets of deploy/configs/, embedded.
@@ -449,7 +455,8 @@ impl RunConfig {
             origin: origin.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
-        config.bus.security.resolve(config.actors.count, None);
+        let (actors, evaluators) = (config.actors.count, config.actors.evaluators);
+        config.bus.security.resolve(actors, evaluators, None);
         config.validate(origin)?;
         Ok(config)
     }
@@ -471,7 +478,8 @@ impl RunConfig {
         let mut config = Self::from_toml(&text, &path.display().to_string())?;
         let folder = path.parent().filter(|p| !p.as_os_str().is_empty());
         let security = &mut config.bus.security;
-        security.resolve(config.actors.count, Some(folder.unwrap_or(Path::new("."))));
+        let (actors, evaluators) = (config.actors.count, config.actors.evaluators);
+        security.resolve(actors, evaluators, Some(folder.unwrap_or(Path::new("."))));
         Ok(config)
     }
 
@@ -493,6 +501,54 @@ impl RunConfig {
             toml::Value::String(s) => Some(s.clone()),
             other => Some(other.to_string()),
         }
+    }
+
+    /// The configuration with `key=value` settings applied (`run.seed=3`, `run.name=v-a-s3`,
+    /// `observation.state_noise_std=[0.01,0,0,0,0,0]`): each key must exist, each value is TOML (a bare word is
+    /// taken as a string), and the result is validated as a file would be.
+    pub fn with_overrides(self, settings: &[String]) -> Result<Self, ConfigError> {
+        if settings.is_empty() {
+            return Ok(self);
+        }
+        let mut value: toml::Value =
+            toml::from_str(&self.to_toml()).expect("a RunConfig's TOML parses");
+        for setting in settings {
+            let fail = |why: &str| ConfigError::Override {
+                setting: setting.clone(),
+                why: why.to_string(),
+            };
+            let (key, text) = setting
+                .split_once('=')
+                .ok_or_else(|| fail("expected key=value"))?;
+            let parsed = toml::from_str::<toml::Table>(&format!("v = {text}"))
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(text.to_string()));
+            let (path, last) = match key.trim().rsplit_once('.') {
+                Some((path, last)) => (path.split('.').collect::<Vec<_>>(), last),
+                None => (Vec::new(), key.trim()),
+            };
+            let mut table = &mut value;
+            for part in path {
+                table = table
+                    .get_mut(part)
+                    .ok_or_else(|| fail(&format!("no section {part}")))?;
+            }
+            let slot = table
+                .get_mut(last)
+                .ok_or_else(|| fail(&format!("no key {last} there")))?;
+            *slot = parsed;
+        }
+        let text = toml::to_string(&value).expect("a TOML value serialises");
+        let origin = format!("--set {}", settings.join(" --set "));
+        Self::from_toml(&text, &origin).map_err(|e| match e {
+            // A value of the wrong type: toml's message names the key; the line is of the generated text.
+            ConfigError::Parse { message, .. } => ConfigError::Override {
+                setting: settings.join(" --set "),
+                why: message.lines().last().unwrap_or_default().to_string(),
+            },
+            other => other,
+        })
     }
 
     /// Writes the configuration as TOML (for the run folder).
@@ -553,6 +609,9 @@ impl RunConfig {
         }
         if self.actors.count == 0 {
             return invalid("actors.count", "0".into(), "must be >= 1");
+        }
+        if self.actors.evaluators == 0 {
+            return invalid("actors.evaluators", "0".into(), "must be >= 1");
         }
         if self.actors.envs_per_actor == 0 {
             return invalid("actors.envs_per_actor", "0".into(), "must be >= 1");

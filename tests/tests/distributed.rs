@@ -384,3 +384,85 @@ fn a_camera_smoke_run_completes() {
     let actor = std::fs::read_to_string(dir.join("actor-0.log")).unwrap_or_default();
     assert!(!actor.contains("ERROR"), "{actor}");
 }
+
+/// Two evaluators share the versions (`actors.evaluators = 2`: `eval` takes the even ones, `eval-1` the odd ones):
+/// every version is evaluated once, but those whose reports had not arrived when the run ended, which the summary
+/// lists.
+#[test]
+fn two_evaluators_share_every_version() {
+    let tmp = cabc_tests::test_dir();
+    let epochs = 10;
+    let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\nevaluators = 2\n";
+    let mut cluster = Cluster::new(tmp.path(), "shards", epochs, extra).unwrap();
+    cluster.start_all(2, false).unwrap();
+    let config = cluster.config.display().to_string();
+    cluster
+        .start(
+            "eval-1",
+            "actor",
+            &["--config", &config, "--id", "eval-1", "--eval"],
+        )
+        .unwrap();
+    let (status, stdout) = cluster
+        .wait("learner", Duration::from_secs(400))
+        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
+    assert!(
+        status.success(),
+        "learner failed:\n{}",
+        cluster.log_tail("learner")
+    );
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(summary["duplicate_evals"], 0, "{summary:#}");
+    let evals = csv_rows(&cluster.dir.join("evals.csv"));
+    let mut versions: Vec<u64> = column(&evals, "version")
+        .iter()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let reported = versions.len();
+    versions.sort();
+    versions.dedup();
+    assert_eq!(versions.len(), reported, "a version evaluated twice");
+    let missing: Vec<u64> = summary["versions_not_evaluated"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    let mut all = versions.clone();
+    all.extend(&missing);
+    all.sort();
+    assert_eq!(all, (0..epochs).collect::<Vec<_>>(), "{summary:#}");
+    // Only the last versions can be missing: their evaluations were still under way at the end.
+    assert!(missing.iter().all(|&v| v + 3 >= epochs), "{missing:?}");
+    assert!(versions.iter().any(|v| v % 2 == 0) && versions.iter().any(|v| v % 2 == 1));
+    for label in ["eval", "eval-1"] {
+        let (status, _) = cluster
+            .wait(label, Duration::from_secs(60))
+            .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(label)));
+        assert!(
+            status.success(),
+            "{label} failed:\n{}",
+            cluster.log_tail(label)
+        );
+    }
+    // eval-1's log: "evaluated version=<v> ..." for odd versions only (ANSI colours stripped).
+    let odd = std::fs::read_to_string(cluster.dir.join("eval-1.log")).unwrap();
+    let plain: String = odd
+        .split('\x1b')
+        .enumerate()
+        .map(|(i, part)| match i {
+            0 => part,
+            _ => part.split_once('m').map_or("", |(_, rest)| rest),
+        })
+        .collect();
+    let evaluated: Vec<u64> = plain
+        .lines()
+        .filter(|l| l.contains(" evaluated "))
+        .filter_map(|l| l.split("version=").nth(1)?.split(' ').next()?.parse().ok())
+        .collect();
+    assert!(!evaluated.is_empty(), "{plain}");
+    assert!(
+        evaluated.iter().all(|v| v % 2 == 1),
+        "eval-1 evaluated {evaluated:?}"
+    );
+}

@@ -71,12 +71,16 @@ impl SecuritySection {
 
     /// Fills in the defaults that depend on the rest of the configuration (the actor ids) and resolves `certs`
     /// against `base` (the configuration file's folder), so that every process finds the same files.
-    pub fn resolve(&mut self, actors_count: u32, base: Option<&Path>) {
+    pub fn resolve(&mut self, actors_count: u32, evaluators_count: u32, base: Option<&Path>) {
         if !self.enabled() {
             return;
         }
         if self.actors.is_empty() {
             self.actors = (0..actors_count).map(|i| format!("actor-{i}")).collect();
+        }
+        // Several evaluators are started as eval-0 .. eval-{n-1} (deploy/run-local.sh).
+        if evaluators_count > 1 && self.evaluators == ["eval"] {
+            self.evaluators = (0..evaluators_count).map(|i| format!("eval-{i}")).collect();
         }
         if let Some(base) = base {
             let certs = Path::new(&self.certs);

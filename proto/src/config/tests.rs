@@ -157,3 +157,34 @@ fn certs_are_resolved_against_the_configuration_file() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn settings_override_keys_and_are_validated() {
+    let config = RunConfig::load("v-a-cpu")
+        .unwrap()
+        .with_overrides(&[
+            "run.seed=3".into(),
+            "run.name=v-a-cpu-s3".into(),
+            "observation.pixel_noise_std=2.5".into(),
+            "collection.episodes=\"reset\"".into(),
+        ])
+        .unwrap();
+    assert_eq!(config.run.seed, 3);
+    assert_eq!(config.run.name, "v-a-cpu-s3");
+    assert_eq!(config.observation.pixel_noise_std, 2.5);
+    assert_eq!(config.collection.episodes, Episodes::Reset);
+    for (bad, says) in [
+        ("run.sed=3", "no key sed"),
+        ("runs.seed=3", "no section runs"),
+        ("run.seed", "expected key=value"),
+        ("run.seed=many", "run.seed"),
+        ("algorithm.rho=-1", "algorithm.rho"),
+    ] {
+        let e = RunConfig::load("smoke")
+            .unwrap()
+            .with_overrides(&[bad.to_string()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(says), "{bad}: {e}");
+    }
+}
