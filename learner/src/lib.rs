@@ -18,6 +18,7 @@ pub mod algorithm;
 pub mod autolabel;
 pub mod bench;
 pub mod checkpoint;
+pub mod compare;
 pub mod demo;
 pub mod fault;
 pub mod hull;

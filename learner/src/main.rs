@@ -3,6 +3,7 @@
 
 use anyhow::Context;
 use cabc_learner::bench::{run_bench, BenchOptions};
+use cabc_learner::compare;
 use cabc_learner::demo::autolabel_demo;
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::RunConfig;
@@ -58,6 +59,16 @@ enum Command {
         #[arg(long, short, default_value = "v-b")]
         config: String,
         key: String,
+    },
+    /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
+    /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
+    Compare {
+        /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+        /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png.
+        #[arg(long, default_value = "compare")]
+        out: PathBuf,
     },
     /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
     AutolabelDemo {
@@ -119,6 +130,17 @@ fn main() -> anyhow::Result<()> {
                 "{}",
                 value.with_context(|| format!("no key {key} in the configuration"))?
             );
+            Ok(())
+        }
+        Command::Compare { runs, out } => {
+            let records = runs
+                .iter()
+                .map(|dir| compare::RunRecord::read(dir))
+                .collect::<Result<Vec<_>, _>>()?;
+            for figure in compare::draw(&records, &out)? {
+                eprintln!("wrote {}", figure.display());
+            }
+            print!("{}", compare::table(&records));
             Ok(())
         }
         Command::AutolabelDemo {

@@ -309,6 +309,10 @@ pub struct TrainingSection {
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
     pub passes: usize,
+    /// At most this many mini-batches per policy fit (a uniform sample of D+ without replacement) instead of whole
+    /// passes: 0 (the paper) for no cap. With images on a CPU a pass over D+ grows by seconds each epoch; the CPU
+    /// presets cap it so an epoch's training time stays flat.
+    pub policy_max_batches: usize,
     pub schedule: ScheduleKind,
     /// k_f: the dynamics model trains every this many epochs.
     pub dynamics_every: u64,
@@ -332,6 +336,7 @@ impl Default for TrainingSection {
             batch_size: 64,
             initial_passes: 5,
             passes: 1,
+            policy_max_batches: 0,
             schedule: ScheduleKind::Paper,
             dynamics_every: 5,
             critic_every: 10,

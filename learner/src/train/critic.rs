@@ -1,7 +1,7 @@
 //! Fitting the critic p_hat, eq. (16): binary cross-entropy of D+ (label 1) against D- (label `negative_label`),
 //! D- as auto-labelling left it (eq. (19), [`Replay::minus`]).
 
-use super::fit::{cat_rows, fit, Mean, Opt};
+use super::fit::{cat_rows, fit, Budget, Mean, Opt};
 use super::Trainer;
 use crate::replay::Replay;
 use cabc_models::{Critic, Network};
@@ -97,7 +97,7 @@ fn fit_critic(
         x.device(),
         rng,
         n,
-        passes,
+        Budget::passes(passes),
         |b, pass: &mut Pass| {
             let target = labels.index_select(0, &b.idx);
             let logits = critic.logits(&x.index_select(0, &b.idx));

@@ -1,6 +1,6 @@
 //! Fitting the dynamics model f_hat, eq. (15): min || x' - f_hat(x, u) ||^2 over every stored (x, u, x').
 
-use super::fit::{cat_rows, fit, Mean};
+use super::fit::{cat_rows, fit, Budget, Mean};
 use super::Trainer;
 use crate::replay::Replay;
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
@@ -39,7 +39,7 @@ impl Trainer {
             dev,
             &mut self.rng,
             n,
-            passes,
+            Budget::passes(passes),
             |b, mean: &mut Mean| {
                 let pred = dynamics.forward(&x.index_select(0, &b.idx), &u.index_select(0, &b.idx));
                 let loss = pred.mse_loss(&x_next.index_select(0, &b.idx), Reduction::Mean);

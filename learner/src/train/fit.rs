@@ -49,6 +49,22 @@ pub(crate) struct Batch<'a> {
     pub idx: Tensor,
 }
 
+/// How much one fit call trains: `passes` over the examples, stopped after `max_batches` mini-batches (0: no cap).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Budget {
+    pub passes: usize,
+    pub max_batches: usize,
+}
+
+impl Budget {
+    pub fn passes(passes: usize) -> Self {
+        Budget {
+            passes,
+            max_batches: 0,
+        }
+    }
+}
+
 /// One fit call over `n` examples: `loss` gives the batch's loss to minimise and records what it wants to report
 /// into the pass's `M` (a fresh `M` each pass). Returns the last pass's `M` and the samples seen (all passes).
 pub(crate) fn fit<M: Default>(
@@ -57,16 +73,26 @@ pub(crate) fn fit<M: Default>(
     device: Device,
     rng: &mut ChaCha8Rng,
     n: usize,
-    passes: usize,
+    budget: Budget,
     mut loss: impl FnMut(&Batch, &mut M) -> Result<Tensor, ModelError>,
 ) -> Result<(M, usize), ModelError> {
     limit_cpu_threads(device);
     opt.adam.lr = opt.lr(t);
     let mut last = M::default();
     let mut samples = 0;
-    for _ in 0..passes {
+    let mut left = match budget.max_batches {
+        0 => usize::MAX,
+        cap => cap,
+    };
+    for _ in 0..budget.passes {
+        if left == 0 {
+            break;
+        }
         last = M::default();
-        for rows in shuffled_batches(n, t.batch_size, rng) {
+        let mut batches = shuffled_batches(n, t.batch_size, rng);
+        batches.truncate(left);
+        left -= batches.len();
+        for rows in batches {
             let batch = Batch {
                 idx: Tensor::from_slice(&rows).to_device(device),
                 rows: &rows,
@@ -124,5 +150,55 @@ impl Mean {
         } else {
             self.sum / self.n as f64
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    /// Counts the batches one fit call makes over `n` examples under `budget`.
+    fn batches(n: usize, budget: Budget) -> (usize, usize) {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let w = vs.root().zeros("w", &[1]);
+        let t = TrainingSection {
+            batch_size: 10,
+            ..Default::default()
+        };
+        let mut opt = Opt::adam(&vs, &t);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut count = 0;
+        let (_, samples) = fit(
+            &mut opt,
+            &t,
+            Device::Cpu,
+            &mut rng,
+            n,
+            budget,
+            |_, _: &mut Mean| {
+                count += 1;
+                Ok((&w * 2.0).sum(tch::Kind::Float))
+            },
+        )
+        .unwrap();
+        (count, samples)
+    }
+
+    #[test]
+    fn whole_passes_unless_capped() {
+        // 95 examples in batches of 10: 9 a pass (the partial batch dropped).
+        assert_eq!(batches(95, Budget::passes(3)), (27, 270));
+        let capped = |max_batches| Budget {
+            passes: 3,
+            max_batches,
+        };
+        assert_eq!(batches(95, capped(5)), (5, 50));
+        assert_eq!(batches(95, capped(13)), (13, 130), "the cap spans passes");
+        assert_eq!(
+            batches(95, capped(100)),
+            (27, 270),
+            "a cap above the passes changes nothing"
+        );
     }
 }

@@ -1,7 +1,7 @@
 //! Fitting the policy pi_theta on D+, eq. (14): L_CA = L_clone + L_safety, through the frozen f_hat and p_hat
 //! (Fig. 4: their variables are frozen, so gradients reach theta only).
 
-use super::fit::{cat_rows, fit, Mean};
+use super::fit::{cat_rows, fit, Budget, Mean};
 use super::{TrainError, Trainer};
 use crate::replay::Replay;
 use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
@@ -71,7 +71,10 @@ impl Trainer {
             dev,
             &mut self.rng,
             plus.len(),
-            passes,
+            Budget {
+                passes,
+                max_batches: self.config.training.policy_max_batches,
+            },
             |b, pass: &mut Pass| {
                 let x = x_all.index_select(0, &b.idx);
                 let input = match images {

@@ -1,0 +1,510 @@
+//! `learner compare RUN...`: the paper's figures for any set of run folders, both methods on one plot.
+//!
+//! * `<out>-laps.png`: completed evaluation laps per policy version (the paper's V-A, V-B and V-C figures);
+//! * `<out>-imitation.png`: the imitation loss per epoch, each run's early stop marked;
+//! * `<out>-lap-times.png`: lap-time mean and spread of the evaluations that completed `eval_laps` laps, against
+//!   the expert's;
+//! * a Markdown table on stdout: per run, the versions of the first and second full evaluation, the early stop,
+//!   lap times, the incomplete share and the wall clock.
+//!
+//! A run folder is read from its `config.toml`, `metrics.csv`, `evals.csv` and (when the run ended) `summary.json`;
+//! it may still be running. Proposed runs (lambda > 0) are drawn in blues, baselines (lambda = 0) in reds.
+
+use cabc_proto::config::RunConfig;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// A run folder that cannot be compared.
+#[derive(Debug, thiserror::Error)]
+pub enum CompareError {
+    #[error("{path}: {why}")]
+    Run { path: PathBuf, why: String },
+    #[error("drawing {path}: {why}")]
+    Draw { path: PathBuf, why: String },
+}
+
+/// One evaluation as `evals.csv` holds it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Eval {
+    pub version: u64,
+    pub laps: u32,
+    pub lap_mean: Option<f64>,
+    pub lap_std: Option<f64>,
+}
+
+/// What the comparison needs of one run.
+#[derive(Clone, Debug)]
+pub struct RunRecord {
+    pub name: String,
+    pub lambda: f64,
+    /// None for a folder without config.toml (read from summary.json).
+    pub seed: Option<u64>,
+    pub eval_laps: u32,
+    pub evals: Vec<Eval>,
+    /// (epoch, imitation loss) where the policy trained.
+    pub imitation: Vec<(u64, f64)>,
+    pub epochs: u64,
+    pub wall_s: f64,
+    pub incomplete_share: Option<f64>,
+    pub early_stop: Option<u64>,
+    pub expert_lap_time: Option<(f64, f64)>,
+    pub ended: Option<String>,
+}
+
+/// A CSV with a header, as the learner writes it (no quoting).
+struct Table {
+    header: Vec<String>,
+    rows: Vec<Vec<String>>,
+}
+
+impl Table {
+    fn read(path: &Path) -> Result<Table, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+        let mut lines = text
+            .lines()
+            .map(|l| l.split(',').map(str::to_string).collect());
+        let header = lines.next().ok_or("empty")?;
+        Ok(Table {
+            header,
+            rows: lines.collect(),
+        })
+    }
+
+    fn column(&self, name: &str) -> Result<Vec<&str>, String> {
+        let i = self
+            .header
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| format!("no column {name}"))?;
+        Ok(self
+            .rows
+            .iter()
+            .map(|r| r.get(i).map_or("", String::as_str))
+            .collect())
+    }
+}
+
+fn number<T: std::str::FromStr>(text: &str) -> Option<T> {
+    text.parse().ok()
+}
+
+impl RunRecord {
+    pub fn read(dir: &Path) -> Result<RunRecord, CompareError> {
+        let fail = |why: String| CompareError::Run {
+            path: dir.to_path_buf(),
+            why,
+        };
+        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join("summary.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        // A folder of results without config.toml (older copies): the name and lambda from summary.json.
+        let config_path = dir.join("config.toml");
+        let (name, lambda, seed, eval_laps) = if config_path.exists() {
+            let config = RunConfig::load(&config_path.display().to_string())
+                .map_err(|e| fail(e.to_string()))?;
+            (
+                config.run.name.clone(),
+                config.algorithm.lambda,
+                Some(config.run.seed),
+                config.collection.eval_laps,
+            )
+        } else {
+            let s = summary
+                .as_ref()
+                .ok_or_else(|| fail("neither config.toml nor summary.json".into()))?;
+            (
+                s["run"].as_str().unwrap_or("?").to_string(),
+                s["lambda"].as_f64().unwrap_or(f64::NAN),
+                None,
+                cabc_proto::config::CollectionSection::default().eval_laps,
+            )
+        };
+        let metrics =
+            Table::read(&dir.join("metrics.csv")).map_err(|e| fail(format!("metrics.csv: {e}")))?;
+        let column = |name| {
+            metrics
+                .column(name)
+                .map_err(|e| fail(format!("metrics.csv: {e}")))
+        };
+        let epochs: Vec<u64> = column("epoch")?.iter().filter_map(|v| number(v)).collect();
+        let imitation = epochs
+            .iter()
+            .zip(column("imitation_loss")?)
+            .filter_map(|(&e, v)| number::<f64>(v).filter(|v| *v > 0.0).map(|v| (e, v)))
+            .collect();
+        let wall_s = column("epoch_s")?
+            .iter()
+            .filter_map(|v| number::<f64>(v))
+            .sum();
+        // Older run folders have no incomplete share.
+        let incomplete: Vec<f64> = metrics
+            .column("incomplete_share")
+            .map(|c| c.iter().filter_map(|v| number(v)).collect())
+            .unwrap_or_default();
+        let evals_table =
+            Table::read(&dir.join("evals.csv")).map_err(|e| fail(format!("evals.csv: {e}")))?;
+        let evals_column = |name| {
+            evals_table
+                .column(name)
+                .map_err(|e| fail(format!("evals.csv: {e}")))
+        };
+        let mut evals: Vec<Eval> = evals_column("version")?
+            .iter()
+            .zip(evals_column("laps")?)
+            .zip(evals_column("lap_mean")?)
+            .zip(evals_column("lap_std")?)
+            .filter_map(|(((v, l), m), s)| {
+                Some(Eval {
+                    version: number(v)?,
+                    laps: number(l)?,
+                    lap_mean: number(m),
+                    lap_std: number(s),
+                })
+            })
+            .collect();
+        evals.sort_by_key(|e| e.version);
+        evals.dedup_by_key(|e| e.version);
+        let expert_lap_time = summary.as_ref().and_then(|s| {
+            let e = &s["expert_lap_time"];
+            Some((e["mean"].as_f64()?, e["std"].as_f64()?))
+        });
+        Ok(RunRecord {
+            name,
+            lambda,
+            seed,
+            eval_laps,
+            evals,
+            imitation,
+            epochs: epochs.len() as u64,
+            wall_s,
+            incomplete_share: cabc_proto::stats::mean(&incomplete),
+            early_stop: summary
+                .as_ref()
+                .and_then(|s| s["early_stop_version"].as_u64()),
+            expert_lap_time,
+            ended: summary
+                .as_ref()
+                .and_then(|s| s["ended"].as_str().map(str::to_string)),
+        })
+    }
+
+    /// The evaluations that completed `eval_laps` laps, in version order.
+    pub fn full(&self) -> impl Iterator<Item = &Eval> {
+        self.evals.iter().filter(|e| e.laps >= self.eval_laps)
+    }
+
+    pub fn is_baseline(&self) -> bool {
+        self.lambda == 0.0
+    }
+}
+
+/// Draws the three figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`; returns their paths.
+pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError> {
+    let path = |suffix: &str| {
+        let name = out
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_default();
+        out.with_file_name(format!("{name}-{suffix}.png"))
+    };
+    let figures = [path("laps"), path("imitation"), path("lap-times")];
+    let drawn = [
+        laps(&figures[0], runs),
+        imitation(&figures[1], runs),
+        lap_times(&figures[2], runs),
+    ];
+    for (result, path) in drawn.into_iter().zip(&figures) {
+        result.map_err(|e| CompareError::Draw {
+            path: path.clone(),
+            why: e.to_string(),
+        })?;
+    }
+    Ok(figures.to_vec())
+}
+
+/// The Markdown table of the runs.
+pub fn table(runs: &[RunRecord]) -> String {
+    let mut out = String::from(
+        "| run | lambda | seed | epochs | 1st full eval | 2nd full eval | early stop | best lap time (s) | expert (s) | incomplete | wall clock (min) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let opt = |v: Option<u64>| v.map_or("none".to_string(), |v| v.to_string());
+    for r in runs {
+        let full: Vec<&Eval> = r.full().collect();
+        let best = full
+            .iter()
+            .filter_map(|e| Some((e.lap_mean?, e.lap_std.unwrap_or(0.0))))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            r.name,
+            r.lambda,
+            r.seed.map_or("?".into(), |s| s.to_string()),
+            r.epochs,
+            full.first()
+                .map_or(format!("none by {}", r.epochs), |e| e.version.to_string()),
+            full.get(1).map_or("none".into(), |e| e.version.to_string()),
+            opt(r.early_stop),
+            best.map_or("-".into(), |(m, s)| format!("{m:.2} ± {s:.2}")),
+            r.expert_lap_time
+                .map_or("-".into(), |(m, s)| format!("{m:.2} ± {s:.2}")),
+            r.incomplete_share
+                .map_or("-".into(), |s| format!("{:.1} %", 100.0 * s)),
+            r.wall_s / 60.0,
+        ));
+    }
+    out
+}
+
+type Drawn = Result<(), Box<dyn std::error::Error>>;
+
+const SIZE: (u32, u32) = (1000, 560);
+
+/// Blues for the proposed runs, reds for the baselines, a shade per run.
+fn colour(runs: &[RunRecord], i: usize) -> RGBColor {
+    let baseline = runs[i].is_baseline();
+    let k = runs[..i]
+        .iter()
+        .filter(|r| r.is_baseline() == baseline)
+        .count() as u8;
+    let shade = k.wrapping_mul(45) % 160;
+    if baseline {
+        RGBColor(220 - shade / 2, 40 + shade, 40 + shade / 2)
+    } else {
+        RGBColor(30 + shade / 2, 70 + shade, 220 - shade / 3)
+    }
+}
+
+fn label(r: &RunRecord) -> String {
+    format!("{} (λ = {})", r.name, r.lambda)
+}
+
+fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let max_v = runs
+        .iter()
+        .flat_map(|r| r.evals.iter().map(|e| e.version))
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Completed laps at evaluation, per policy version",
+            ("sans-serif", 22),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("laps")
+        .draw()?;
+    for (i, r) in runs.iter().enumerate() {
+        let c = colour(runs, i);
+        chart
+            .draw_series(LineSeries::new(
+                r.evals.iter().map(|e| (e.version, e.laps)),
+                c.stroke_width(2),
+            ))?
+            .label(label(r))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+fn imitation(path: &Path, runs: &[RunRecord]) -> Drawn {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let values = runs.iter().flat_map(|r| r.imitation.iter().map(|p| p.1));
+    let (lo, hi) = values.fold((f64::INFINITY, 0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    let (lo, hi) = if hi > 0.0 {
+        (lo * 0.5, hi * 2.0)
+    } else {
+        (1e-4, 1.0)
+    };
+    let max_e = runs.iter().map(|r| r.epochs).max().unwrap_or(1).max(1);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Imitation loss per epoch (o: early stop)",
+            ("sans-serif", 22),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0u64..max_e, (lo..hi).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("epoch")
+        .y_desc("L_clone")
+        .y_label_formatter(&|v| format!("{v:.1e}"))
+        .draw()?;
+    for (i, r) in runs.iter().enumerate() {
+        let c = colour(runs, i);
+        chart
+            .draw_series(LineSeries::new(
+                r.imitation.iter().copied(),
+                c.stroke_width(2),
+            ))?
+            .label(label(r))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+        let stop = r
+            .early_stop
+            .and_then(|v| r.imitation.iter().find(|p| p.0 == v));
+        chart.draw_series(stop.map(|&(e, v)| Circle::new((e, v), 7, c.stroke_width(3))))?;
+    }
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let max_v = runs
+        .iter()
+        .flat_map(|r| r.evals.iter().map(|e| e.version))
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let hi = runs
+        .iter()
+        .flat_map(|r| {
+            r.full()
+                .filter_map(|e| Some(e.lap_mean? + e.lap_std.unwrap_or(0.0)))
+        })
+        .chain(
+            runs.iter()
+                .filter_map(|r| r.expert_lap_time.map(|(m, s)| m + s)),
+        )
+        .fold(1.0, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Lap time of the full evaluations: mean ± std",
+            ("sans-serif", 22),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("lap time (s)")
+        .draw()?;
+    for (i, r) in runs.iter().enumerate() {
+        let c = colour(runs, i);
+        chart
+            .draw_series(r.full().filter_map(|e| {
+                let (m, s) = (e.lap_mean?, e.lap_std.unwrap_or(0.0));
+                Some(ErrorBar::new_vertical(
+                    e.version as f64,
+                    m - s,
+                    m,
+                    m + s,
+                    c.filled(),
+                    6,
+                ))
+            }))?
+            .label(label(r))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 4, c.filled()));
+    }
+    if let Some((m, s)) = runs.iter().find_map(|r| r.expert_lap_time) {
+        let x1 = (max_v + 1) as f64;
+        chart.draw_series([Rectangle::new(
+            [(0.0, m - s), (x1, m + s)],
+            GREEN.mix(0.15).filled(),
+        )])?;
+        chart
+            .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
+            .label(format!("expert {m:.2} ± {s:.2} s"))
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], GREEN));
+    }
+    chart.configure_series_labels().border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A run folder with the files `compare` reads.
+    fn run(dir: &Path, name: &str, lambda: f64, evals: &[(u64, u32, f64)]) -> PathBuf {
+        let folder = dir.join(name);
+        std::fs::create_dir_all(&folder).unwrap();
+        let mut config = RunConfig::load("smoke").unwrap();
+        config.run.name = name.into();
+        config.algorithm.lambda = lambda;
+        config.collection.eval_laps = 3;
+        std::fs::write(folder.join("config.toml"), config.to_toml()).unwrap();
+        let mut metrics = String::from("epoch,imitation_loss,epoch_s,incomplete_share\n");
+        for e in 0..evals.len() {
+            metrics.push_str(&format!("{e},{},{},0.02\n", 0.1 / (e + 1) as f64, 30.0));
+        }
+        std::fs::write(folder.join("metrics.csv"), metrics).unwrap();
+        let mut text =
+            String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        for &(v, laps, mean) in evals {
+            let (m, s) = if laps > 0 {
+                (format!("{mean}"), "0.1".to_string())
+            } else {
+                (String::new(), String::new())
+            };
+            text.push_str(&format!("{v},{laps},{m},{s},,,max-laps,100\n"));
+        }
+        std::fs::write(folder.join("evals.csv"), text).unwrap();
+        folder
+    }
+
+    #[test]
+    fn runs_are_read_tabulated_and_drawn() {
+        let tmp = tempfile::tempdir().unwrap();
+        let proposed = run(
+            tmp.path(),
+            "p",
+            10.0,
+            &[(0, 0, 0.0), (1, 3, 5.2), (2, 1, 6.0), (3, 3, 5.0)],
+        );
+        let baseline = run(tmp.path(), "b", 0.0, &[(0, 0, 0.0), (1, 1, 7.0)]);
+        let runs: Vec<RunRecord> = [proposed, baseline]
+            .iter()
+            .map(|d| RunRecord::read(d).unwrap())
+            .collect();
+        assert_eq!(
+            runs[0].full().map(|e| e.version).collect::<Vec<_>>(),
+            [1, 3]
+        );
+        assert!(runs[1].is_baseline());
+        let table = table(&runs);
+        assert!(
+            table.contains("| p | 10 | 7 | 4 | 1 | 3 | none | 5.00 ± 0.10 | - | 2.0 % | 2.0 |"),
+            "{table}"
+        );
+        assert!(
+            table.contains("| b | 0 | 7 | 2 | none by 2 | none |"),
+            "{table}"
+        );
+        let figures = draw(&runs, &tmp.path().join("cmp")).unwrap();
+        for f in figures {
+            assert!(
+                std::fs::metadata(&f).unwrap().len() > 1000,
+                "{}",
+                f.display()
+            );
+        }
+        let missing = RunRecord::read(&tmp.path().join("nothing"))
+            .unwrap_err()
+            .to_string();
+        assert!(missing.contains("nothing"), "{missing}");
+    }
+}
