@@ -503,6 +503,7 @@ impl Learner {
             "last_eval": self.state.evals.last(),
             "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
             "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
+            "learner_peak_rss_mb": peak_rss_mb(),
             "steps_stored": self.state.ledger.stored_steps,
             "segments_stored": self.state.ledger.stored_segments,
             "duplicate_segments": self.state.ledger.duplicates,
@@ -516,6 +517,14 @@ impl Learner {
             "d_minus": self.replay.len_minus(),
         })
     }
+}
+
+/// The learner process's peak resident memory (MB), from /proc/self/status (None where there is no /proc).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }
 
 fn unix_ms() -> u64 {
