@@ -4,7 +4,7 @@
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
 use crate::plots;
-use crate::replay::{Frames, Replay};
+use crate::replay::{Frames, ImageLog, Replay};
 use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
 use crate::train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};
 use cabc_models::device::parse_device;
@@ -67,6 +67,8 @@ pub struct Learner {
     refused_evals: u64,
     /// Evaluation reports of a version already evaluated (ignored).
     duplicate_evals: u64,
+    /// D+'s images on disk (`replay-images-<generation>.log` in the run folder), appended to at each checkpoint.
+    image_log: Option<ImageLog>,
     bar: ProgressBar,
 }
 
@@ -75,7 +77,7 @@ impl Learner {
     /// without `resume` when a checkpoint exists).
     pub fn open(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
-        let (trainer, replay, state) = if run_dir.has_checkpoint() {
+        let (trainer, replay, image_log, state) = if run_dir.has_checkpoint() {
             if !resume {
                 return Err(LearnerError::Checkpoint(format!(
                     "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
@@ -86,12 +88,12 @@ impl Learner {
             let ck = run_dir.open_checkpoint()?;
             let mut trainer = Trainer::with_device(&config, device);
             trainer.load(&ck)?;
-            let replay = ck
+            let (replay, image_log) = ck
                 .read(REPLAY)
                 .map_err(|e| LearnerError::Checkpoint(e.to_string()))
                 .and_then(|bytes| {
-                    Replay::from_bytes(&bytes)
-                        .map(|replay| replay.with_frames(Frames::of(&config)))
+                    Replay::from_checkpoint(&bytes, run_dir.path())
+                        .map(|(replay, log)| (replay.with_frames(Frames::of(&config)), log))
                         .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
                 })?;
             tracing::info!(
@@ -101,7 +103,7 @@ impl Learner {
                 "resumed from {}",
                 ck.path().display()
             );
-            (trainer, replay, state)
+            (trainer, replay, image_log, state)
         } else if resume {
             return Err(LearnerError::Checkpoint(format!(
                 "{} holds no checkpoint to resume (not even checkpoint.old/): nothing was started; drop --resume to \
@@ -110,9 +112,16 @@ impl Learner {
             )));
         } else {
             let replay = Replay::from_config(&config);
+            tracing::info!(
+                d_plus_capacity = replay.plus.capacity(),
+                capacity = config.replay.capacity,
+                max_bytes = config.replay.max_bytes,
+                "replay"
+            );
             (
                 Trainer::with_device(&config, device),
                 replay,
+                None,
                 LearnerState::default(),
             )
         };
@@ -138,6 +147,7 @@ impl Learner {
             published: None,
             refused_evals: 0,
             duplicate_evals: 0,
+            image_log,
             bar,
         })
     }
@@ -417,10 +427,22 @@ impl Learner {
     }
 
     /// The networks, the replay and the learner state, written atomically (see `crate::checkpoint`).
-    fn checkpoint(&self) -> Result<(), LearnerError> {
+    /// D+'s images go to the image log first (only those new since the last checkpoint); a generation the
+    /// committed checkpoint no longer names is removed after the commit.
+    fn checkpoint(&mut self) -> Result<(), LearnerError> {
         let mut files = self.trainer.to_checkpoint();
-        files.push((REPLAY, self.replay.to_bytes()));
-        Ok(self.run_dir.save_checkpoint(&self.state, files)?)
+        let replay = self
+            .replay
+            .checkpoint_bytes(self.run_dir.path(), &mut self.image_log)
+            .map_err(|e| LearnerError::Checkpoint(format!("saving the replay: {e}")))?;
+        files.push((REPLAY, replay));
+        self.run_dir.save_checkpoint(&self.state, files)?;
+        if let Some(log) = &self.image_log {
+            if let Err(e) = log.prune() {
+                tracing::warn!("removing an old image log: {e}");
+            }
+        }
+        Ok(())
     }
 
     fn write_outputs(&self, final_: bool) -> Result<(), LearnerError> {

@@ -151,8 +151,12 @@ fn bytes_round_trip() {
         removed: vec![1, 5],
         ..Default::default()
     });
-    let mut back = Replay::from_bytes(&r.to_bytes()).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut log = None;
+    let bytes = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    let (mut back, _) = Replay::from_checkpoint(&bytes, tmp.path()).unwrap();
     assert_eq!(back.plus, r.plus);
+    assert!(r.uncertain.images.is_none(), "only D+ keeps images");
     assert_eq!(back.uncertain, r.uncertain);
     assert_eq!(back.dynamics_only, r.dynamics_only);
     assert_eq!(back.minus(), r.minus());
@@ -173,7 +177,7 @@ fn bytes_round_trip() {
         Replay::from_bytes(b"garbage!garbage"),
         Err(ReplayError::BadMagic)
     ));
-    let bytes = r.to_bytes();
+    let bytes = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
     assert!(matches!(
         Replay::from_bytes(&bytes[..bytes.len() / 2]),
         Err(ReplayError::Decode(_))
@@ -184,4 +188,119 @@ fn bytes_round_trip() {
         Replay::from_bytes(&v9),
         Err(ReplayError::Version { found: 9, .. })
     ));
+}
+
+/// The image log: a checkpoint writes only the images new since the last one; a resume restores exactly what the
+/// last committed checkpoint stored (what a checkpoint appended without committing is cut off); evictions are
+/// compacted into a new generation, the old one removed.
+#[test]
+fn checkpoints_write_only_new_images_and_resume_exactly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let len = 4 * 4 * 3;
+    let lap = |k: u32, n: u32| {
+        segment(
+            Outcome::Lap,
+            (0..n)
+                .map(|i| {
+                    step(
+                        (k * 1000 + i) as f32,
+                        true,
+                        Some(image(4, 4, (k * 7 + i) as u8)),
+                    )
+                })
+                .collect(),
+        )
+    };
+    let log_len = |generation| {
+        std::fs::metadata(tmp.path().join(format!("replay-images-{generation}.log")))
+            .map_or(0, |m| m.len())
+    };
+    // D+ holds 130 steps: exactly the first three laps below, then evictions.
+    let mut r = Replay::with_capacities(130, 100, 5);
+    let mut log = None;
+    r.add_segment(&lap(0, 60)).unwrap();
+    let first = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    assert_eq!(log_len(0), 60 * len as u64);
+    // Nothing new: nothing written.
+    r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    assert_eq!(log_len(0), 60 * len as u64);
+    // 30 new steps: 30 more records, not 90.
+    r.add_segment(&lap(1, 30)).unwrap();
+    let second = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    assert_eq!(log_len(0), 90 * len as u64);
+    let stored = r.clone();
+    // A checkpoint that appends and then never commits (a crash before its rename): resuming from the second
+    // checkpoint restores exactly what it stored and cuts the log back.
+    r.add_segment(&lap(2, 40)).unwrap();
+    r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    assert_eq!(log_len(0), 130 * len as u64);
+    drop(log);
+    let (back, mut log) = Replay::from_checkpoint(&second, tmp.path()).unwrap();
+    assert_eq!(back.plus, stored.plus);
+    assert_eq!(back.plus.images, stored.plus.images);
+    assert_eq!(back.added, stored.added);
+    assert_eq!(log_len(0), 90 * len as u64);
+    // The first checkpoint still reads back too (its records were never overwritten).
+    let (older, _) = Replay::from_checkpoint(&first, tmp.path()).unwrap();
+    assert_eq!(older.len_plus(), 60);
+    assert_eq!(older.plus.images.as_ref().unwrap().get(59), &[59u8; 48][..]);
+    // Evictions leave dead records until the log is compacted into generation 1.
+    let mut r = back;
+    for k in 3..40 {
+        r.add_segment(&lap(k, 50)).unwrap();
+        r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    }
+    let generation = log.as_ref().unwrap().generation();
+    assert!(generation >= 1, "no compaction");
+    log.as_ref().unwrap().prune().unwrap();
+    assert_eq!(
+        log_len(0),
+        0,
+        "the old generation is removed after the commit"
+    );
+    let bytes = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    let (back, _) = Replay::from_checkpoint(&bytes, tmp.path()).unwrap();
+    assert_eq!(back.plus, r.plus);
+}
+
+/// `replay.max_bytes`: D+ holds what fits beside the other stores and evicts beyond it, so the replay never holds
+/// more than its budget; a budget too small for one batch is refused with the key at fault.
+#[test]
+fn a_replay_over_its_byte_budget_evicts_and_a_tiny_budget_is_refused() {
+    use cabc_proto::config::{ObservationKind, RunConfig, REPLAY_STEP_BYTES};
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.observation.kind = ObservationKind::Camera;
+    (config.observation.width, config.observation.height) = (16, 16);
+    config.replay.capacity = 1000;
+    let reserve = 2 * 1000 * REPLAY_STEP_BYTES + 1000 * 24;
+    let per_step = REPLAY_STEP_BYTES + 16 * 16 * 3;
+    config.replay.max_bytes = reserve + 150 * per_step;
+    config.validate("test").unwrap();
+    assert_eq!(config.plus_capacity(), 150);
+    let mut r = Replay::from_config(&config);
+    for k in 0..5 {
+        let steps = (0..100)
+            .map(|i| step((k * 100 + i) as f32, true, Some(image(16, 16, i as u8))))
+            .collect();
+        r.add_segment(&segment(Outcome::Lap, steps)).unwrap();
+        let failed = (0..100)
+            .map(|i| step(i as f32, true, Some(image(16, 16, 1))))
+            .collect();
+        r.add_segment(&segment(Outcome::Failure(EndReason::Spin), failed))
+            .unwrap();
+    }
+    assert_eq!(r.len_plus(), 150, "D+ evicts at its budgeted capacity");
+    assert_eq!(r.added.plus, 500);
+    assert!(r.uncertain.images.is_none(), "D? keeps no images");
+    assert!(
+        r.bytes() as u64 <= config.replay.max_bytes,
+        "{} bytes",
+        r.bytes()
+    );
+    config.replay.max_bytes = reserve + 10 * per_step;
+    let e = config.validate("test").unwrap_err().to_string();
+    assert!(
+        e.contains("replay.max_bytes") && e.contains("at least"),
+        "{e}"
+    );
 }

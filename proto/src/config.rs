@@ -254,13 +254,23 @@ impl Default for CollectionSection {
 pub struct ReplaySection {
     /// Capacity of D+ and of D? each; random eviction on overflow.
     pub capacity: usize,
+    /// Memory the replay may hold, in bytes (0: no budget beyond `capacity`). D+ holds the images; its capacity
+    /// becomes what fits in this budget once the other stores' (and D-'s) full capacity is set aside, and random
+    /// eviction keeps it there. A budget too small for one batch of D+ is refused at start.
+    pub max_bytes: u64,
 }
 
 impl Default for ReplaySection {
     fn default() -> Self {
-        ReplaySection { capacity: 102_400 }
+        ReplaySection {
+            capacity: 102_400,
+            max_bytes: 0,
+        }
     }
 }
+
+/// Bytes of one replay step besides its image: state, next state, expert and applied action, as f32.
+pub const REPLAY_STEP_BYTES: u64 = 4 * (2 * 6 + 2 * 2);
 
 /// An MLP: `layers` hidden Linear+ReLU layers of `width`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -634,6 +644,15 @@ impl RunConfig {
         if self.replay.capacity == 0 {
             return invalid("replay.capacity", "0".into(), "must be >= 1");
         }
+        if self.replay.max_bytes > 0 && self.plus_capacity() < self.training.batch_size {
+            let per_step = REPLAY_STEP_BYTES + self.image_bytes();
+            let need = self.replay_reserve() + per_step * self.training.batch_size as u64;
+            return invalid(
+                "replay.max_bytes",
+                format!("{} (at least {need} needed)", self.replay.max_bytes),
+                "too small for one batch of D+ besides D?, D- and the dynamics-only store at replay.capacity",
+            );
+        }
         if self.observation.kind == ObservationKind::Camera
             && (self.observation.width < 16 || self.observation.height < 16)
         {
@@ -668,6 +687,35 @@ impl RunConfig {
             return invalid(key, value, why);
         }
         Ok(())
+    }
+
+    /// Bytes of one image of the run (0 for a full-state run).
+    pub fn image_bytes(&self) -> u64 {
+        match self.observation.kind {
+            ObservationKind::State => 0,
+            ObservationKind::Camera => {
+                self.observation.width as u64 * self.observation.height as u64 * 3
+            }
+        }
+    }
+
+    /// What the replay sets aside for D?, the dynamics-only store (steps without images) and D- (states), at
+    /// full capacity.
+    fn replay_reserve(&self) -> u64 {
+        let capacity = self.replay.capacity as u64;
+        2 * capacity * REPLAY_STEP_BYTES + capacity * 6 * 4
+    }
+
+    /// D+'s capacity in steps: `replay.capacity`, or fewer when `replay.max_bytes` cannot hold that many steps
+    /// with their images besides the other stores.
+    pub fn plus_capacity(&self) -> usize {
+        let capacity = self.replay.capacity;
+        if self.replay.max_bytes == 0 {
+            return capacity;
+        }
+        let per_step = REPLAY_STEP_BYTES + self.image_bytes();
+        let room = self.replay.max_bytes.saturating_sub(self.replay_reserve()) / per_step;
+        capacity.min(room as usize)
     }
 
     /// beta_j of Algorithm 1.

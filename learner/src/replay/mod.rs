@@ -13,12 +13,19 @@
 //! Each store is a structure of arrays with a fixed capacity (`replay.capacity`); once full, a new step overwrites a
 //! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
 
+mod log;
+mod store;
+
+pub use log::ImageLog;
+pub use store::{ImageStore, Store, STEP_BYTES};
+
 use crate::autolabel::AutolabelReport;
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{Image, Outcome, Segment, Step, ACTION_DIM, STATE_DIM};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// Why the replay could not take a step or be saved or loaded.
 #[derive(Debug, thiserror::Error)]
@@ -41,178 +48,8 @@ pub enum ReplayError {
     Version { found: u32, expected: u32 },
     #[error("replay file: {0}")]
     Decode(String),
-}
-
-/// Images of one size, contiguous: entry i is `bytes[i * len .. (i + 1) * len]`, HWC RGB.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ImageStore {
-    pub width: u16,
-    pub height: u16,
-    pub bytes: Vec<u8>,
-}
-
-impl ImageStore {
-    /// Bytes of one image.
-    pub fn image_len(&self) -> usize {
-        self.width as usize * self.height as usize * 3
-    }
-
-    pub fn get(&self, i: usize) -> &[u8] {
-        let n = self.image_len();
-        &self.bytes[i * n..(i + 1) * n]
-    }
-}
-
-/// One buffer, structure of arrays; entry i of every array belongs to the same step.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Store {
-    capacity: usize,
-    pub states: Vec<[f32; STATE_DIM]>,
-    pub expert_actions: Vec<[f32; ACTION_DIM]>,
-    pub applied_actions: Vec<[f32; ACTION_DIM]>,
-    pub next_states: Vec<[f32; STATE_DIM]>,
-    /// Present once the first step with an image arrives; then every step must carry one of the same size.
-    pub images: Option<ImageStore>,
-}
-
-impl Store {
-    pub fn new(capacity: usize) -> Self {
-        Store {
-            capacity,
-            ..Default::default()
-        }
-    }
-
-    pub fn len(&self) -> usize {
-        self.states.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.states.is_empty()
-    }
-
-    pub fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    fn check_image(&self, image: Option<&Image>) -> Result<(), ReplayError> {
-        match (&self.images, image) {
-            (None, None) => Ok(()),
-            (None, Some(_)) if self.is_empty() => Ok(()),
-            (Some(store), Some(img))
-                if img.width == store.width
-                    && img.height == store.height
-                    && img.rgb.len() == store.image_len() =>
-            {
-                Ok(())
-            }
-            (Some(store), Some(img)) => Err(ReplayError::ImageSize {
-                want_w: store.width,
-                want_h: store.height,
-                got_w: img.width,
-                got_h: img.height,
-                bytes: img.rgb.len(),
-            }),
-            _ => Err(ReplayError::ImagePresence),
-        }
-    }
-
-    /// Appends, or overwrites a random entry when full.
-    #[allow(clippy::too_many_arguments)] // one argument per array of the structure
-    fn push(
-        &mut self,
-        state: [f32; STATE_DIM],
-        expert: [f32; ACTION_DIM],
-        applied: [f32; ACTION_DIM],
-        next: [f32; STATE_DIM],
-        image: Option<&[u8]>,
-        size: (u16, u16),
-        rng: &mut ChaCha8Rng,
-    ) {
-        if self.images.is_none() && image.is_some() {
-            self.images = Some(ImageStore {
-                width: size.0,
-                height: size.1,
-                bytes: Vec::new(),
-            });
-        }
-        if self.len() < self.capacity {
-            self.states.push(state);
-            self.expert_actions.push(expert);
-            self.applied_actions.push(applied);
-            self.next_states.push(next);
-            if let (Some(store), Some(img)) = (&mut self.images, image) {
-                store.bytes.extend_from_slice(img);
-            }
-        } else {
-            let i = rng.gen_range(0..self.capacity);
-            self.states[i] = state;
-            self.expert_actions[i] = expert;
-            self.applied_actions[i] = applied;
-            self.next_states[i] = next;
-            if let (Some(store), Some(img)) = (&mut self.images, image) {
-                let n = img.len();
-                store.bytes[i * n..(i + 1) * n].copy_from_slice(img);
-            }
-        }
-    }
-
-    fn push_step(&mut self, step: &Step, rng: &mut ChaCha8Rng) {
-        let size = step.image.as_ref().map_or((0, 0), |i| (i.width, i.height));
-        self.push(
-            step.state,
-            step.expert_action,
-            step.applied_action,
-            step.next_state,
-            step.image.as_ref().map(|i| i.rgb.as_slice()),
-            size,
-            rng,
-        );
-    }
-
-    /// Moves entry `i` into `to` (keeping the order of the others is not needed: callers remove in one batch).
-    fn copy_entry(&self, i: usize, to: &mut Store, rng: &mut ChaCha8Rng) {
-        let size = self.images.as_ref().map_or((0, 0), |s| (s.width, s.height));
-        self.push_to(i, to, size, rng);
-    }
-
-    fn push_to(&self, i: usize, to: &mut Store, size: (u16, u16), rng: &mut ChaCha8Rng) {
-        to.push(
-            self.states[i],
-            self.expert_actions[i],
-            self.applied_actions[i],
-            self.next_states[i],
-            self.images.as_ref().map(|s| s.get(i)),
-            size,
-            rng,
-        );
-    }
-
-    /// Keeps the entries where `keep[i]`, in order.
-    fn retain(&mut self, keep: &[bool]) {
-        let mut j = 0;
-        for (i, &k) in keep.iter().enumerate().take(self.len()) {
-            if k {
-                self.states[j] = self.states[i];
-                self.expert_actions[j] = self.expert_actions[i];
-                self.applied_actions[j] = self.applied_actions[i];
-                self.next_states[j] = self.next_states[i];
-                if let Some(store) = &mut self.images {
-                    let n = store.image_len();
-                    store.bytes.copy_within(i * n..(i + 1) * n, j * n);
-                }
-                j += 1;
-            }
-        }
-        self.states.truncate(j);
-        self.expert_actions.truncate(j);
-        self.applied_actions.truncate(j);
-        self.next_states.truncate(j);
-        if let Some(store) = &mut self.images {
-            let n = store.image_len();
-            store.bytes.truncate(j * n);
-        }
-    }
+    #[error("image log: {0}")]
+    Log(String),
 }
 
 /// Counts of what [`Replay::add_segment`] did with a segment's steps.
@@ -285,12 +122,83 @@ pub struct Replay {
     pub added: AddCounts,
 }
 
-/// What the bytes hold, besides the magic and the version (version 2: with D-).
-#[derive(Serialize, Deserialize)]
+/// Where D+'s images are in the run's image log (version 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+struct LogRef {
+    generation: u64,
+    /// Records the log holds at this checkpoint (later ones are cut off on resume).
+    records: u64,
+    record_len: usize,
+}
+
+/// What the bytes hold, besides the magic and the version (version 3: images in the log, not in the file).
+#[derive(Serialize)]
+struct SavedRef<'a> {
+    plus: &'a Store,
+    uncertain: &'a Store,
+    dynamics_only: &'a Store,
+    minus: &'a [[f32; STATE_DIM]],
+    rng_seed: [u8; 32],
+    rng_stream: u64,
+    rng_word_pos: u128,
+    added: AddCounts,
+    image_log: Option<LogRef>,
+}
+
+#[derive(Deserialize)]
 struct Saved {
     plus: Store,
     uncertain: Store,
     dynamics_only: Store,
+    minus: Vec<[f32; STATE_DIM]>,
+    rng_seed: [u8; 32],
+    rng_stream: u64,
+    rng_word_pos: u128,
+    added: AddCounts,
+    image_log: Option<LogRef>,
+}
+
+/// A store as versions 1 and 2 saved it: images inline, in every store.
+#[derive(Deserialize)]
+struct LegacyStore {
+    capacity: usize,
+    states: Vec<[f32; STATE_DIM]>,
+    expert_actions: Vec<[f32; ACTION_DIM]>,
+    applied_actions: Vec<[f32; ACTION_DIM]>,
+    next_states: Vec<[f32; STATE_DIM]>,
+    images: Option<(u16, u16, Vec<u8>)>,
+}
+
+impl LegacyStore {
+    /// The store of this version; D+ keeps its images (to be logged at the next checkpoint), the others drop them.
+    fn upgrade(self, keeps_images: bool) -> Store {
+        let mut store = Store::new(self.capacity, keeps_images);
+        store.states = self.states;
+        store.expert_actions = self.expert_actions;
+        store.applied_actions = self.applied_actions;
+        store.next_states = self.next_states;
+        store.images = self
+            .images
+            .filter(|_| keeps_images)
+            .map(|(width, height, bytes)| ImageStore {
+                width,
+                height,
+                records: vec![
+                    store::NOT_LOGGED;
+                    bytes.len() / (width as usize * height as usize * 3).max(1)
+                ],
+                bytes,
+            });
+        store
+    }
+}
+
+/// Version 2: D- held, images inline.
+#[derive(Deserialize)]
+struct SavedV2 {
+    plus: LegacyStore,
+    uncertain: LegacyStore,
+    dynamics_only: LegacyStore,
     minus: Vec<[f32; STATE_DIM]>,
     rng_seed: [u8; 32],
     rng_stream: u64,
@@ -301,9 +209,9 @@ struct Saved {
 /// Version 1, before D- was held: its D- is the whole of its D? (what the learner of then trained the critic on).
 #[derive(Deserialize)]
 struct SavedV1 {
-    plus: Store,
-    uncertain: Store,
-    dynamics_only: Store,
+    plus: LegacyStore,
+    uncertain: LegacyStore,
+    dynamics_only: LegacyStore,
     rng_seed: [u8; 32],
     rng_stream: u64,
     rng_word_pos: u128,
@@ -311,26 +219,42 @@ struct SavedV1 {
 }
 
 const MAGIC: &[u8; 8] = b"CABCRPLY";
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 
 impl Replay {
     /// Empty buffers of `capacity` steps each.
     pub fn new(capacity: usize, seed: u64) -> Self {
+        Self::with_capacities(capacity, capacity, seed)
+    }
+
+    /// Empty buffers: D+ of `plus` steps, the others of `capacity` steps. Only D+ keeps images (only the policy's
+    /// training reads them).
+    pub fn with_capacities(plus: usize, capacity: usize, seed: u64) -> Self {
         Replay {
             frames: Frames::Any,
-            plus: Store::new(capacity),
-            uncertain: Store::new(capacity),
-            dynamics_only: Store::new(capacity),
+            plus: Store::new(plus, true),
+            uncertain: Store::new(capacity, false),
+            dynamics_only: Store::new(capacity, false),
             minus: Vec::new(),
             rng: ChaCha8Rng::seed_from_u64(seed),
             added: AddCounts::default(),
         }
     }
 
-    /// Capacity `replay.capacity`, seed derived from `run.seed`, images of `observation` ([`Frames::of`]).
+    /// Capacity `replay.capacity` (D+: within `replay.max_bytes`, [`RunConfig::plus_capacity`]), seed derived
+    /// from `run.seed`, images of `observation` ([`Frames::of`]).
     pub fn from_config(config: &RunConfig) -> Self {
-        Replay::new(config.replay.capacity, config.run.seed ^ 0x5245_504c_4159)
+        let seed = config.run.seed ^ 0x5245_504c_4159;
+        Replay::with_capacities(config.plus_capacity(), config.replay.capacity, seed)
             .with_frames(Frames::of(config))
+    }
+
+    /// Memory the steps hold (arrays and images) across the stores and D-.
+    pub fn bytes(&self) -> usize {
+        self.plus.bytes()
+            + self.uncertain.bytes()
+            + self.dynamics_only.bytes()
+            + self.minus.len() * STATE_DIM * 4
     }
 
     /// The same replay, holding every segment to `frames`.
@@ -456,38 +380,106 @@ impl Replay {
         self.minus = self.uncertain.states.clone();
     }
 
-    /// The replay as bytes for the checkpoint: magic, version, bincode.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let saved = Saved {
-            plus: self.plus.clone(),
-            uncertain: self.uncertain.clone(),
-            dynamics_only: self.dynamics_only.clone(),
-            minus: self.minus.clone(),
+    /// The replay as bytes for the checkpoint (magic, version, bincode), after appending D+'s images written since
+    /// the last checkpoint to the image log in `dir` (`log`: the one open, created on the first images; compacted
+    /// into a new generation first when mostly dead; see [`ImageLog`]). Nothing of the replay is copied.
+    pub fn checkpoint_bytes(
+        &mut self,
+        dir: &Path,
+        log: &mut Option<ImageLog>,
+    ) -> Result<Vec<u8>, ReplayError> {
+        let image_log = match self.plus.images.as_mut() {
+            None => None,
+            Some(images) => {
+                let len = images.image_len();
+                if log.is_none() {
+                    *log = Some(ImageLog::create(dir, 0, len)?);
+                }
+                let log = log.as_mut().expect("set above");
+                let live = images.records.len() as u64;
+                if log.wants_compaction(live) {
+                    let dir = log.dir().to_path_buf();
+                    let mut fresh = ImageLog::create(&dir, log.generation() + 1, len)?;
+                    for (i, record) in images.records.iter_mut().enumerate() {
+                        *record = fresh.append(&images.bytes[i * len..(i + 1) * len])?;
+                    }
+                    *log = fresh;
+                } else {
+                    for (i, record) in images.records.iter_mut().enumerate() {
+                        if *record == store::NOT_LOGGED {
+                            *record = log.append(&images.bytes[i * len..(i + 1) * len])?;
+                        }
+                    }
+                }
+                log.sync()?;
+                Some(LogRef {
+                    generation: log.generation(),
+                    records: log.records(),
+                    record_len: len,
+                })
+            }
+        };
+        let saved = SavedRef {
+            plus: &self.plus,
+            uncertain: &self.uncertain,
+            dynamics_only: &self.dynamics_only,
+            minus: &self.minus,
             rng_seed: self.rng.get_seed(),
             rng_stream: self.rng.get_stream(),
             rng_word_pos: self.rng.get_word_pos(),
             added: self.added,
+            image_log,
         };
         let mut bytes = MAGIC.to_vec();
         bytes.extend_from_slice(&VERSION.to_le_bytes());
         bincode::serde::encode_into_std_write(&saved, &mut bytes, bincode::config::standard())
             .expect("writing into a Vec does not fail");
-        bytes
+        Ok(bytes)
     }
 
-    /// Reads what [`Replay::to_bytes`] wrote (this version or version 1).
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ReplayError> {
+    /// The bytes of a replay without images (tests, tools); see [`Replay::checkpoint_bytes`].
+    pub fn to_bytes(&mut self) -> Result<Vec<u8>, ReplayError> {
+        if self.plus.images.is_some() {
+            return Err(ReplayError::Log(
+                "D+ holds images: use checkpoint_bytes with a folder".into(),
+            ));
+        }
+        self.checkpoint_bytes(Path::new("."), &mut None)
+    }
+
+    /// Reads what [`Replay::checkpoint_bytes`] wrote (or versions 1 and 2), with D+'s images from the image log in
+    /// `dir` (the run folder); returns the log to go on appending to.
+    pub fn from_checkpoint(
+        bytes: &[u8],
+        dir: &Path,
+    ) -> Result<(Self, Option<ImageLog>), ReplayError> {
         let body = bytes.strip_prefix(MAGIC).ok_or(ReplayError::BadMagic)?;
         let (version, body) = body
             .split_first_chunk::<4>()
             .ok_or_else(|| ReplayError::Decode("truncated header".into()))?;
         let decode_err = |e: bincode::error::DecodeError| ReplayError::Decode(e.to_string());
         let config = bincode::config::standard();
-        let saved: Saved = match u32::from_le_bytes(*version) {
+        let mut saved: Saved = match u32::from_le_bytes(*version) {
             VERSION => {
                 bincode::serde::decode_from_slice(body, config)
                     .map_err(decode_err)?
                     .0
+            }
+            2 => {
+                let v2: SavedV2 = bincode::serde::decode_from_slice(body, config)
+                    .map_err(decode_err)?
+                    .0;
+                Saved {
+                    plus: v2.plus.upgrade(true),
+                    uncertain: v2.uncertain.upgrade(false),
+                    dynamics_only: v2.dynamics_only.upgrade(false),
+                    minus: v2.minus,
+                    rng_seed: v2.rng_seed,
+                    rng_stream: v2.rng_stream,
+                    rng_word_pos: v2.rng_word_pos,
+                    added: v2.added,
+                    image_log: None,
+                }
             }
             1 => {
                 let v1: SavedV1 = bincode::serde::decode_from_slice(body, config)
@@ -495,13 +487,14 @@ impl Replay {
                     .0;
                 Saved {
                     minus: v1.uncertain.states.clone(),
-                    plus: v1.plus,
-                    uncertain: v1.uncertain,
-                    dynamics_only: v1.dynamics_only,
+                    plus: v1.plus.upgrade(true),
+                    uncertain: v1.uncertain.upgrade(false),
+                    dynamics_only: v1.dynamics_only.upgrade(false),
                     rng_seed: v1.rng_seed,
                     rng_stream: v1.rng_stream,
                     rng_word_pos: v1.rng_word_pos,
                     added: v1.added,
+                    image_log: None,
                 }
             }
             found => {
@@ -511,10 +504,53 @@ impl Replay {
                 })
             }
         };
+        let plus_empty = saved.plus.is_empty();
+        let log = match (saved.image_log, saved.plus.images.as_mut()) {
+            (Some(at), Some(images)) => {
+                let log = ImageLog::open(dir, at.generation, at.records, at.record_len)?;
+                if images.image_len() != at.record_len {
+                    return Err(ReplayError::Log(format!(
+                        "records of {} bytes for {}x{} images",
+                        at.record_len, images.width, images.height
+                    )));
+                }
+                images.bytes = vec![0; images.records.len() * at.record_len];
+                for (i, &record) in images.records.iter().enumerate() {
+                    log.read(
+                        record,
+                        &mut images.bytes[i * at.record_len..(i + 1) * at.record_len],
+                    )?;
+                }
+                Some(log)
+            }
+            (None, Some(images)) if images.records.iter().any(|&r| r != store::NOT_LOGGED) => {
+                return Err(ReplayError::Decode("D+ images without an image log".into()))
+            }
+            // Versions 1 and 2: the images came inline; they go to a new log at the next checkpoint.
+            (None, Some(_)) => None,
+            (Some(_), None) if plus_empty => None,
+            (Some(_), None) => {
+                return Err(ReplayError::Decode(
+                    "an image log for D+ without images".into(),
+                ))
+            }
+            (None, None) => None,
+        };
+        if saved.plus.len()
+            != saved
+                .plus
+                .images
+                .as_ref()
+                .map_or(saved.plus.len(), |i| i.records.len())
+        {
+            return Err(ReplayError::Decode(
+                "D+ slots and image records differ".into(),
+            ));
+        }
         let mut rng = ChaCha8Rng::from_seed(saved.rng_seed);
         rng.set_stream(saved.rng_stream);
         rng.set_word_pos(saved.rng_word_pos);
-        Ok(Replay {
+        let replay = Replay {
             frames: Frames::Any,
             plus: saved.plus,
             uncertain: saved.uncertain,
@@ -522,7 +558,14 @@ impl Replay {
             minus: saved.minus,
             rng,
             added: saved.added,
-        })
+        };
+        Ok((replay, log))
+    }
+
+    /// [`Replay::from_checkpoint`] for a replay without images in a log (no log is opened).
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ReplayError> {
+        let (replay, _) = Self::from_checkpoint(bytes, Path::new("/nonexistent"))?;
+        Ok(replay)
     }
 }
 
