@@ -8,7 +8,9 @@
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+mod overrides;
 mod security;
+mod validate;
 pub use security::{SecurityMode, SecuritySection};
 
 /// Which expert relabels the states.
@@ -518,175 +520,9 @@ impl RunConfig {
         }
     }
 
-    /// The configuration with `key=value` settings applied (`run.seed=3`, `run.name=v-a-s3`,
-    /// `observation.state_noise_std=[0.01,0,0,0,0,0]`): each key must exist, each value is TOML (a bare word is
-    /// taken as a string), and the result is validated as a file would be.
-    pub fn with_overrides(self, settings: &[String]) -> Result<Self, ConfigError> {
-        if settings.is_empty() {
-            return Ok(self);
-        }
-        let mut value: toml::Value =
-            toml::from_str(&self.to_toml()).expect("a RunConfig's TOML parses");
-        for setting in settings {
-            let fail = |why: &str| ConfigError::Override {
-                setting: setting.clone(),
-                why: why.to_string(),
-            };
-            let (key, text) = setting
-                .split_once('=')
-                .ok_or_else(|| fail("expected key=value"))?;
-            let parsed = toml::from_str::<toml::Table>(&format!("v = {text}"))
-                .ok()
-                .and_then(|mut t| t.remove("v"))
-                .unwrap_or_else(|| toml::Value::String(text.to_string()));
-            let (path, last) = match key.trim().rsplit_once('.') {
-                Some((path, last)) => (path.split('.').collect::<Vec<_>>(), last),
-                None => (Vec::new(), key.trim()),
-            };
-            let mut table = &mut value;
-            for part in path {
-                table = table
-                    .get_mut(part)
-                    .ok_or_else(|| fail(&format!("no section {part}")))?;
-            }
-            let slot = table
-                .get_mut(last)
-                .ok_or_else(|| fail(&format!("no key {last} there")))?;
-            *slot = parsed;
-        }
-        let text = toml::to_string(&value).expect("a TOML value serialises");
-        let origin = format!("--set {}", settings.join(" --set "));
-        Self::from_toml(&text, &origin).map_err(|e| match e {
-            // A value of the wrong type: toml's message names the key; the line is of the generated text.
-            ConfigError::Parse { message, .. } => ConfigError::Override {
-                setting: settings.join(" --set "),
-                why: message.lines().last().unwrap_or_default().to_string(),
-            },
-            other => other,
-        })
-    }
-
     /// Writes the configuration as TOML (for the run folder).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("a RunConfig always serialises")
-    }
-
-    /// Checks values that types cannot.
-    pub fn validate(&self, origin: &str) -> Result<(), ConfigError> {
-        let invalid = |key: &'static str, value: String, why: &'static str| {
-            Err(ConfigError::Invalid {
-                origin: origin.to_string(),
-                key,
-                value,
-                why,
-            })
-        };
-        if crate::keys::check_chunk(&self.run.name).is_err() {
-            return invalid(
-                "run.name",
-                self.run.name.clone(),
-                "use letters, digits, '-', '_' or '.'",
-            );
-        }
-        if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
-            return invalid(
-                "algorithm.lambda",
-                self.algorithm.lambda.to_string(),
-                "must be >= 0",
-            );
-        }
-        if !(self.algorithm.rho > 0.0 && self.algorithm.rho.is_finite()) {
-            return invalid(
-                "algorithm.rho",
-                self.algorithm.rho.to_string(),
-                "must be > 0",
-            );
-        }
-        if !(0.0..=1.0).contains(&self.algorithm.beta_decay) {
-            return invalid(
-                "algorithm.beta_decay",
-                self.algorithm.beta_decay.to_string(),
-                "must lie in [0, 1]",
-            );
-        }
-        if !(0.0..=1.0).contains(&self.algorithm.negative_label) {
-            return invalid(
-                "algorithm.negative_label",
-                self.algorithm.negative_label.to_string(),
-                "must lie in [0, 1]",
-            );
-        }
-        if self.algorithm.autolabel_every == 0 {
-            return invalid("algorithm.autolabel_every", "0".into(), "must be >= 1");
-        }
-        if self.collection.steps_per_epoch == 0 {
-            return invalid("collection.steps_per_epoch", "0".into(), "must be >= 1");
-        }
-        if self.actors.count == 0 {
-            return invalid("actors.count", "0".into(), "must be >= 1");
-        }
-        if self.actors.evaluators == 0 {
-            return invalid("actors.evaluators", "0".into(), "must be >= 1");
-        }
-        if self.actors.envs_per_actor == 0 {
-            return invalid("actors.envs_per_actor", "0".into(), "must be >= 1");
-        }
-        if self.training.batch_size == 0 {
-            return invalid("training.batch_size", "0".into(), "must be >= 1");
-        }
-        if self.training.dynamics_every == 0 || self.training.critic_every == 0 {
-            return invalid(
-                "training.dynamics_every / critic_every",
-                "0".into(),
-                "must be >= 1",
-            );
-        }
-        if self.replay.capacity == 0 {
-            return invalid("replay.capacity", "0".into(), "must be >= 1");
-        }
-        if self.replay.max_bytes > 0 && self.plus_capacity() < self.training.batch_size {
-            let per_step = REPLAY_STEP_BYTES + self.image_bytes();
-            let need = self.replay_reserve() + per_step * self.training.batch_size as u64;
-            return invalid(
-                "replay.max_bytes",
-                format!("{} (at least {need} needed)", self.replay.max_bytes),
-                "too small for one batch of D+ besides D?, D- and the dynamics-only store at replay.capacity",
-            );
-        }
-        if self.observation.kind == ObservationKind::Camera
-            && (self.observation.width < 16 || self.observation.height < 16)
-        {
-            return invalid(
-                "observation.width/height",
-                format!("{}x{}", self.observation.width, self.observation.height),
-                "images must be at least 16x16",
-            );
-        }
-        let noise = &self.observation;
-        if !noise
-            .state_noise_std
-            .iter()
-            .chain([&noise.pixel_noise_std])
-            .all(|s| s.is_finite() && *s >= 0.0)
-        {
-            return invalid(
-                "observation.state_noise_std / pixel_noise_std",
-                format!("{:?} / {}", noise.state_noise_std, noise.pixel_noise_std),
-                "standard deviations must be finite and >= 0",
-            );
-        }
-        if self.bus.listen.is_empty() || self.bus.connect.is_empty() {
-            return invalid(
-                "bus.listen / bus.connect",
-                "[]".into(),
-                "need at least one endpoint",
-            );
-        }
-        let (listen, connect) = (&self.bus.listen, &self.bus.connect);
-        if let Err((key, value, why)) = self.bus.security.check(listen, connect) {
-            return invalid(key, value, why);
-        }
-        Ok(())
     }
 
     /// Bytes of one image of the run (0 for a full-state run).

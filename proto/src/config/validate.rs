@@ -1,0 +1,123 @@
+//! What the types of the run configuration cannot check.
+
+use super::{ConfigError, ObservationKind, RunConfig, REPLAY_STEP_BYTES};
+
+impl RunConfig {
+    /// Checks values that types cannot.
+    pub fn validate(&self, origin: &str) -> Result<(), ConfigError> {
+        let invalid = |key: &'static str, value: String, why: &'static str| {
+            Err(ConfigError::Invalid {
+                origin: origin.to_string(),
+                key,
+                value,
+                why,
+            })
+        };
+        if crate::keys::check_chunk(&self.run.name).is_err() {
+            return invalid(
+                "run.name",
+                self.run.name.clone(),
+                "use letters, digits, '-', '_' or '.'",
+            );
+        }
+        if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
+            return invalid(
+                "algorithm.lambda",
+                self.algorithm.lambda.to_string(),
+                "must be >= 0",
+            );
+        }
+        if !(self.algorithm.rho > 0.0 && self.algorithm.rho.is_finite()) {
+            return invalid(
+                "algorithm.rho",
+                self.algorithm.rho.to_string(),
+                "must be > 0",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.algorithm.beta_decay) {
+            return invalid(
+                "algorithm.beta_decay",
+                self.algorithm.beta_decay.to_string(),
+                "must lie in [0, 1]",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.algorithm.negative_label) {
+            return invalid(
+                "algorithm.negative_label",
+                self.algorithm.negative_label.to_string(),
+                "must lie in [0, 1]",
+            );
+        }
+        if self.algorithm.autolabel_every == 0 {
+            return invalid("algorithm.autolabel_every", "0".into(), "must be >= 1");
+        }
+        if self.collection.steps_per_epoch == 0 {
+            return invalid("collection.steps_per_epoch", "0".into(), "must be >= 1");
+        }
+        if self.actors.count == 0 {
+            return invalid("actors.count", "0".into(), "must be >= 1");
+        }
+        if self.actors.evaluators == 0 {
+            return invalid("actors.evaluators", "0".into(), "must be >= 1");
+        }
+        if self.actors.envs_per_actor == 0 {
+            return invalid("actors.envs_per_actor", "0".into(), "must be >= 1");
+        }
+        if self.training.batch_size == 0 {
+            return invalid("training.batch_size", "0".into(), "must be >= 1");
+        }
+        if self.training.dynamics_every == 0 || self.training.critic_every == 0 {
+            return invalid(
+                "training.dynamics_every / critic_every",
+                "0".into(),
+                "must be >= 1",
+            );
+        }
+        if self.replay.capacity == 0 {
+            return invalid("replay.capacity", "0".into(), "must be >= 1");
+        }
+        if self.replay.max_bytes > 0 && self.plus_capacity() < self.training.batch_size {
+            let per_step = REPLAY_STEP_BYTES + self.image_bytes();
+            let need = self.replay_reserve() + per_step * self.training.batch_size as u64;
+            return invalid(
+                "replay.max_bytes",
+                format!("{} (at least {need} needed)", self.replay.max_bytes),
+                "too small for one batch of D+ besides D?, D- and the dynamics-only store at replay.capacity",
+            );
+        }
+        if self.observation.kind == ObservationKind::Camera
+            && (self.observation.width < 16 || self.observation.height < 16)
+        {
+            return invalid(
+                "observation.width/height",
+                format!("{}x{}", self.observation.width, self.observation.height),
+                "images must be at least 16x16",
+            );
+        }
+        let noise = &self.observation;
+        if !noise
+            .state_noise_std
+            .iter()
+            .chain([&noise.pixel_noise_std])
+            .all(|s| s.is_finite() && *s >= 0.0)
+        {
+            return invalid(
+                "observation.state_noise_std / pixel_noise_std",
+                format!("{:?} / {}", noise.state_noise_std, noise.pixel_noise_std),
+                "standard deviations must be finite and >= 0",
+            );
+        }
+        if self.bus.listen.is_empty() || self.bus.connect.is_empty() {
+            return invalid(
+                "bus.listen / bus.connect",
+                "[]".into(),
+                "need at least one endpoint",
+            );
+        }
+        let (listen, connect) = (&self.bus.listen, &self.bus.connect);
+        if let Err((key, value, why)) = self.bus.security.check(listen, connect) {
+            return invalid(key, value, why);
+        }
+        Ok(())
+    }
+}
