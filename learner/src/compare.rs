@@ -49,6 +49,8 @@ pub struct RunRecord {
     pub early_stop: Option<u64>,
     pub expert_lap_time: Option<(f64, f64)>,
     pub ended: Option<String>,
+    /// The learner's peak resident memory (MB), when the summary has it.
+    pub peak_mb: Option<f64>,
 }
 
 /// A CSV with a header, as the learner writes it (no quoting).
@@ -185,6 +187,9 @@ impl RunRecord {
             ended: summary
                 .as_ref()
                 .and_then(|s| s["ended"].as_str().map(str::to_string)),
+            peak_mb: summary
+                .as_ref()
+                .and_then(|s| s["learner_peak_rss_mb"].as_f64()),
         })
     }
 
@@ -225,8 +230,8 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError
 /// The Markdown table of the runs.
 pub fn table(runs: &[RunRecord]) -> String {
     let mut out = String::from(
-        "| run | lambda | seed | epochs | 1st full eval | 2nd full eval | early stop | best lap time (s) | expert (s) | incomplete | wall clock (min) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| run | lambda | seed | epochs | 1st full eval | 2nd full eval | early stop | best lap time (s) | expert (s) | incomplete | wall clock (min) | learner peak (MB) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let opt = |v: Option<u64>| v.map_or("none".to_string(), |v| v.to_string());
     for r in runs {
@@ -236,7 +241,7 @@ pub fn table(runs: &[RunRecord]) -> String {
             .filter_map(|e| Some((e.lap_mean?, e.lap_std.unwrap_or(0.0))))
             .min_by(|a, b| a.0.total_cmp(&b.0));
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
             r.name,
             r.lambda,
             r.seed.map_or("?".into(), |s| s.to_string()),
@@ -251,6 +256,7 @@ pub fn table(runs: &[RunRecord]) -> String {
             r.incomplete_share
                 .map_or("-".into(), |s| format!("{:.1} %", 100.0 * s)),
             r.wall_s / 60.0,
+            r.peak_mb.map_or("-".into(), |m| format!("{m:.0}")),
         ));
     }
     out
@@ -487,7 +493,7 @@ mod tests {
         assert!(runs[1].is_baseline());
         let table = table(&runs);
         assert!(
-            table.contains("| p | 10 | 7 | 4 | 1 | 3 | none | 5.00 ± 0.10 | - | 2.0 % | 2.0 |"),
+            table.contains("| p | 10 | 7 | 4 | 1 | 3 | none | 5.00 ± 0.10 | - | 2.0 % | 2.0 | - |"),
             "{table}"
         );
         assert!(
