@@ -133,7 +133,8 @@ pub struct ZenohPolicySource<'a> {
     pending: std::collections::BTreeMap<u64, PolicyUpdate>,
     /// The last version an evaluator handed out.
     last_version: Option<u64>,
-    /// The versions of its shard an evaluator asked the learner for (each once).
+    /// The newest version up to which an evaluator has asked the learner for the versions it missed (each missed
+    /// version is asked for once).
     asked: Option<u64>,
 }
 
