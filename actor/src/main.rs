@@ -57,19 +57,12 @@ fn main() -> Result<()> {
     tch::set_num_threads(1);
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
-    let shard = cli.eval.then(|| Shard {
-        index: cli.index.unwrap_or_else(|| trailing_number(&cli.id)),
-        count: config.actors.evaluators as u64,
-    });
-    if let Some(shard) = shard.filter(|s| s.index >= s.count) {
-        anyhow::bail!(
-            "evaluator {} has index {} but the run has actors.evaluators = {}: use ids eval-0 .. eval-{} (or --index)",
-            cli.id,
-            shard.index,
-            shard.count,
-            shard.count - 1
-        );
-    }
+    let evaluators = config.actors.evaluators as u64;
+    let shard = cli
+        .eval
+        .then(|| Shard::of_evaluator(&cli.id, cli.index, evaluators))
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
     let role = if cli.eval { "eval" } else { "actor" };
     let component = format!("{role}/{}", cli.id);
     let bus = Bus::join(&config.bus, Role::Connect, keys, &component).context("joining the bus")?;
@@ -88,11 +81,7 @@ fn main() -> Result<()> {
         bus.metrics_blocking(&value.to_string());
         last = Some(value);
     };
-    if let Some(shard) = shard {
-        tracing::info!(
-            ?shard,
-            "evaluating every version v with v mod count = index"
-        );
+    if shard.is_some() {
         let mut sink = ZenohEvals::new(&bus, &cli.id);
         run_evaluator(
             &cli.id,
@@ -107,7 +96,9 @@ fn main() -> Result<()> {
         let kind = config.expert.kind.as_str();
         let mut expert = ZenohExpert::new(&bus, kind, timeout, &interrupt, stats.clone())?;
         let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone());
-        let index = cli.index.unwrap_or_else(|| trailing_number(&cli.id));
+        let index = cli
+            .index
+            .unwrap_or_else(|| cabc_proto::keys::trailing_number(&cli.id));
         // Restarts under the same id are new incarnations (the learner's ledger keys segments by both).
         let incarnation = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -130,12 +121,6 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// The number at the end of an id ("actor-3" → 3), else 0.
-fn trailing_number(id: &str) -> u64 {
-    let start = id.trim_end_matches(|c: char| c.is_ascii_digit()).len();
-    id[start..].parse().unwrap_or(0)
-}
-
 /// Collection figures since start (published on `metrics/<role>/<id>` after every epoch, logged at exit).
 fn metrics(
     update: &PolicyUpdate,
@@ -143,29 +128,22 @@ fn metrics(
     wire: &SharedStats,
     rejected: u64,
 ) -> serde_json::Value {
-    let wire = wire.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let busy = actor.busy.as_secs_f64();
-    let share = |d: Duration| {
-        if busy > 0.0 {
-            d.as_secs_f64() / busy
-        } else {
-            0.0
-        }
-    };
-    let latency = &wire.policy_latency_ms;
-    json!({
+    let mut value = json!({
         "version": update.version,
         "beta": update.beta,
         "versions_seen": actor.versions,
         "steps": actor.steps,
         "steps_per_s": if busy > 0.0 { actor.steps as f64 / busy } else { 0.0 },
-        "expert_wait_share": share(wire.expert_wait),
-        "transport_share": share(wire.transport),
-        "policy_latency_ms_last": latency.last(),
-        "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
         "rejected_messages": rejected,
-        "segments_lost": wire.segments_lost,
-        "versions_skipped": wire.versions_skipped,
         "refused_policies": actor.refused_policies,
-    })
+    });
+    let wire = wire
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .figures(actor.busy);
+    if let Some(object) = value.as_object_mut() {
+        object.extend(wire);
+    }
+    value
 }

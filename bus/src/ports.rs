@@ -45,6 +45,34 @@ pub struct WireStats {
     pub versions_skipped: u64,
 }
 
+impl WireStats {
+    /// The figures of an actor's metrics, as shares of `busy` (its collection time): expert wait, transport,
+    /// broadcast latency, segments lost, versions skipped.
+    pub fn figures(&self, busy: Duration) -> serde_json::Map<String, serde_json::Value> {
+        let busy = busy.as_secs_f64();
+        let share = |d: Duration| {
+            if busy > 0.0 {
+                d.as_secs_f64() / busy
+            } else {
+                0.0
+            }
+        };
+        let latency = &self.policy_latency_ms;
+        let figures = serde_json::json!({
+            "expert_wait_share": share(self.expert_wait),
+            "transport_share": share(self.transport),
+            "policy_latency_ms_last": latency.last(),
+            "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
+            "segments_lost": self.segments_lost,
+            "versions_skipped": self.versions_skipped,
+        });
+        match figures {
+            serde_json::Value::Object(map) => map,
+            _ => serde_json::Map::new(),
+        }
+    }
+}
+
 /// Shared between the ports and the metrics.
 pub type SharedStats = Arc<Mutex<WireStats>>;
 
@@ -106,6 +134,19 @@ pub struct Shard {
 }
 
 impl Shard {
+    /// Evaluator `id`'s shard: `index` (default: the number at the end of `id`) of `count` (`actors.evaluators`).
+    pub fn of_evaluator(id: &str, index: Option<u64>, count: u64) -> Result<Shard, String> {
+        let index = index.unwrap_or_else(|| cabc_proto::keys::trailing_number(id));
+        if index >= count {
+            return Err(format!(
+                "evaluator {id} has index {index} but the run has actors.evaluators = {count}: use ids eval-0 .. \
+                 eval-{} (or --index)",
+                count.saturating_sub(1)
+            ));
+        }
+        Ok(Shard { index, count })
+    }
+
     pub fn owns(&self, version: u64) -> bool {
         version % self.count.max(1) == self.index
     }
@@ -162,6 +203,10 @@ impl<'a> ZenohPolicySource<'a> {
     /// An evaluator's source: every version of `shard`, oldest first, each once (a version published again by a
     /// resumed learner is not evaluated twice), instead of skipping to the newest.
     pub fn every_version(mut self, shard: Shard) -> Self {
+        tracing::info!(
+            ?shard,
+            "evaluating every version v with v mod count = index"
+        );
         self.every = Some(shard);
         self
     }

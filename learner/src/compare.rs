@@ -203,6 +203,30 @@ impl RunRecord {
     }
 }
 
+/// `learner compare`'s command-line arguments.
+#[derive(Clone, Debug, clap::Args)]
+pub struct CompareOptions {
+    /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png.
+    #[arg(long, default_value = "compare")]
+    pub out: PathBuf,
+}
+
+/// Reads the runs, draws the figures (logging their paths) and returns the Markdown table.
+pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
+    let records = options
+        .runs
+        .iter()
+        .map(|dir| RunRecord::read(dir))
+        .collect::<Result<Vec<_>, _>>()?;
+    for figure in draw(&records, &options.out)? {
+        tracing::info!("wrote {}", figure.display());
+    }
+    Ok(table(&records))
+}
+
 /// Draws the three figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`; returns their paths.
 pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError> {
     let path = |suffix: &str| {
@@ -264,6 +288,15 @@ pub fn table(runs: &[RunRecord]) -> String {
 
 type Drawn = Result<(), Box<dyn std::error::Error>>;
 
+/// The newest version any run evaluated (at least 1: the x axis of the per-version figures).
+fn max_version(runs: &[RunRecord]) -> u64 {
+    runs.iter()
+        .flat_map(|r| r.evals.iter().map(|e| e.version))
+        .max()
+        .unwrap_or(1)
+        .max(1)
+}
+
 const SIZE: (u32, u32) = (1000, 560);
 
 /// Blues for the proposed runs, reds for the baselines, a shade per run.
@@ -288,12 +321,7 @@ fn label(r: &RunRecord) -> String {
 fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
-    let max_v = runs
-        .iter()
-        .flat_map(|r| r.evals.iter().map(|e| e.version))
-        .max()
-        .unwrap_or(1)
-        .max(1);
+    let max_v = max_version(runs);
     let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -376,12 +404,7 @@ fn imitation(path: &Path, runs: &[RunRecord]) -> Drawn {
 fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
-    let max_v = runs
-        .iter()
-        .flat_map(|r| r.evals.iter().map(|e| e.version))
-        .max()
-        .unwrap_or(1)
-        .max(1);
+    let max_v = max_version(runs);
     let hi = runs
         .iter()
         .flat_map(|r| {
@@ -425,15 +448,8 @@ fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
             .legend(move |(x, y)| Circle::new((x + 10, y), 4, c.filled()));
     }
     if let Some((m, s)) = runs.iter().find_map(|r| r.expert_lap_time) {
-        let x1 = (max_v + 1) as f64;
-        chart.draw_series([Rectangle::new(
-            [(0.0, m - s), (x1, m + s)],
-            GREEN.mix(0.15).filled(),
-        )])?;
-        chart
-            .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
-            .label(format!("expert {m:.2} ± {s:.2} s"))
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], GREEN));
+        let label = format!("expert {m:.2} ± {s:.2} s");
+        crate::plots::expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
     }
     chart.configure_series_labels().border_style(BLACK).draw()?;
     root.present()?;

@@ -105,6 +105,18 @@ impl DemoReport {
     }
 }
 
+/// `learner autolabel-demo`'s command-line arguments.
+#[derive(Clone, Debug, clap::Args)]
+pub struct DemoOptions {
+    /// Radii to compare, one panel each.
+    #[arg(long = "rho", num_args = 1.., default_values_t = [0.5, 0.25, 0.1])]
+    pub rho: Vec<f64>,
+    #[arg(long, default_value = "autolabel-demo.png")]
+    pub out: std::path::PathBuf,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
 /// Runs the example for each rho, draws one panel per rho into `out_png`, and reports the counts.
 pub fn autolabel_demo(rhos: &[f64], seed: u64, out_png: &Path) -> Result<DemoReport, DemoError> {
     let config = RunConfig::default();

@@ -4,7 +4,7 @@
 use anyhow::Context;
 use cabc_learner::bench::{run_bench, BenchOptions};
 use cabc_learner::compare;
-use cabc_learner::demo::autolabel_demo;
+use cabc_learner::demo::{autolabel_demo, DemoOptions};
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::RunConfig;
 use clap::{Parser, Subcommand};
@@ -62,26 +62,14 @@ enum Command {
     },
     /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
     /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
-    Compare {
-        /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
-        #[arg(required = true)]
-        runs: Vec<PathBuf>,
-        /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png.
-        #[arg(long, default_value = "compare")]
-        out: PathBuf,
-    },
+    Compare(compare::CompareOptions),
     /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
     AutolabelDemo {
-        /// Radii to compare, one panel each.
-        #[arg(long = "rho", num_args = 1.., default_values_t = [0.5, 0.25, 0.1])]
-        rho: Vec<f64>,
-        #[arg(long, default_value = "autolabel-demo.png")]
-        out: PathBuf,
+        #[command(flatten)]
+        options: DemoOptions,
         /// Print the report as JSON on stdout.
         #[arg(long)]
         json: bool,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
     },
     /// Throughput of auto-labelling and training.
     Bench {
@@ -132,24 +120,13 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Command::Compare { runs, out } => {
-            let records = runs
-                .iter()
-                .map(|dir| compare::RunRecord::read(dir))
-                .collect::<Result<Vec<_>, _>>()?;
-            for figure in compare::draw(&records, &out)? {
-                eprintln!("wrote {}", figure.display());
-            }
-            print!("{}", compare::table(&records));
+        Command::Compare(options) => {
+            print!("{}", compare::run(&options)?);
             Ok(())
         }
-        Command::AutolabelDemo {
-            rho,
-            out,
-            json,
-            seed,
-        } => {
-            let report = autolabel_demo(&rho, seed, &out).context("auto-labelling demo")?;
+        Command::AutolabelDemo { options, json } => {
+            let report = autolabel_demo(&options.rho, options.seed, &options.out)
+                .context("auto-labelling demo")?;
             report.log();
             print_json(json, &report)
         }

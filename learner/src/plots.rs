@@ -4,6 +4,7 @@
 use crate::rundir::{EvalSummary, LearnerState};
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -169,18 +170,29 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
         .label("policy")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
     if let Some((m, s)) = expert_ms {
-        let x1 = (max_v + 1) as f64;
-        chart.draw_series([Rectangle::new(
-            [(0.0, m - s), (x1, m + s)],
-            GREEN.mix(0.15).filled(),
-        )])?;
-        chart
-            .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
-            .label(format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len()))
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], GREEN));
+        let label = format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len());
+        expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
     }
     chart.configure_series_labels().border_style(BLACK).draw()?;
     root.present()?;
+    Ok(())
+}
+
+/// The expert's lap time on a lap-time chart: its mean as a line over [0, `x1`], mean ± std as a band.
+pub(crate) fn expert_band(
+    chart: &mut ChartContext<'_, BitMapBackend<'_>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    (m, s): (f64, f64),
+    x1: f64,
+    label: String,
+) -> PlotResult {
+    chart.draw_series([Rectangle::new(
+        [(0.0, m - s), (x1, m + s)],
+        GREEN.mix(0.15).filled(),
+    )])?;
+    chart
+        .draw_series(LineSeries::new([(0.0, m), (x1, m)], GREEN.stroke_width(2)))?
+        .label(label)
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], GREEN));
     Ok(())
 }
 

@@ -24,6 +24,12 @@ pub struct Keys {
 #[error("`{0}` is not a valid key chunk: use letters, digits, '-', '_' or '.' (non-empty, no '/', '*', '$', '?', '#')")]
 pub struct BadChunk(pub String);
 
+/// The number at the end of an id ("actor-3" → 3, "eval-1" → 1), else 0: a process's default index.
+pub fn trailing_number(id: &str) -> u64 {
+    let start = id.trim_end_matches(|c: char| c.is_ascii_digit()).len();
+    id[start..].parse().unwrap_or(0)
+}
+
 /// Checks that `name` is usable as one chunk of a key expression.
 pub fn check_chunk(name: &str) -> Result<&str, BadChunk> {
     let ok = !name.is_empty()

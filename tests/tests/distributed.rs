@@ -72,16 +72,7 @@ fn a_smoke_run_completes_survives_faults_and_resumes() {
         .unwrap();
     runtime.block_on(publish_garbage(&endpoint, "cabc/e2e/traj/x"));
 
-    let (status, stdout) = cluster
-        .wait("learner", Duration::from_secs(400))
-        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
-    assert!(
-        status.success(),
-        "learner failed:\n{}",
-        cluster.log_tail("learner")
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout)
-        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], 10, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     assert_eq!(summary["segments_not_stored"], 0, "{summary:#}");
@@ -304,16 +295,7 @@ fn a_camera_smoke_run_completes() {
     );
     std::fs::write(&cluster.config, text).unwrap();
     cluster.start_all(2, false).unwrap();
-    let (status, stdout) = cluster
-        .wait("learner", Duration::from_secs(400))
-        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
-    assert!(
-        status.success(),
-        "learner failed:\n{}",
-        cluster.log_tail("learner")
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout)
-        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], epochs, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     // A segment whose images are not 32x32 would be refused here.
@@ -418,15 +400,7 @@ fn two_evaluators_share_every_version() {
             &["--config", &config, "--id", "eval-1", "--eval"],
         )
         .unwrap();
-    let (status, stdout) = cluster
-        .wait("learner", Duration::from_secs(400))
-        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
-    assert!(
-        status.success(),
-        "learner failed:\n{}",
-        cluster.log_tail("learner")
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let summary = cluster.summary("learner");
     assert_eq!(summary["duplicate_evals"], 0, "{summary:#}");
     let evals = csv_rows(&cluster.dir.join("evals.csv"));
     let mut versions: Vec<u64> = column(&evals, "version")

@@ -32,16 +32,7 @@ fn wait_for_epochs(cluster: &Cluster, epochs: usize) {
 }
 
 fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Value {
-    let (status, stdout) = cluster
-        .wait(learner, Duration::from_secs(400))
-        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(learner)));
-    assert!(
-        status.success(),
-        "{learner} failed:\n{}",
-        cluster.log_tail(learner)
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout)
-        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    let summary = cluster.summary(learner);
     let metrics = cluster.dir.join("metrics.csv");
     assert_eq!(
         csv_column(&metrics, "epoch"),

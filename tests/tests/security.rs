@@ -46,16 +46,7 @@ fn wait_for_epochs(cluster: &Cluster, n: usize) {
 /// The learner finishes all `epochs`, every step the actors published is stored once, nothing was refused or
 /// closed by timeout, and every other process stops on the learner's Stop.
 fn check_run(cluster: &mut Cluster, epochs: u64) -> serde_json::Value {
-    let (status, stdout) = cluster
-        .wait("learner", Duration::from_secs(400))
-        .unwrap_or_else(|e| panic!("{e}\n--- learner log ---\n{}", cluster.log_tail("learner")));
-    assert!(
-        status.success(),
-        "learner failed:\n{}",
-        cluster.log_tail("learner")
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout)
-        .unwrap_or_else(|e| panic!("learner stdout is not the summary ({e}): {stdout}"));
+    let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], epochs, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     assert_eq!(summary["segments_not_stored"], 0, "{summary:#}");
