@@ -410,3 +410,39 @@ fn the_critic_trains_on_d_plus_and_the_labelled_d_minus_only() {
     }
     assert_eq!(trained, 7, "the critic trains every epoch");
 }
+
+/// Issue 12: `training.aux_max_batches` caps each fit of f_hat and p_hat at that many mini-batches, whatever
+/// `aux_passes` asks; 0 leaves the paper's whole passes.
+#[test]
+fn aux_fits_stop_at_their_batch_cap() {
+    let r = replay(8);
+    let samples = |cap: usize| {
+        let mut c = config(8);
+        c.training.schedule = ScheduleKind::Paper;
+        c.training.dynamics_every = 1;
+        c.training.critic_every = 1;
+        c.training.aux_passes = 3;
+        c.training.aux_max_batches = cap;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        let l = t.train_epoch(1, &r).unwrap();
+        assert!(l.critic.is_some() && l.dynamics.is_some());
+        (l.dynamics_samples, l.critic_samples, l.policy_samples)
+    };
+    let batch = RunConfig::default().training.batch_size;
+    let whole = |n: usize| 3 * (n / batch * batch);
+    let (n_dynamics, n_critic) = (
+        r.len_plus() + r.len_uncertain(),
+        r.len_plus() + r.len_minus(),
+    );
+    let uncapped = samples(0);
+    assert_eq!(uncapped.0, whole(n_dynamics));
+    assert_eq!(uncapped.1, whole(n_critic));
+    let capped = samples(7);
+    assert_eq!((capped.0, capped.1), (7 * batch, 7 * batch));
+    assert_eq!(capped.2, uncapped.2, "the policy's fit is not capped by it");
+    assert_eq!(
+        samples(10_000),
+        uncapped,
+        "a cap above the passes changes nothing"
+    );
+}

@@ -97,7 +97,10 @@ fn fit_critic(
         x.device(),
         rng,
         n,
-        Budget::passes(passes),
+        Budget {
+            passes,
+            max_batches: config.training.aux_max_batches,
+        },
         |b, pass: &mut Pass| {
             let target = labels.index_select(0, &b.idx);
             let logits = critic.logits(&x.index_select(0, &b.idx));

@@ -56,15 +56,6 @@ pub(crate) struct Budget {
     pub max_batches: usize,
 }
 
-impl Budget {
-    pub fn passes(passes: usize) -> Self {
-        Budget {
-            passes,
-            max_batches: 0,
-        }
-    }
-}
-
 /// One fit call over `n` examples: `loss` gives the batch's loss to minimise and records what it wants to report
 /// into the pass's `M` (a fresh `M` each pass). Returns the last pass's `M` and the samples seen (all passes).
 pub(crate) fn fit<M: Default>(
@@ -188,11 +179,11 @@ mod tests {
     #[test]
     fn whole_passes_unless_capped() {
         // 95 examples in batches of 10: 9 a pass (the partial batch dropped).
-        assert_eq!(batches(95, Budget::passes(3)), (27, 270));
         let capped = |max_batches| Budget {
             passes: 3,
             max_batches,
         };
+        assert_eq!(batches(95, capped(0)), (27, 270), "0: no cap");
         assert_eq!(batches(95, capped(5)), (5, 50));
         assert_eq!(batches(95, capped(13)), (13, 130), "the cap spans passes");
         assert_eq!(
