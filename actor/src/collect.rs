@@ -1,8 +1,10 @@
 //! Collection: K environments stepped in lockstep under the expert/policy mixture of Algorithm 1, zenoh-free.
 //!
-//! The driver (the actor binary, or a test in-process) repeats:
-//! [`Collector::queries`] → ask the expert → [`Collector::observations`] → run the policy → [`Collector::step`],
-//! publishing the segments each step completes, until the epoch's budget is spent; then [`Collector::end_epoch`].
+//! The driver (the actor binary, or a test in-process) calls [`Collector::begin_epoch`], then [`Collector::collect`],
+//! which repeats [`Collector::queries`] → send them to the expert → [`Collector::observations`] → run the policy →
+//! receive the answers → [`Collector::step`] for two halves of the environments in alternation (one half's round trip
+//! overlaps the other half's work), publishing the segments each step completes, until the epoch's budget is spent;
+//! then [`Collector::end_epoch`].
 //! With `collection.episodes = "carry"` (the default) an episode goes on across epoch boundaries: what is staged at
 //! the end of an epoch stays staged, and its lap or failure is cut in a later epoch (with that epoch's version).
 //! With `"reset"` every epoch starts new episodes and flushes what is staged as incomplete, as the reference does.
@@ -14,9 +16,12 @@ use crate::segment::{Segmenter, SeqCounter, StepEnd};
 use crate::sensor::Sensor;
 use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
+use cabc_proto::ports::{ExpertClient, Next, Pending, PortError};
+use std::collections::VecDeque;
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
+use std::ops::Range;
 use std::sync::Arc;
 
 /// What the policy sees for a batch of environments.
@@ -173,16 +178,23 @@ impl Collector {
         self.stream_start[i] = true;
     }
 
-    /// How many environments step next, given what is left of the budget.
-    pub fn active(&self, budget: u64) -> usize {
-        (budget.saturating_sub(self.taken)).min(self.envs.len() as u64) as usize
+    /// The halves of the environments that alternate in [`Collector::collect`] (one half of one environment).
+    pub fn halves(&self) -> Vec<Range<usize>> {
+        let k = self.envs.len();
+        if k < 2 {
+            vec![0..k]
+        } else {
+            vec![0..k / 2, k / 2..k]
+        }
     }
 
-    /// The expert queries of the next step (for the first `active` environments).
-    pub fn queries(&self, active: usize) -> Vec<ExpertQuery> {
-        self.envs.envs()[..active]
+    /// The expert queries of the next step of environments `envs`.
+    pub fn queries(&self, envs: Range<usize>) -> Vec<ExpertQuery> {
+        let first = envs.start;
+        self.envs.envs()[envs]
             .iter()
             .enumerate()
+            .map(|(i, env)| (first + i, env))
             .map(|(i, env)| ExpertQuery {
                 stream: StreamId {
                     actor: self.actor.clone(),
@@ -196,12 +208,11 @@ impl Collector {
             .collect()
     }
 
-    /// Observations of the first `active` environments (images rendered when the run observes images), with the
-    /// sensor's noise.
-    pub fn observations(&mut self, active: usize) -> Observations<'_> {
+    /// Observations of environments `envs` (images rendered when the run observes images), with the sensor's noise.
+    pub fn observations(&mut self, envs: Range<usize>) -> Observations<'_> {
         self.states.clear();
         self.images.clear();
-        for env in &self.envs.envs()[..active] {
+        for env in &self.envs.envs()[envs] {
             self.states
                 .push(self.sensor.state(f32s(&env.observation().state)));
             if let Some(eyes) = &mut self.eyes {
@@ -214,33 +225,35 @@ impl Collector {
         }
     }
 
-    /// Steps the first `answers.len()` environments. `policy` holds the policy's actions for them (call
-    /// [`Self::observations`] first when images are needed: its images move into the steps, so each is stored
-    /// once). Completed segments are appended to `out`.
+    /// Steps `answers.len()` environments from `first` on. `policy` holds the policy's actions for them (call
+    /// [`Self::observations`] of the same environments first when images are needed: its images move into the steps,
+    /// so each is stored once). Completed segments are appended to `out`.
     pub fn step(
         &mut self,
+        first: usize,
         answers: &[ExpertAnswer],
         policy: &[[f32; 2]],
         beta: f64,
         version: u64,
         out: &mut Vec<Segment>,
     ) {
-        let active = answers.len().min(policy.len()).min(self.envs.len());
+        let first = first.min(self.envs.len());
+        let active = answers.len().min(policy.len()).min(self.envs.len() - first);
         self.before.clear();
         self.applied.clear();
-        for (i, env) in self.envs.envs()[..active].iter().enumerate() {
+        for (j, env) in self.envs.envs()[first..first + active].iter().enumerate() {
             self.before.push(env.observation());
             self.applied
-                .push(applied_action(&answers[i], &policy[i], beta));
+                .push(applied_action(&answers[j], &policy[j], beta));
         }
         let results = self
             .envs
-            .step(&self.applied)
+            .step_from(first, &self.applied)
             .expect("at most one action per env");
         let mut images = self.images.drain(..);
         let mut ended = Vec::new();
-        for (i, result) in results.iter().enumerate() {
-            let answer = &answers[i];
+        for (j, result) in results.iter().enumerate() {
+            let (i, answer) = (first + j, &answers[j]);
             let expert_ok = expert_ok(answer);
             self.stream_start[i] = false;
             let end = match (result.truncation, result.lap_completed) {
@@ -249,15 +262,15 @@ impl Collector {
                 (None, false) => StepEnd::Continue,
             };
             let step = Step {
-                state: f32s(&self.before[i].state),
-                pose: f32s(&self.before[i].pose),
+                state: f32s(&self.before[j].state),
+                pose: f32s(&self.before[j].pose),
                 image: images.next(),
                 expert_action: if expert_ok {
                     f32s(&answer.action)
                 } else {
                     [0.0; 2]
                 },
-                applied_action: f32s(&self.applied[i]),
+                applied_action: f32s(&self.applied[j]),
                 next_state: f32s(&result.obs.state),
                 expert_ok,
             };
@@ -275,6 +288,93 @@ impl Collector {
         }
     }
 
+    /// Steps until `budget` steps are taken in this epoch, with the environments in two halves that alternate: a
+    /// half's next relabelling is sent as soon as it has stepped, and travels (and is solved) while the other half
+    /// observes, runs the policy, steps and publishes, so the expert's round trip overlaps with the actor's work.
+    /// Every environment still steps with its own answer and the policy's action for its own observation, the
+    /// sensor draws in the order of a whole-batch step, and the budget goes to the environments in the same order,
+    /// so with a batch-invariant policy the data is what whole-batch steps give (`actor/tests/collect.rs`,
+    /// `tests/tests/halves.rs`).
+    ///
+    /// `policy` maps observations to actions; `between` runs before the first step and after each half-step with the
+    /// segments cut so far (to publish them), and returns a newer version or a stop to end the epoch early. A stop
+    /// while waiting on the expert ends it too.
+    pub fn collect<E: From<PortError>>(
+        &mut self,
+        budget: u64,
+        beta: f64,
+        version: u64,
+        expert: &mut dyn ExpertClient,
+        mut policy: impl FnMut(&Observations) -> Result<Vec<[f32; 2]>, E>,
+        mut between: impl FnMut(&mut Vec<Segment>) -> Result<Option<Next>, E>,
+    ) -> Result<Option<Next>, E> {
+        let mut out = Vec::new();
+        if let Some(next) = between(&mut out)? {
+            return Ok(Some(next));
+        }
+        let halves = self.halves();
+        let mut queue = VecDeque::with_capacity(halves.len());
+        let mut reserved = 0u64;
+        for (h, half) in halves.iter().enumerate() {
+            match self.send(half, budget, &mut reserved, expert) {
+                Ok(Some((envs, pending))) => queue.push_back((h, envs, pending)),
+                Ok(None) => break,
+                Err(PortError::Stopped(reason)) => {
+                    cancel_all(queue, expert);
+                    return Ok(Some(Next::Stop(reason)));
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        while let Some((h, envs, pending)) = queue.pop_front() {
+            let actions = policy(&self.observations(envs.clone()))?;
+            let answers = match expert.receive(pending) {
+                Ok(answers) => answers,
+                Err(PortError::Stopped(reason)) => {
+                    cancel_all(queue, expert);
+                    return Ok(Some(Next::Stop(reason)));
+                }
+                Err(e) => return Err(e.into()),
+            };
+            reserved -= envs.len() as u64;
+            self.step(envs.start, &answers, &actions, beta, version, &mut out);
+            match self.send(&halves[h], budget, &mut reserved, expert) {
+                Ok(Some((envs, pending))) => queue.push_back((h, envs, pending)),
+                Ok(None) => {}
+                Err(PortError::Stopped(reason)) => {
+                    cancel_all(queue, expert);
+                    return Ok(Some(Next::Stop(reason)));
+                }
+                Err(e) => return Err(e.into()),
+            }
+            if let Some(next) = between(&mut out)? {
+                cancel_all(queue, expert);
+                return Ok(Some(next));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Sends the relabelling of the next step of `half`: of as many of its environments as the budget has left,
+    /// counting the steps already `reserved` by relabellings on their way. None when the budget is spent.
+    fn send(
+        &self,
+        half: &Range<usize>,
+        budget: u64,
+        reserved: &mut u64,
+        expert: &mut dyn ExpertClient,
+    ) -> Result<Option<(Range<usize>, Pending)>, PortError> {
+        let left = budget.saturating_sub(self.taken + *reserved);
+        let n = (half.len() as u64).min(left) as usize;
+        if n == 0 {
+            return Ok(None);
+        }
+        let envs = half.start..half.start + n;
+        let pending = expert.send(self.queries(envs.clone()))?;
+        *reserved += n as u64;
+        Ok(Some((envs, pending)))
+    }
+
     /// The budget is spent. Episodes reset at each epoch: every environment's staged steps are flushed as
     /// incomplete. Episodes carried: they stay staged for the next epoch.
     pub fn end_epoch(&mut self, version: u64, out: &mut Vec<Segment>) {
@@ -283,6 +383,13 @@ impl Collector {
                 s.finish(version, &mut self.seq, out);
             }
         }
+    }
+}
+
+/// Cancels the relabellings still on their way when an epoch ends early.
+fn cancel_all(queue: VecDeque<(usize, Range<usize>, Pending)>, expert: &mut dyn ExpertClient) {
+    for (_, _, pending) in queue {
+        expert.cancel(pending);
     }
 }
 

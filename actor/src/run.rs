@@ -167,27 +167,19 @@ pub fn collect_epoch(
     let budget = update.steps_per_actor;
     let first_seq = collector.segments_cut();
     collector.begin_epoch();
-    let mut out: Vec<Segment> = Vec::new();
-    let mut interrupted = None;
     let mut published = 0u64;
-    while collector.taken() < budget {
-        if let Some(next) = source.interrupted() {
-            interrupted = Some(next);
-            break;
-        }
-        let active = collector.active(budget);
-        let answers = match expert.relabel(collector.queries(active)) {
-            Ok(answers) => answers,
-            Err(PortError::Stopped(reason)) => {
-                interrupted = Some(Next::Stop(reason));
-                break;
-            }
-            Err(e) => return Err(e.into()),
-        };
-        let actions = act(policy, &collector.observations(active))?;
-        collector.step(&answers, &actions, update.beta, update.version, &mut out);
-        published += publish(&mut out, sink)?;
-    }
+    let interrupted = collector.collect(
+        budget,
+        update.beta,
+        update.version,
+        expert,
+        |input| Ok::<_, ActorError>(act(policy, input)?),
+        |out| {
+            published += publish(out, sink)?;
+            Ok(source.interrupted())
+        },
+    )?;
+    let mut out = Vec::new();
     collector.end_epoch(update.version, &mut out);
     published += publish(&mut out, sink)?;
     sink.put(TrajMessage::EpochDone(EpochDone {

@@ -2,7 +2,8 @@
 //! learner stores, exactly as algorithm.md 2:
 //!
 //! * a completed lap flushes the staged steps as a [`Outcome::Lap`] segment (D+);
-//! * a truncation flushes them as [`Outcome::Failure`] (D?);
+//! * a truncation flushes them as [`Outcome::Failure`] (D?), except the max-laps truncation, which ends an episode
+//!   that did not fail: its staged steps (the one after the last lap) are flushed as [`Outcome::Incomplete`];
 //! * a step at which the expert failed goes straight to D? as its own [`Outcome::ExpertFailure`] segment, and after
 //!   `patience` consecutive failures the episode is truncated ([`EndReason::ExpertFailure`]);
 //! * steps still staged when the epoch's budget runs out are flushed as [`Outcome::Incomplete`] (the reference drops
@@ -121,7 +122,11 @@ impl Segmenter {
             (_, Some(reason)) => {
                 let steps = std::mem::take(&mut self.staged);
                 if !steps.is_empty() {
-                    let seg = self.cut(Outcome::Failure(reason), steps, version, seq);
+                    let outcome = match reason {
+                        EndReason::MaxLaps => Outcome::Incomplete,
+                        reason => Outcome::Failure(reason),
+                    };
+                    let seg = self.cut(outcome, steps, version, seq);
                     out.push(seg);
                 }
                 self.new_episode();
@@ -169,6 +174,22 @@ mod tests {
             next_state: [1.0, 0.0, 0.0, x + 0.1, 0.0, 0.0],
             expert_ok: ok,
         }
+    }
+
+    #[test]
+    fn a_max_laps_truncation_is_not_a_failure() {
+        let (mut s, mut seq, mut out) = (Segmenter::new("a", 0, 2), SeqCounter::default(), vec![]);
+        s.push(step(true, 0.0), StepEnd::Lap, 1, &mut seq, &mut out);
+        let end = StepEnd::Truncated(EndReason::MaxLaps);
+        assert_eq!(
+            s.push(step(true, 0.1), end, 1, &mut seq, &mut out),
+            Some(EndReason::MaxLaps)
+        );
+        let outcomes: Vec<_> = out.iter().map(|s| s.outcome).collect();
+        assert_eq!(outcomes, [Outcome::Lap, Outcome::Incomplete]);
+        let end = StepEnd::Truncated(EndReason::OutOfTrack);
+        s.push(step(true, 0.2), end, 1, &mut seq, &mut out);
+        assert_eq!(out[2].outcome, Outcome::Failure(EndReason::OutOfTrack));
     }
 
     #[test]

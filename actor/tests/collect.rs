@@ -5,7 +5,8 @@
 
 use cabc_actor::collect::Collector;
 use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
-use cabc_proto::messages::{ExpertAnswer, Outcome, Segment};
+use cabc_proto::messages::{ExpertAnswer, ExpertQuery, Outcome, Segment};
+use cabc_proto::ports::{ExpertClient, Pending, PortError};
 use cabc_sim::pid::PidLaneFollower;
 use std::hash::{Hash, Hasher};
 
@@ -26,9 +27,131 @@ fn collect(config: &RunConfig, budget: u64) -> Vec<Segment> {
     collect_epochs(config, budget, 3, 0.6, 37).0
 }
 
+/// The PID lane follower as the expert, every `fail_every`th query failing. `deferred`: it answers in `receive`, as a
+/// server over the bus does, with several relabellings in flight; else at once (in-process).
+struct Pid {
+    fail_every: usize,
+    deferred: bool,
+    answered: usize,
+    in_flight: Vec<(u64, Vec<ExpertAnswer>)>,
+    next_id: u64,
+    most_in_flight: usize,
+}
+
+impl Pid {
+    fn new(fail_every: usize, deferred: bool) -> Self {
+        Pid {
+            fail_every,
+            deferred,
+            answered: 0,
+            in_flight: Vec::new(),
+            next_id: 0,
+            most_in_flight: 0,
+        }
+    }
+}
+
+impl ExpertClient for Pid {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        Ok(queries
+            .iter()
+            .map(|q| {
+                self.answered += 1;
+                answer(self.answered, self.fail_every, &q.frenet)
+            })
+            .collect())
+    }
+
+    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
+        if !self.deferred {
+            return self.relabel(queries).map(Pending::Answered);
+        }
+        // Numbered in the order sent, as the whole-batch driver numbered them; handed over in `receive`.
+        let answers = self.relabel(queries)?;
+        self.next_id += 1;
+        self.in_flight.push((self.next_id, answers));
+        self.most_in_flight = self.most_in_flight.max(self.in_flight.len());
+        Ok(Pending::InFlight(self.next_id))
+    }
+
+    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
+        match pending {
+            Pending::Answered(answers) => Ok(answers),
+            Pending::InFlight(id) => {
+                let at = self.in_flight.iter().position(|(i, _)| *i == id);
+                at.map(|at| self.in_flight.swap_remove(at).1)
+                    .ok_or_else(|| PortError::Transport(format!("unknown request {id}")))
+            }
+        }
+    }
+}
+
+/// The fixed function that stands in for the policy.
+fn policy(states: &[[f32; 6]]) -> Vec<[f32; 2]> {
+    states
+        .iter()
+        .map(|s| {
+            [
+                0.8 - s[0] * 0.3,
+                -0.9 * s[4] - 0.4 * s[5] + 0.05 * s[3].sin(),
+            ]
+        })
+        .collect()
+}
+
 /// Collects `epochs` epochs of `budget` steps under the mixture `beta`, every `fail_every`th expert query failing;
 /// returns the segments and the steps still staged at the end.
 fn collect_epochs(
+    config: &RunConfig,
+    budget: u64,
+    epochs: u64,
+    beta: f64,
+    fail_every: usize,
+) -> (Vec<Segment>, u64) {
+    let (whole, staged) = collect_whole_batches(config, budget, epochs, beta, fail_every);
+    for deferred in [false, true] {
+        let mut collector = Collector::new("golden", 1, config);
+        let mut expert = Pid::new(fail_every, deferred);
+        let mut out = Vec::new();
+        for version in 0..epochs {
+            collector.begin_epoch();
+            let ended = collector
+                .collect(
+                    budget,
+                    beta,
+                    version,
+                    &mut expert,
+                    |input| {
+                        assert!(input.images.is_empty() || input.images.len() == input.states.len());
+                        Ok::<_, PortError>(policy(input.states))
+                    },
+                    |segments| {
+                        out.append(segments);
+                        Ok(None)
+                    },
+                )
+                .unwrap();
+            assert_eq!(ended, None);
+            assert_eq!(collector.taken(), budget);
+            collector.end_epoch(version, &mut out);
+        }
+        if deferred {
+            let halves = collector.halves().len();
+            assert_eq!(halves, config.actors.envs_per_actor.min(2) as usize);
+            assert_eq!(expert.most_in_flight, halves, "each half in flight");
+            assert!(expert.in_flight.is_empty());
+        }
+        assert!(
+            out == whole,
+            "the halves in alternation (deferred answers: {deferred}) cut the segments of whole-batch steps"
+        );
+        assert_eq!(collector.staged(), staged);
+    }
+    (whole, staged)
+}
+
+/// The same collection with every environment stepping at once each tick (the driver before the halves).
+fn collect_whole_batches(
     config: &RunConfig,
     budget: u64,
     epochs: u64,
@@ -40,28 +163,19 @@ fn collect_epochs(
     for version in 0..epochs {
         collector.begin_epoch();
         while collector.taken() < budget {
-            let active = collector.active(budget);
+            let active = (budget - collector.taken()).min(collector.len() as u64) as usize;
             let answers: Vec<ExpertAnswer> = collector
-                .queries(active)
+                .queries(0..active)
                 .iter()
                 .map(|q| {
                     n += 1;
                     answer(n, fail_every, &q.frenet)
                 })
                 .collect();
-            let input = collector.observations(active);
+            let input = collector.observations(0..active);
             assert_eq!(input.states.len(), active);
-            let policy: Vec<[f32; 2]> = input
-                .states
-                .iter()
-                .map(|s| {
-                    [
-                        0.8 - s[0] * 0.3,
-                        -0.9 * s[4] - 0.4 * s[5] + 0.05 * s[3].sin(),
-                    ]
-                })
-                .collect();
-            collector.step(&answers, &policy, beta, version, &mut out);
+            let actions = policy(input.states);
+            collector.step(0, &answers, &actions, beta, version, &mut out);
         }
         collector.end_epoch(version, &mut out);
     }

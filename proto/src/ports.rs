@@ -28,10 +28,40 @@ pub enum Next {
     Stop(String),
 }
 
+/// A relabelling started by [`ExpertClient::send`], to be finished by [`ExpertClient::receive`].
+#[derive(Debug)]
+pub enum Pending {
+    /// A client that cannot overlap (in-process) answered at once.
+    Answered(Vec<ExpertAnswer>),
+    /// On its way: the client's request id.
+    InFlight(u64),
+}
+
 /// pi_beta(x): the expert's actions for a batch of states (the relabelling of Algorithm 1).
 pub trait ExpertClient {
     /// One answer per query, in order. Waits for an expert; fails only when the run stops or the transport dies.
     fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError>;
+
+    /// Starts a relabelling without waiting for its answers, so that the caller simulates meanwhile; they come from
+    /// [`Self::receive`]. A client that cannot overlap answers at once (the default).
+    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
+        self.relabel(queries).map(Pending::Answered)
+    }
+
+    /// Drops a relabelling started by [`Self::send`] whose answers are no longer wanted (the epoch ended early).
+    fn cancel(&mut self, pending: Pending) {
+        drop(pending);
+    }
+
+    /// The answers of a relabelling started by [`Self::send`], waiting for them as [`Self::relabel`] does.
+    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
+        match pending {
+            Pending::Answered(answers) => Ok(answers),
+            Pending::InFlight(id) => Err(PortError::Transport(format!(
+                "request {id} is not in flight with this client"
+            ))),
+        }
+    }
 }
 
 /// An actor's variable source: the learner's policy versions.

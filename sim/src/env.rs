@@ -476,14 +476,20 @@ impl EnvBatch {
     /// Step env i with `actions[i]` for the first `actions.len()` envs (the rest wait: a step budget can end
     /// mid-batch); the results live in a buffer reused across calls.
     pub fn step(&mut self, actions: &[Input]) -> Result<&[StepResult], EnvError> {
-        if actions.len() > self.envs.len() {
+        self.step_from(0, actions)
+    }
+
+    /// Step env `first + i` with `actions[i]` (the others wait: the actor steps its environments in halves); the
+    /// results, in that order, live in a buffer reused across calls.
+    pub fn step_from(&mut self, first: usize, actions: &[Input]) -> Result<&[StepResult], EnvError> {
+        let len = self.envs.len();
+        if first > len || actions.len() > len - first {
             return Err(EnvError::BatchSize {
-                expected: self.envs.len(),
+                expected: len.saturating_sub(first),
                 got: actions.len(),
             });
         }
-        for ((env, a), out) in self
-            .envs
+        for ((env, a), out) in self.envs[first..]
             .iter_mut()
             .zip(actions)
             .zip(self.results.iter_mut())

@@ -1,0 +1,120 @@
+//! The actor's environments step in two halves that alternate (one half's relabelling travels while the other half
+//! steps): with the MPCC expert, whose answers depend on each stream's warm start, the data must be what whole-batch
+//! steps give, whether the expert answers at once or only when asked for the answers.
+
+use cabc_actor::collect::Collector;
+use cabc_expert::mpcc::Mpcc;
+use cabc_expert::relabel::{Expert, Relabeller};
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::{ExpertAnswer, ExpertQuery, Segment};
+use cabc_proto::ports::{ExpertClient, Pending, PortError};
+use std::sync::Arc;
+
+/// The relabeller, answering a request only when its answers are asked for.
+struct Deferred {
+    relabeller: Relabeller,
+    waiting: Vec<(u64, Vec<ExpertQuery>)>,
+    next: u64,
+}
+
+impl ExpertClient for Deferred {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        self.relabeller.relabel(queries)
+    }
+
+    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
+        self.next += 1;
+        self.waiting.push((self.next, queries));
+        Ok(Pending::InFlight(self.next))
+    }
+
+    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
+        let Pending::InFlight(id) = pending else {
+            unreachable!("this client defers every request")
+        };
+        let at = self.waiting.iter().position(|(i, _)| *i == id).unwrap();
+        let (_, queries) = self.waiting.remove(at);
+        self.relabeller.relabel(queries)
+    }
+}
+
+fn config() -> RunConfig {
+    let mut c = RunConfig::load("v-b").unwrap();
+    c.actors.envs_per_actor = 4;
+    c
+}
+
+fn relabeller() -> Relabeller {
+    let c = config();
+    Relabeller::new(
+        Expert::Mpcc(Arc::new(Mpcc::reference())),
+        c.expert.max_streams,
+        c.expert.max_batch,
+    )
+}
+
+/// A fixed stand-in for the policy.
+fn policy(states: &[[f32; 6]]) -> Vec<[f32; 2]> {
+    states
+        .iter()
+        .map(|s| [0.5 - 0.2 * s[0], -0.8 * s[4] - 0.3 * s[5]])
+        .collect()
+}
+
+const BUDGET: u64 = 240;
+const BETA: f64 = 0.7;
+
+fn whole_batches() -> Vec<Segment> {
+    let mut expert = relabeller();
+    let mut collector = Collector::new("a", 0, &config());
+    let mut out = Vec::new();
+    for version in 0..2 {
+        collector.begin_epoch();
+        while collector.taken() < BUDGET {
+            let n = (BUDGET - collector.taken()).min(collector.len() as u64) as usize;
+            let answers = expert.relabel(collector.queries(0..n)).unwrap();
+            let actions = policy(collector.observations(0..n).states);
+            collector.step(0, &answers, &actions, BETA, version, &mut out);
+        }
+        collector.end_epoch(version, &mut out);
+    }
+    out
+}
+
+fn halves(expert: &mut dyn ExpertClient) -> Vec<Segment> {
+    let mut collector = Collector::new("a", 0, &config());
+    let mut out = Vec::new();
+    for version in 0..2 {
+        collector.begin_epoch();
+        let ended = collector
+            .collect(
+                BUDGET,
+                BETA,
+                version,
+                expert,
+                |input| Ok::<_, PortError>(policy(input.states)),
+                |segments| {
+                    out.append(segments);
+                    Ok(None)
+                },
+            )
+            .unwrap();
+        assert!(ended.is_none());
+        collector.end_epoch(version, &mut out);
+    }
+    out
+}
+
+#[test]
+fn mpcc_data_is_the_same_in_halves() {
+    let whole = whole_batches();
+    assert!(whole.len() > 2, "{} segments", whole.len());
+    let mut at_once = relabeller();
+    assert!(halves(&mut at_once) == whole, "answered at once");
+    let mut deferred = Deferred {
+        relabeller: relabeller(),
+        waiting: Vec::new(),
+        next: 0,
+    };
+    assert!(halves(&mut deferred) == whole, "answered when asked");
+}
