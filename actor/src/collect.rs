@@ -17,10 +17,10 @@ use crate::sensor::Sensor;
 use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
 use cabc_proto::ports::{ExpertClient, Next, Pending, PortError};
-use std::collections::VecDeque;
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
+use std::collections::VecDeque;
 use std::ops::Range;
 use std::sync::Arc;
 
@@ -182,7 +182,7 @@ impl Collector {
     pub fn halves(&self) -> Vec<Range<usize>> {
         let k = self.envs.len();
         if k < 2 {
-            vec![0..k]
+            std::iter::once(0..k).collect()
         } else {
             vec![0..k / 2, k / 2..k]
         }

@@ -122,7 +122,9 @@ fn collect_epochs(
                     version,
                     &mut expert,
                     |input| {
-                        assert!(input.images.is_empty() || input.images.len() == input.states.len());
+                        assert!(
+                            input.images.is_empty() || input.images.len() == input.states.len()
+                        );
                         Ok::<_, PortError>(policy(input.states))
                     },
                     |segments| {

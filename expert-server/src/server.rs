@@ -17,8 +17,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
-/// Requests in this server at once (decoding, solving or queued for the solver threads). An actor has one request
-/// out at a time (two around a timeout), so this serves 32 or more actors per server without a refusal.
+/// Requests in this server at once (decoding, solving or queued for the solver threads). An actor has two requests
+/// out at a time (one per half of its environments; three around a timeout), so this serves 20 or more actors per
+/// server without a refusal.
 pub const MAX_IN_FLIGHT: usize = 64;
 
 /// Admission of requests: a permit per request in flight, none beyond [`MAX_IN_FLIGHT`].
@@ -105,13 +106,34 @@ impl Metrics {
     }
 }
 
-pub fn serve(config: RunConfig, expert: Expert, args: ServeArgs) -> Result<()> {
-    if let Some(threads) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build_global()
-            .context("configuring the solver threads")?;
+/// The nice value of the solver threads. Solves are long and CPU-bound; zenoh's threads (here, in the router and in
+/// the actors) wake up for a message and are done in microseconds. Below them, a solve yields its core to a
+/// delivery at once instead of at the end of its time slice, which on a loaded machine was most of an actor's time
+/// on the wire.
+const SOLVER_NICE: i32 = 10;
+
+/// Lowers the calling thread's priority to [`SOLVER_NICE`] (Linux keeps a nice value per thread).
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: setpriority reads no memory of ours; who = 0 is the calling thread.
+        let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, SOLVER_NICE) };
+        if rc != 0 {
+            tracing::warn!(
+                "could not lower a solver thread's priority: {}",
+                std::io::Error::last_os_error()
+            );
+        }
     }
+}
+
+pub fn serve(config: RunConfig, expert: Expert, args: ServeArgs) -> Result<()> {
+    let mut pool = rayon::ThreadPoolBuilder::new().start_handler(|_| lower_priority());
+    if let Some(threads) = args.threads {
+        pool = pool.num_threads(threads);
+    }
+    pool.build_global()
+        .context("configuring the solver threads")?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

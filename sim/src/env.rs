@@ -481,7 +481,11 @@ impl EnvBatch {
 
     /// Step env `first + i` with `actions[i]` (the others wait: the actor steps its environments in halves); the
     /// results, in that order, live in a buffer reused across calls.
-    pub fn step_from(&mut self, first: usize, actions: &[Input]) -> Result<&[StepResult], EnvError> {
+    pub fn step_from(
+        &mut self,
+        first: usize,
+        actions: &[Input],
+    ) -> Result<&[StepResult], EnvError> {
         let len = self.envs.len();
         if first > len || actions.len() > len - first {
             return Err(EnvError::BatchSize {
