@@ -8,7 +8,8 @@
 # runs/<exp>-s<k>-baseline. An interrupted campaign resumes where it stopped: a run with summary.json from an
 # ended run is skipped, a run with a checkpoint is resumed, any other starts fresh. After each run its results
 # (summary.json, metrics.csv, evals.csv, plots) are copied to docs/reproduction/<run>/ and the comparison figures
-# of its experiment redrawn with `learner compare` into docs/reproduction/<exp>-*.png.
+# of its experiment redrawn with `learner compare` into docs/reproduction/<exp>-*.png, its tables (per run, and per
+# method over seeds: median and range) into docs/reproduction/<exp>-table.md.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -22,7 +23,7 @@ while [ $# -gt 0 ]; do
     --seeds) seeds=$2; shift ;;
     --epochs) epochs=$2; shift ;;
     --dry-run) dry=1 ;;
-    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) experiments+=("$1") ;;
   esac
@@ -75,7 +76,11 @@ for exp in "${experiments[@]}"; do
     folders=()
     for d in "$out/$exp"-s*; do [ -f "$d/metrics.csv" ] && folders+=("$d"); done
     if [ ${#folders[@]} -gt 0 ]; then
-      "$learner" compare --out "$out/$exp" "${folders[@]}" || echo "[reproduce] compare $exp failed" >&2
+      if "$learner" compare --out "$out/$exp" "${folders[@]}" > "$out/$exp-table.md"; then
+        cat "$out/$exp-table.md"
+      else
+        echo "[reproduce] compare $exp failed" >&2
+      fi
     fi
   fi
 done

@@ -35,9 +35,10 @@ fn transport(e: impl std::fmt::Display) -> PortError {
 /// Time figures of an actor's traffic since start.
 #[derive(Clone, Debug, Default)]
 pub struct WireStats {
-    /// Waiting on the expert: whole round trips.
+    /// Blocked on the expert: the part of each round trip the actor had nothing else to do.
     pub expert_wait: Duration,
-    /// On the wire: expert round trips less the server's residence time, plus publishing segments.
+    /// On the wire while the actor waited: of each expert round trip, the time less the server's residence, at most
+    /// the time the actor was blocked on it (the rest overlapped its other half's work); plus publishing segments.
     pub transport: Duration,
     /// Broadcast latencies of the policy updates received by subscription (ms).
     pub policy_latency_ms: Vec<f64>,

@@ -5,7 +5,8 @@
 //! * `<out>-lap-times.png`: lap-time mean and spread of the evaluations that completed `eval_laps` laps, against
 //!   the expert's;
 //! * a Markdown table on stdout: per run, the versions of the first and second full evaluation, the early stop,
-//!   lap times, the incomplete share and the wall clock.
+//!   lap times, the incomplete share and the wall clock; then per method, the median and range over its runs
+//!   ([`crate::seeds`]).
 //!
 //! A run folder is read from its `config.toml`, `metrics.csv`, `evals.csv` and (when the run ended) `summary.json`;
 //! it may still be running. Proposed runs (lambda > 0) are drawn in blues, baselines (lambda = 0) in reds.
@@ -224,7 +225,11 @@ pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
     for figure in draw(&records, &options.out)? {
         tracing::info!("wrote {}", figure.display());
     }
-    Ok(table(&records))
+    Ok(format!(
+        "{}\n{}",
+        table(&records),
+        crate::seeds::methods_table(&records)
+    ))
 }
 
 /// Draws the three figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`; returns their paths.

@@ -29,6 +29,7 @@ pub mod plots;
 pub mod replay;
 pub mod rundir;
 pub mod schedule;
+pub mod seeds;
 #[cfg(feature = "server")]
 pub mod serve;
 pub mod train;
