@@ -12,6 +12,7 @@
 //!
 //! Only binaries open sessions (architecture.md); libraries stay free of zenoh.
 
+pub mod expert;
 pub mod gate;
 pub mod interrupt;
 pub mod ports;
