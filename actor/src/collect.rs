@@ -305,50 +305,53 @@ impl Collector {
         beta: f64,
         version: u64,
         expert: &mut dyn ExpertClient,
+        policy: impl FnMut(&Observations) -> Result<Vec<[f32; 2]>, E>,
+        between: impl FnMut(&mut Vec<Segment>) -> Result<Option<Next>, E>,
+    ) -> Result<Option<Next>, E> {
+        let mut queue = VecDeque::new();
+        let ended = self.pipeline(&mut queue, budget, beta, version, expert, policy, between);
+        for (_, _, pending) in queue {
+            expert.cancel(pending);
+        }
+        match ended {
+            Ok(next) => Ok(next),
+            Err(Halt::Stopped(reason)) => Ok(Some(Next::Stop(reason))),
+            Err(Halt::Failed(e)) => Err(e),
+        }
+    }
+
+    /// [`Collector::collect`]'s loop; what is still in `queue` when it returns is the caller's to cancel.
+    #[allow(clippy::too_many_arguments)]
+    fn pipeline<E: From<PortError>>(
+        &mut self,
+        queue: &mut VecDeque<(usize, Range<usize>, Pending)>,
+        budget: u64,
+        beta: f64,
+        version: u64,
+        expert: &mut dyn ExpertClient,
         mut policy: impl FnMut(&Observations) -> Result<Vec<[f32; 2]>, E>,
         mut between: impl FnMut(&mut Vec<Segment>) -> Result<Option<Next>, E>,
-    ) -> Result<Option<Next>, E> {
+    ) -> Result<Option<Next>, Halt<E>> {
         let mut out = Vec::new();
-        if let Some(next) = between(&mut out)? {
+        if let Some(next) = between(&mut out).map_err(Halt::Failed)? {
             return Ok(Some(next));
         }
         let halves = self.halves();
-        let mut queue = VecDeque::with_capacity(halves.len());
         let mut reserved = 0u64;
         for (h, half) in halves.iter().enumerate() {
-            match self.send(half, budget, &mut reserved, expert) {
-                Ok(Some((envs, pending))) => queue.push_back((h, envs, pending)),
-                Ok(None) => break,
-                Err(PortError::Stopped(reason)) => {
-                    cancel_all(queue, expert);
-                    return Ok(Some(Next::Stop(reason)));
-                }
-                Err(e) => return Err(e.into()),
+            if let Some((envs, pending)) = self.send(half, budget, &mut reserved, expert)? {
+                queue.push_back((h, envs, pending));
             }
         }
         while let Some((h, envs, pending)) = queue.pop_front() {
-            let actions = policy(&self.observations(envs.clone()))?;
-            let answers = match expert.receive(pending) {
-                Ok(answers) => answers,
-                Err(PortError::Stopped(reason)) => {
-                    cancel_all(queue, expert);
-                    return Ok(Some(Next::Stop(reason)));
-                }
-                Err(e) => return Err(e.into()),
-            };
+            let actions = policy(&self.observations(envs.clone())).map_err(Halt::Failed)?;
+            let answers = expert.receive(pending)?;
             reserved -= envs.len() as u64;
             self.step(envs.start, &answers, &actions, beta, version, &mut out);
-            match self.send(&halves[h], budget, &mut reserved, expert) {
-                Ok(Some((envs, pending))) => queue.push_back((h, envs, pending)),
-                Ok(None) => {}
-                Err(PortError::Stopped(reason)) => {
-                    cancel_all(queue, expert);
-                    return Ok(Some(Next::Stop(reason)));
-                }
-                Err(e) => return Err(e.into()),
+            if let Some((envs, pending)) = self.send(&halves[h], budget, &mut reserved, expert)? {
+                queue.push_back((h, envs, pending));
             }
-            if let Some(next) = between(&mut out)? {
-                cancel_all(queue, expert);
+            if let Some(next) = between(&mut out).map_err(Halt::Failed)? {
                 return Ok(Some(next));
             }
         }
@@ -386,10 +389,18 @@ impl Collector {
     }
 }
 
-/// Cancels the relabellings still on their way when an epoch ends early.
-fn cancel_all(queue: VecDeque<(usize, Range<usize>, Pending)>, expert: &mut dyn ExpertClient) {
-    for (_, _, pending) in queue {
-        expert.cancel(pending);
+/// Why [`Collector::collect`]'s loop ended early: a stop while talking to the expert, or the caller's error.
+enum Halt<E> {
+    Stopped(String),
+    Failed(E),
+}
+
+impl<E: From<PortError>> From<PortError> for Halt<E> {
+    fn from(e: PortError) -> Self {
+        match e {
+            PortError::Stopped(reason) => Halt::Stopped(reason),
+            e => Halt::Failed(e.into()),
+        }
     }
 }
 

@@ -8,9 +8,11 @@ use crate::evaluate::evaluate;
 use crate::run::{act, collect_epoch};
 use cabc_models::Policy;
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{EvalReport, PolicyUpdate, Segment, TrajMessage};
+use cabc_proto::messages::{
+    EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage,
+};
 use cabc_proto::ports::{
-    Collected, ExpertClient, Next, PolicySource, PortError, Rollouts, SegmentSink,
+    Collected, ExpertClient, Next, Pending, PolicySource, PortError, Rollouts, SegmentSink,
 };
 use tch::Device;
 
@@ -129,5 +131,62 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
 
     fn stop(&mut self, _reason: &str) -> Result<(), PortError> {
         Ok(())
+    }
+}
+
+/// An in-process expert client that answers a relabelling only when its answers are asked for
+/// ([`ExpertClient::receive`]), as a server over the bus does, so that [`Collector::collect`] has several in flight;
+/// tests of the halves use it. `most_in_flight` is the most that were at once.
+pub struct Deferred<C: ExpertClient> {
+    pub inner: C,
+    waiting: Vec<(u64, Vec<ExpertQuery>)>,
+    next: u64,
+    pub most_in_flight: usize,
+}
+
+impl<C: ExpertClient> Deferred<C> {
+    pub fn new(inner: C) -> Self {
+        Deferred {
+            inner,
+            waiting: Vec::new(),
+            next: 0,
+            most_in_flight: 0,
+        }
+    }
+
+    /// Relabellings sent and neither received nor cancelled.
+    pub fn in_flight(&self) -> usize {
+        self.waiting.len()
+    }
+}
+
+impl<C: ExpertClient> ExpertClient for Deferred<C> {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        self.inner.relabel(queries)
+    }
+
+    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
+        self.next += 1;
+        self.waiting.push((self.next, queries));
+        self.most_in_flight = self.most_in_flight.max(self.waiting.len());
+        Ok(Pending::InFlight(self.next))
+    }
+
+    fn cancel(&mut self, pending: Pending) {
+        if let Pending::InFlight(id) = pending {
+            self.waiting.retain(|(i, _)| *i != id);
+        }
+    }
+
+    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
+        let id = match pending {
+            Pending::Answered(answers) => return Ok(answers),
+            Pending::InFlight(id) => id,
+        };
+        let at = self.waiting.iter().position(|(i, _)| *i == id);
+        let (_, queries) = at
+            .map(|at| self.waiting.remove(at))
+            .ok_or_else(|| PortError::Transport(format!("request {id} is not in flight")))?;
+        self.inner.relabel(queries)
     }
 }

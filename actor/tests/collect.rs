@@ -4,9 +4,10 @@
 //! episodes carried across epochs, a lap longer than an epoch's budget lands in D+ whole.
 
 use cabc_actor::collect::Collector;
+use cabc_actor::local::Deferred;
 use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
 use cabc_proto::messages::{ExpertAnswer, ExpertQuery, Outcome, Segment};
-use cabc_proto::ports::{ExpertClient, Pending, PortError};
+use cabc_proto::ports::{ExpertClient, PortError};
 use cabc_sim::pid::PidLaneFollower;
 use std::hash::{Hash, Hasher};
 
@@ -27,28 +28,10 @@ fn collect(config: &RunConfig, budget: u64) -> Vec<Segment> {
     collect_epochs(config, budget, 3, 0.6, 37).0
 }
 
-/// The PID lane follower as the expert, every `fail_every`th query failing. `deferred`: it answers in `receive`, as a
-/// server over the bus does, with several relabellings in flight; else at once (in-process).
+/// The PID lane follower as the expert, every `fail_every`th query failing (queries numbered in the order answered).
 struct Pid {
     fail_every: usize,
-    deferred: bool,
     answered: usize,
-    in_flight: Vec<(u64, Vec<ExpertAnswer>)>,
-    next_id: u64,
-    most_in_flight: usize,
-}
-
-impl Pid {
-    fn new(fail_every: usize, deferred: bool) -> Self {
-        Pid {
-            fail_every,
-            deferred,
-            answered: 0,
-            in_flight: Vec::new(),
-            next_id: 0,
-            most_in_flight: 0,
-        }
-    }
 }
 
 impl ExpertClient for Pid {
@@ -60,29 +43,6 @@ impl ExpertClient for Pid {
                 answer(self.answered, self.fail_every, &q.frenet)
             })
             .collect())
-    }
-
-    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
-        if !self.deferred {
-            return self.relabel(queries).map(Pending::Answered);
-        }
-        // Numbered in the order sent, as the whole-batch driver numbered them; handed over in `receive`.
-        let answers = self.relabel(queries)?;
-        self.next_id += 1;
-        self.in_flight.push((self.next_id, answers));
-        self.most_in_flight = self.most_in_flight.max(self.in_flight.len());
-        Ok(Pending::InFlight(self.next_id))
-    }
-
-    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
-        match pending {
-            Pending::Answered(answers) => Ok(answers),
-            Pending::InFlight(id) => {
-                let at = self.in_flight.iter().position(|(i, _)| *i == id);
-                at.map(|at| self.in_flight.swap_remove(at).1)
-                    .ok_or_else(|| PortError::Transport(format!("unknown request {id}")))
-            }
-        }
     }
 }
 
@@ -109,47 +69,62 @@ fn collect_epochs(
     fail_every: usize,
 ) -> (Vec<Segment>, u64) {
     let (whole, staged) = collect_whole_batches(config, budget, epochs, beta, fail_every);
-    for deferred in [false, true] {
-        let mut collector = Collector::new("golden", 1, config);
-        let mut expert = Pid::new(fail_every, deferred);
-        let mut out = Vec::new();
-        for version in 0..epochs {
-            collector.begin_epoch();
-            let ended = collector
-                .collect(
-                    budget,
-                    beta,
-                    version,
-                    &mut expert,
-                    |input| {
-                        assert!(
-                            input.images.is_empty() || input.images.len() == input.states.len()
-                        );
-                        Ok::<_, PortError>(policy(input.states))
-                    },
-                    |segments| {
-                        out.append(segments);
-                        Ok(None)
-                    },
-                )
-                .unwrap();
-            assert_eq!(ended, None);
-            assert_eq!(collector.taken(), budget);
-            collector.end_epoch(version, &mut out);
-        }
-        if deferred {
-            let halves = collector.halves().len();
-            assert_eq!(halves, config.actors.envs_per_actor.min(2) as usize);
-            assert_eq!(expert.most_in_flight, halves, "each half in flight");
-            assert!(expert.in_flight.is_empty());
-        }
+    let pid = || Pid {
+        fail_every,
+        answered: 0,
+    };
+    let mut at_once = pid();
+    let mut deferred = Deferred::new(pid());
+    let runs: [(&str, &mut dyn ExpertClient); 2] =
+        [("at once", &mut at_once), ("deferred", &mut deferred)];
+    for (answers, expert) in runs {
+        let (out, collector) = collect_in_halves(config, budget, epochs, beta, expert);
         assert!(
             out == whole,
-            "the halves in alternation (deferred answers: {deferred}) cut the segments of whole-batch steps"
+            "the halves in alternation (answers {answers}) cut the segments of whole-batch steps"
         );
         assert_eq!(collector.staged(), staged);
     }
+    let halves = Collector::new("golden", 1, config).halves().len();
+    assert_eq!(halves, config.actors.envs_per_actor.min(2) as usize);
+    assert_eq!(deferred.most_in_flight, halves, "each half in flight");
+    assert_eq!(deferred.in_flight(), 0);
     (whole, staged)
+}
+
+/// The collection through [`Collector::collect`] (two halves in alternation): the segments and the collector.
+fn collect_in_halves(
+    config: &RunConfig,
+    budget: u64,
+    epochs: u64,
+    beta: f64,
+    expert: &mut dyn ExpertClient,
+) -> (Vec<Segment>, Collector) {
+    let mut collector = Collector::new("golden", 1, config);
+    let mut out = Vec::new();
+    for version in 0..epochs {
+        collector.begin_epoch();
+        let ended = collector
+            .collect(
+                budget,
+                beta,
+                version,
+                expert,
+                |input| {
+                    assert!(input.images.is_empty() || input.images.len() == input.states.len());
+                    Ok::<_, PortError>(policy(input.states))
+                },
+                |segments| {
+                    out.append(segments);
+                    Ok(None)
+                },
+            )
+            .unwrap();
+        assert_eq!(ended, None);
+        assert_eq!(collector.taken(), budget);
+        collector.end_epoch(version, &mut out);
+    }
+    (out, collector)
 }
 
 /// The same collection with every environment stepping at once each tick (the driver before the halves).

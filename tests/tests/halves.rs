@@ -3,40 +3,13 @@
 //! steps give, whether the expert answers at once or only when asked for the answers.
 
 use cabc_actor::collect::Collector;
+use cabc_actor::local::Deferred;
 use cabc_expert::mpcc::Mpcc;
 use cabc_expert::relabel::{Expert, Relabeller};
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{ExpertAnswer, ExpertQuery, Segment};
-use cabc_proto::ports::{ExpertClient, Pending, PortError};
+use cabc_proto::messages::Segment;
+use cabc_proto::ports::{ExpertClient, PortError};
 use std::sync::Arc;
-
-/// The relabeller, answering a request only when its answers are asked for.
-struct Deferred {
-    relabeller: Relabeller,
-    waiting: Vec<(u64, Vec<ExpertQuery>)>,
-    next: u64,
-}
-
-impl ExpertClient for Deferred {
-    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
-        self.relabeller.relabel(queries)
-    }
-
-    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
-        self.next += 1;
-        self.waiting.push((self.next, queries));
-        Ok(Pending::InFlight(self.next))
-    }
-
-    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
-        let Pending::InFlight(id) = pending else {
-            unreachable!("this client defers every request")
-        };
-        let at = self.waiting.iter().position(|(i, _)| *i == id).unwrap();
-        let (_, queries) = self.waiting.remove(at);
-        self.relabeller.relabel(queries)
-    }
-}
 
 fn config() -> RunConfig {
     let mut c = RunConfig::load("v-b").unwrap();
@@ -111,10 +84,6 @@ fn mpcc_data_is_the_same_in_halves() {
     assert!(whole.len() > 2, "{} segments", whole.len());
     let mut at_once = relabeller();
     assert!(halves(&mut at_once) == whole, "answered at once");
-    let mut deferred = Deferred {
-        relabeller: relabeller(),
-        waiting: Vec::new(),
-        next: 0,
-    };
+    let mut deferred = Deferred::new(relabeller());
     assert!(halves(&mut deferred) == whole, "answered when asked");
 }

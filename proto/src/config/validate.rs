@@ -48,33 +48,25 @@ impl RunConfig {
                 "must lie in [0, 1]",
             );
         }
-        if self.algorithm.autolabel_every == 0 {
-            return invalid("algorithm.autolabel_every", "0".into(), "must be >= 1");
-        }
-        if self.collection.steps_per_epoch == 0 {
-            return invalid("collection.steps_per_epoch", "0".into(), "must be >= 1");
-        }
-        if self.actors.count == 0 {
-            return invalid("actors.count", "0".into(), "must be >= 1");
-        }
-        if self.actors.evaluators == 0 {
-            return invalid("actors.evaluators", "0".into(), "must be >= 1");
-        }
-        if self.actors.envs_per_actor == 0 {
-            return invalid("actors.envs_per_actor", "0".into(), "must be >= 1");
-        }
-        if self.training.batch_size == 0 {
-            return invalid("training.batch_size", "0".into(), "must be >= 1");
-        }
-        if self.training.dynamics_every == 0 || self.training.critic_every == 0 {
-            return invalid(
+        // Counts and periods that must be at least 1.
+        let counts: [(&'static str, u64); 8] = [
+            ("algorithm.autolabel_every", self.algorithm.autolabel_every),
+            (
+                "collection.steps_per_epoch",
+                self.collection.steps_per_epoch,
+            ),
+            ("actors.count", self.actors.count.into()),
+            ("actors.evaluators", self.actors.evaluators.into()),
+            ("actors.envs_per_actor", self.actors.envs_per_actor.into()),
+            ("training.batch_size", self.training.batch_size as u64),
+            (
                 "training.dynamics_every / critic_every",
-                "0".into(),
-                "must be >= 1",
-            );
-        }
-        if self.replay.capacity == 0 {
-            return invalid("replay.capacity", "0".into(), "must be >= 1");
+                self.training.dynamics_every.min(self.training.critic_every),
+            ),
+            ("replay.capacity", self.replay.capacity as u64),
+        ];
+        if let Some(&(key, _)) = counts.iter().find(|(_, n)| *n == 0) {
+            return invalid(key, "0".into(), "must be >= 1");
         }
         if self.replay.max_bytes > 0 && self.plus_capacity() < self.training.batch_size {
             let per_step = REPLAY_STEP_BYTES + self.image_bytes();
