@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # The reproduction campaign: each experiment, proposed and --baseline, over seeds, one run after the other.
 #
-#   deploy/reproduce.sh [--seeds N] [--epochs E] [--dry-run] [EXPERIMENT ...]
+#   deploy/reproduce.sh [--seeds N|A-B] [--epochs E] [--tag T] [--methods "proposed baseline"] [--set KEY=VALUE ...]
+#                       [--dry-run] [EXPERIMENT ...]
 #
-# EXPERIMENT is a preset (default: v-b v-a-cpu v-c-cpu). Seed k (1..N) runs with run.seed = 41 + k, so seed 1 is
-# the presets' 42; --epochs E caps run.max_epochs (default: the preset's). Run folders are runs/<exp>-s<k> and
-# runs/<exp>-s<k>-baseline. An interrupted campaign resumes where it stopped: a run with summary.json from an
-# ended run is skipped, a run with a checkpoint is resumed, any other starts fresh. After each run its results
-# (summary.json, metrics.csv, evals.csv, plots) are copied to docs/reproduction/<run>/ and the comparison figures
-# of its experiment redrawn with `learner compare` into docs/reproduction/<exp>-*.png, its tables (per run, and per
-# method over seeds: median and range) into docs/reproduction/<exp>-table.md.
+# EXPERIMENT is a preset (default: v-b v-a-cpu v-c-cpu). Seed k (1..N, or A..B) runs with run.seed = 41 + k, so seed 1
+# is the presets' 42; --epochs E caps run.max_epochs (default: the preset's). --set changes the runs' configuration
+# (an ablation), and --tag names it: run folders are runs/<exp>[-<tag>]-s<k> and runs/<exp>[-<tag>]-s<k>-baseline.
+# An interrupted campaign resumes where it stopped: a run with summary.json from an ended run is skipped, a run with
+# a checkpoint is resumed, any other starts fresh. After each run its results (summary.json, metrics.csv, evals.csv,
+# plots) are copied to docs/reproduction/<run>/ and the comparison figures of its group redrawn with `learner
+# compare` into docs/reproduction/<exp>[-<tag>]-*.png, its tables (per run, and per method over seeds: median and
+# range) into docs/reproduction/<exp>[-<tag>]-table.md. With CABC_BIN=DIR the binaries in DIR are used and nothing
+# is built (a campaign that outlives code changes keeps its binaries; deploy/campaign.sh pins them).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -17,25 +20,43 @@ cd "$root"
 seeds=1
 epochs=""
 dry=0
+tag=""
+methods="proposed baseline"
+sets=()
 experiments=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds=$2; shift ;;
     --epochs) epochs=$2; shift ;;
+    --tag) tag=$2; shift ;;
+    --methods) methods=$2; shift ;;
+    --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
     --dry-run) dry=1 ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) experiments+=("$1") ;;
   esac
   shift
 done
 [ ${#experiments[@]} -gt 0 ] || experiments=(v-b v-a-cpu v-c-cpu)
-[[ "$seeds" =~ ^[1-9][0-9]*$ ]] || { echo "--seeds needs a positive number" >&2; exit 2; }
+if [[ "$seeds" =~ ^[1-9][0-9]*$ ]]; then first=1; last=$seeds
+elif [[ "$seeds" =~ ^([1-9][0-9]*)-([1-9][0-9]*)$ ]]; then first=${BASH_REMATCH[1]}; last=${BASH_REMATCH[2]}
+else echo "--seeds needs N or A-B" >&2; exit 2; fi
 [ -z "$epochs" ] || [[ "$epochs" =~ ^[1-9][0-9]*$ ]] || { echo "--epochs needs a positive number" >&2; exit 2; }
+[ -z "$tag" ] || [[ "$tag" =~ ^[A-Za-z0-9_.-]+$ ]] || { echo "--tag: letters, digits, '-', '_' or '.'" >&2; exit 2; }
+for m in $methods; do
+  [ "$m" = proposed ] || [ "$m" = baseline ] || { echo "--methods: proposed and/or baseline, not $m" >&2; exit 2; }
+done
 
-"$root/deploy/setup.sh"
-cargo build --release --quiet --bins
-learner="$root/target/release/learner"
+if [ -n "${CABC_BIN:-}" ]; then
+  bin=$(cd "$CABC_BIN" && pwd)
+else
+  "$root/deploy/setup.sh"
+  cargo build --release --quiet --bins
+  bin="$root/target/release"
+fi
+export CABC_BIN="$bin"
+learner="$bin/learner"
 runs_dir=runs
 out=docs/reproduction
 mkdir -p "$out"
@@ -46,10 +67,11 @@ ended() {
 }
 
 for exp in "${experiments[@]}"; do
-  for k in $(seq 1 "$seeds"); do
-    for variant in proposed baseline; do
-      name="$exp-s$k"
-      args=()
+  group="$exp${tag:+-$tag}"
+  for k in $(seq "$first" "$last"); do
+    for variant in $methods; do
+      name="$group-s$k"
+      args=(${sets[@]+"${sets[@]}"})
       if [ "$variant" = baseline ]; then name="$name-baseline"; args+=(--baseline); fi
       args+=(--set "run.seed=$((41 + k))" --set "run.name=$name")
       [ -z "$epochs" ] || args+=(--set "run.max_epochs=$epochs")
@@ -74,12 +96,12 @@ for exp in "${experiments[@]}"; do
   done
   if [ "$dry" = 0 ]; then
     folders=()
-    for d in "$out/$exp"-s*; do [ -f "$d/metrics.csv" ] && folders+=("$d"); done
+    for d in "$out/$group"-s*; do [ -f "$d/metrics.csv" ] && folders+=("$d"); done
     if [ ${#folders[@]} -gt 0 ]; then
-      if "$learner" compare --out "$out/$exp" "${folders[@]}" > "$out/$exp-table.md"; then
-        cat "$out/$exp-table.md"
+      if "$learner" compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"; then
+        cat "$out/$group-table.md"
       else
-        echo "[reproduce] compare $exp failed" >&2
+        echo "[reproduce] compare $group failed" >&2
       fi
     fi
   fi

@@ -5,6 +5,7 @@
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
 # eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
+# With CABC_BIN=DIR the binaries in DIR are used and nothing is built.
 # Default preset: v-b (MPCC expert, full state, lambda 10, rho 1). --baseline runs the same with lambda = 0.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
@@ -30,10 +31,15 @@ while [ $# -gt 0 ]; do
   shift
 done
 
-"$root/deploy/setup.sh"
-echo "[run-local] building (release)" >&2
-cargo build --release --quiet --bins
-bin="$root/target/release"
+if [ -n "${CABC_BIN:-}" ]; then
+  # Prebuilt binaries (deploy/reproduce.sh under deploy/campaign.sh): nothing is built.
+  bin=$CABC_BIN
+else
+  "$root/deploy/setup.sh"
+  echo "[run-local] building (release)" >&2
+  cargo build --release --quiet --bins
+  bin="$root/target/release"
+fi
 for b in learner actor expert-server; do
   [ -x "$bin/$b" ] || { echo "[run-local] error: $bin/$b was not built" >&2; exit 1; }
 done

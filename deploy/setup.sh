@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # Installs everything the build needs, idempotently (a second run takes a second):
-#   * libtorch 2.13.0, from `pip install torch==2.13.0` into .deps/torch (git-ignored): the only way to get
+#   * libtorch 2.11.0 (the version tch 0.24 pins, and the one the lent GPU machine has), from `pip install torch==2.11.0` into .deps/torch (git-ignored): the only way to get
 #     libtorch here. tch finds it through LIBTORCH, set in .cargo/config.toml; binaries carry an rpath to it.
 #   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable;
 #   * openssl (deploy/make-certs.sh), when missing and apt is usable.
 # Prints what it does; fails with a message that names what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-TORCH_VERSION=2.13.0
+TORCH_VERSION=${CABC_TORCH_VERSION:-2.11.0}
 deps="$root/.deps"
 torch_dir="$deps/torch"
 marker="$torch_dir/.cabc-installed-$TORCH_VERSION"

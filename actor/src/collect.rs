@@ -14,7 +14,7 @@
 use crate::eyes::Eyes;
 use crate::segment::{Segmenter, SeqCounter, StepEnd};
 use crate::sensor::Sensor;
-use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn};
+use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn, StoredAction};
 use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
 use cabc_proto::ports::{ExpertClient, Next, Pending, PortError};
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
@@ -78,9 +78,11 @@ pub struct Collector {
     states: Vec<[f32; 6]>,
     /// The images of the last [`Collector::observations`], moved into the steps by [`Collector::step`].
     images: Vec<Image>,
-    /// Reused per step: the observations before it and the applied actions.
+    /// Reused per step: the observations before it, the applied actions and the actions stored for f_hat.
     before: Vec<EnvObservation>,
     applied: Vec<Input>,
+    stored: Vec<Input>,
+    stored_action: StoredAction,
     /// Steps taken in the current epoch.
     taken: u64,
 }
@@ -96,8 +98,12 @@ impl Collector {
             config.run.seed,
             index * k as u64..(index + 1) * k as u64,
         );
+        let c = &config.collection;
         let segmenters = (0..k)
-            .map(|i| Segmenter::new(actor, i as u32, config.expert.patience))
+            .map(|i| {
+                Segmenter::new(actor, i as u32, config.expert.patience)
+                    .with_rules(c.flush, c.expert_failure_staged)
+            })
             .collect();
         let eyes = (config.observation.kind == ObservationKind::Camera)
             .then(|| Eyes::new(&config.observation));
@@ -120,6 +126,8 @@ impl Collector {
             images: Vec::with_capacity(k),
             before: Vec::with_capacity(k),
             applied: Vec::with_capacity(k),
+            stored: Vec::with_capacity(k),
+            stored_action: config.collection.stored_action,
             taken: 0,
         }
     }
@@ -241,10 +249,15 @@ impl Collector {
         let active = answers.len().min(policy.len()).min(self.envs.len() - first);
         self.before.clear();
         self.applied.clear();
+        self.stored.clear();
         for (j, env) in self.envs.envs()[first..first + active].iter().enumerate() {
             self.before.push(env.observation());
-            self.applied
-                .push(applied_action(&answers[j], &policy[j], beta));
+            let mixed = mixed_action(&answers[j], &policy[j], beta);
+            self.applied.push(clip_action(&mixed));
+            self.stored.push(match self.stored_action {
+                StoredAction::Clipped => clip_action(&mixed),
+                StoredAction::Unclipped => mixed,
+            });
         }
         let results = self
             .envs
@@ -270,7 +283,7 @@ impl Collector {
                 } else {
                     [0.0; 2]
                 },
-                applied_action: f32s(&self.applied[j]),
+                applied_action: f32s(&self.stored[j]),
                 next_state: f32s(&result.obs.state),
                 expert_ok,
             };
@@ -409,16 +422,15 @@ fn expert_ok(answer: &ExpertAnswer) -> bool {
 }
 
 /// The beta mixture of the expert's and the policy's actions when the expert solved its problem, else the policy's
-/// action; clipped to the action box.
-fn applied_action(answer: &ExpertAnswer, policy: &[f32; 2], beta: f64) -> Input {
+/// action; not clipped (the plant receives it clipped to the action box, [`clip_action`]).
+fn mixed_action(answer: &ExpertAnswer, policy: &[f32; 2], beta: f64) -> Input {
     let agent = [policy[0] as f64, policy[1] as f64];
-    let mixed = if expert_ok(answer) {
+    if expert_ok(answer) {
         [
             beta * answer.action[0] + (1.0 - beta) * agent[0],
             beta * answer.action[1] + (1.0 - beta) * agent[1],
         ]
     } else {
         agent
-    };
-    clip_action(&mixed)
+    }
 }

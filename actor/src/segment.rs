@@ -15,6 +15,7 @@
 //! lap-completing step is part of the lap (its next state is safe by Definition 1) and the truncating step is part
 //! of the failure.
 
+use cabc_proto::config::{ExpertFailureStaged, Flush};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 
 /// Where a step's episode stands after it.
@@ -37,6 +38,11 @@ pub struct Segmenter {
     patience: u32,
     failures_in_a_row: u32,
     staged: Vec<Step>,
+    flush: Flush,
+    expert_failure_staged: ExpertFailureStaged,
+    /// Steps dropped so far (the reference's rules: a truncating step, the staged steps of an episode the expert
+    /// ended).
+    pub dropped: u64,
 }
 
 /// Numbers the segments of one actor incarnation (its `seq`).
@@ -64,7 +70,17 @@ impl Segmenter {
             patience: patience.max(1),
             failures_in_a_row: 0,
             staged: Vec::new(),
+            flush: Flush::WithStep,
+            expert_failure_staged: ExpertFailureStaged::Uncertain,
+            dropped: 0,
         }
+    }
+
+    /// The same segmenter under the given rules (`collection.flush`, `collection.expert_failure_staged`).
+    pub fn with_rules(mut self, flush: Flush, expert_failure_staged: ExpertFailureStaged) -> Self {
+        self.flush = flush;
+        self.expert_failure_staged = expert_failure_staged;
+        self
     }
 
     pub fn episode(&self) -> u64 {
@@ -105,9 +121,14 @@ impl Segmenter {
         out: &mut Vec<Segment>,
     ) -> Option<EndReason> {
         let expert_ok = step.expert_ok;
+        // With `before-step` a successful step is staged after the flush its end causes (the reference's add_frame).
+        let mut held = None;
         if expert_ok {
             self.failures_in_a_row = 0;
-            self.staged.push(step);
+            match self.flush {
+                Flush::WithStep => self.staged.push(step),
+                Flush::BeforeStep => held = Some(step),
+            }
         } else {
             self.failures_in_a_row += 1;
             let seg = self.cut(Outcome::ExpertFailure, vec![step], version, seq);
@@ -121,7 +142,13 @@ impl Segmenter {
         match (end, end_reason) {
             (_, Some(reason)) => {
                 let steps = std::mem::take(&mut self.staged);
-                if !steps.is_empty() {
+                // The reference discards what is staged when the expert failed on the ending step.
+                let discard = !expert_ok
+                    && self.expert_failure_staged == ExpertFailureStaged::Discard
+                    && reason != EndReason::MaxLaps;
+                if discard {
+                    self.dropped += steps.len() as u64;
+                } else if !steps.is_empty() {
                     let outcome = match reason {
                         EndReason::MaxLaps => Outcome::Incomplete,
                         reason => Outcome::Failure(reason),
@@ -129,6 +156,8 @@ impl Segmenter {
                     let seg = self.cut(outcome, steps, version, seq);
                     out.push(seg);
                 }
+                // `before-step`: the truncating step was never staged; it goes with the reset.
+                self.dropped += held.is_some() as u64;
                 self.new_episode();
                 Some(reason)
             }
@@ -138,9 +167,14 @@ impl Segmenter {
                     let seg = self.cut(Outcome::Lap, steps, version, seq);
                     out.push(seg);
                 }
+                // `before-step`: the lap-completing step opens the next lap.
+                self.staged.extend(held);
                 None
             }
-            _ => None,
+            _ => {
+                self.staged.extend(held);
+                None
+            }
         }
     }
 
@@ -274,5 +308,72 @@ mod tests {
         assert_eq!((out[0].env, out[0].policy_version), (3, 4));
         s.finish(4, &mut seq, &mut out);
         assert_eq!(out.len(), 1, "nothing staged, nothing cut");
+    }
+
+    #[test]
+    fn before_step_drops_the_truncating_step_and_opens_the_next_lap_with_the_lap_step() {
+        let rules = |p| {
+            Segmenter::new("a", 0, p).with_rules(Flush::BeforeStep, ExpertFailureStaged::Uncertain)
+        };
+        let (mut s, mut seq, mut out) = (rules(2), SeqCounter::default(), vec![]);
+        // An off-track spawn: its first step truncates, and nothing is stored.
+        let off = StepEnd::Truncated(EndReason::OutOfTrack);
+        assert_eq!(
+            s.push(step(true, 0.0), off, 1, &mut seq, &mut out),
+            Some(EndReason::OutOfTrack)
+        );
+        assert!(out.is_empty());
+        assert_eq!(s.dropped, 1);
+        // Two steps, then the lap step: the lap holds the two, the lap step is the next lap's first.
+        s.push(step(true, 1.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(step(true, 2.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(step(true, 3.0), StepEnd::Lap, 1, &mut seq, &mut out);
+        assert_eq!(out.len(), 1);
+        assert_eq!((out[0].outcome, out[0].steps.len()), (Outcome::Lap, 2));
+        assert_eq!(s.staged(), 1);
+        s.push(step(true, 4.0), off, 1, &mut seq, &mut out);
+        assert_eq!(out[1].outcome, Outcome::Failure(EndReason::OutOfTrack));
+        let xs: Vec<f32> = out[1].steps.iter().map(|s| s.state[3]).collect();
+        assert_eq!(
+            xs,
+            [3.0],
+            "the lap step is stored, the truncating step (4.0) is not"
+        );
+        assert_eq!(s.dropped, 2);
+        // Ours keeps the truncating step: the off-track spawn's state goes to D?.
+        let (mut ours, mut out) = (Segmenter::new("a", 0, 2), vec![]);
+        ours.push(step(true, 0.0), off, 1, &mut seq, &mut out);
+        assert_eq!((out.len(), ours.dropped), (1, 0));
+    }
+
+    #[test]
+    fn discard_drops_what_is_staged_when_the_expert_ends_the_episode() {
+        let (mut s, mut seq, mut out) = (
+            Segmenter::new("a", 0, 2).with_rules(Flush::WithStep, ExpertFailureStaged::Discard),
+            SeqCounter::default(),
+            vec![],
+        );
+        s.push(step(true, 0.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(step(true, 1.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(step(false, 2.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        let end = s.push(step(false, 3.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        assert_eq!(end, Some(EndReason::ExpertFailure));
+        let outcomes: Vec<_> = out.iter().map(|s| s.outcome).collect();
+        assert_eq!(
+            outcomes,
+            [Outcome::ExpertFailure, Outcome::ExpertFailure],
+            "the failing steps go to D?"
+        );
+        assert_eq!(s.dropped, 2, "the two staged steps are discarded");
+        // An ordinary truncation still sends its steps to D?.
+        s.push(step(true, 4.0), StepEnd::Continue, 1, &mut seq, &mut out);
+        s.push(
+            step(true, 5.0),
+            StepEnd::Truncated(EndReason::Spin),
+            1,
+            &mut seq,
+            &mut out,
+        );
+        assert_eq!(out[2].outcome, Outcome::Failure(EndReason::Spin));
     }
 }

@@ -263,3 +263,43 @@ fn an_episode_crosses_epoch_boundaries_and_its_lap_lands_whole() {
     assert!(segments.iter().all(|s| s.outcome != Outcome::Lap));
     assert!(segments.iter().all(|s| s.steps.len() as u64 <= budget));
 }
+
+/// Issue 18 (5): the stored action is the blend the plant received clipped to the action box (ours), or the blend
+/// before the environment clips it (the reference). The fixed policy's 0.8 - 0.3 v plus a far-off expert answer
+/// exceed the box when mixed at beta = 0.
+#[test]
+fn the_stored_action_is_clipped_or_not_as_configured() {
+    use cabc_proto::config::StoredAction;
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.actors.envs_per_actor = 2;
+    let mut over_the_box = 0;
+    let mut stored = |kind: StoredAction| {
+        config.collection.stored_action = kind;
+        let (segments, _) = collect_epochs(&config, 64, 1, 0.0, usize::MAX);
+        segments
+            .into_iter()
+            .flat_map(|s| s.steps)
+            .collect::<Vec<_>>()
+    };
+    let clipped = stored(StoredAction::Clipped);
+    let unclipped = stored(StoredAction::Unclipped);
+    let bound = cabc_sim::vehicle::clip_action(&[1e9, 1e9]);
+    assert_eq!(clipped.len(), unclipped.len());
+    for (c, u) in clipped.iter().zip(&unclipped) {
+        assert_eq!(c.state, u.state, "the plant saw the same actions");
+        let clip = cabc_sim::vehicle::clip_action(&[
+            u.applied_action[0] as f64,
+            u.applied_action[1] as f64,
+        ]);
+        assert_eq!(c.applied_action, [clip[0] as f32, clip[1] as f32]);
+        if u.applied_action[1].abs() as f64 > bound[1]
+            || u.applied_action[0].abs() as f64 > bound[0]
+        {
+            over_the_box += 1;
+        }
+    }
+    assert!(
+        over_the_box > 0,
+        "the policy's steering leaves the box somewhere"
+    );
+}

@@ -4,7 +4,7 @@
 //! test (`cabc_actor::local`). Everything the learner holds (D+, D?, D-, the three networks, the run folder) is in
 //! [`Learner`]; the schedule (k_f, k_p, the auto-labelling period, the passes) in [`Schedule`].
 
-use crate::learner::{Fits, Learner, LearnerError};
+use crate::learner::{Learner, LearnerError};
 use crate::schedule::Schedule;
 use cabc_proto::ports::Rollouts;
 use std::time::Instant;
@@ -42,37 +42,17 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
             .autolabel_due(j)
             .then(|| learner.autolabel(j))
             .flatten();
-        // ComputeGradient and Update: phi_f every k_f epochs (eq. (15)), phi_p every k_p epochs (eq. (16), D+ against
-        // D-), theta every epoch (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat).
+        // ComputeGradient and Update (Trainer::train_epoch): phi_f every k_f epochs (eq. (15)), phi_p every k_p epochs
+        // (eq. (16), D+ against D-), theta every epoch (eq. (14): L_clone + L_safety through the frozen f_hat and
+        // p_hat); or all three every epoch (the reference's full-state trainer, `training.schedule`).
         learner.progress(j, "training");
-        let trained = Instant::now();
-        let (trainer, replay) = (&mut learner.trainer, &learner.replay);
-        let fits = Fits {
-            dynamics: schedule
-                .dynamics_due(j)
-                .then(|| trainer.fit_dynamics(replay, schedule.aux_passes(j)))
-                .flatten(),
-            critic: schedule
-                .critic_due(j)
-                .then(|| trainer.fit_critic(replay, schedule.aux_passes(j)))
-                .flatten(),
-            policy: trainer.fit_policy(replay, schedule.policy_passes(j))?,
-        };
-        let train_s = trained.elapsed().as_secs_f64();
+        let fits = learner.trainer.train_epoch(j, &learner.replay)?;
         // Evaluate: the evaluator drives pi_j alone from the fixed spawn; the second evaluation that completes
         // `eval_laps` laps stops the run and keeps that version.
         for report in actors.evaluations() {
             learner.on_eval(report);
         }
-        let row = learner.row(
-            j,
-            &update,
-            before,
-            &collected,
-            labelled,
-            &fits,
-            [collect_s, train_s],
-        );
+        let row = learner.row(j, &update, before, &collected, labelled, &fits, collect_s);
         learner.end_epoch(row, started.elapsed().as_secs_f64())?;
         actors.metrics(&learner.metrics_json(j, &collected, actors.rejected()));
         if actors.interrupted() {

@@ -26,6 +26,14 @@ pub struct AutolabelOptions {
     /// Adaptive rho (`algorithm.adaptive_rho`): rho_eff = rho * min(1, (n_ref / |D+|)^(1/d)), which keeps the
     /// expected neighbour count of a uniform D+ constant once D+ outgrows `n_ref`; None = off.
     pub adaptive_reference: Option<usize>,
+    /// Thin D+ to at most this many points first, spread over its support (`algorithm.autolabel_max_plus`; the
+    /// reference's FADS subsample of 32,768); 0 = all of D+.
+    pub max_plus: usize,
+    /// Remove a point only when the hull of its neighbours has at least this many vertices
+    /// (`algorithm.autolabel_min_vertices`; the reference's Qhull check, 8); 0 = no check.
+    pub min_vertices: usize,
+    /// Seeds the thinning's draw.
+    pub seed: u64,
 }
 
 impl AutolabelOptions {
@@ -39,6 +47,9 @@ impl AutolabelOptions {
                 .algorithm
                 .adaptive_rho
                 .then_some(config.collection.initial_steps as usize),
+            max_plus: config.algorithm.autolabel_max_plus,
+            min_vertices: config.algorithm.autolabel_min_vertices,
+            seed: config.run.seed ^ 0xFAD5,
         }
     }
 
@@ -48,6 +59,9 @@ impl AutolabelOptions {
             rho,
             scale_states: false,
             adaptive_reference: None,
+            max_plus: 0,
+            min_vertices: 0,
+            seed: 0,
         }
     }
 
@@ -74,6 +88,10 @@ pub struct AutolabelReport {
     pub outside: usize,
     /// Kept: the LP did not settle (should stay 0).
     pub undecided: usize,
+    /// Kept: inside, but the hull of its neighbours has fewer than `min_vertices` vertices.
+    pub few_vertices: usize,
+    /// D+ points searched (after thinning).
+    pub plus_used: usize,
     pub rho: f64,
     pub mean_neighbours: f64,
     pub seconds: f64,
@@ -115,6 +133,14 @@ pub fn autolabel(
     } else {
         (plus, uncertain)
     };
+    let thinned;
+    let plus = match options.max_plus {
+        cap if cap > 0 && n_plus > cap => {
+            thinned = thin(plus, dim, cap, options.seed);
+            thinned.as_slice()
+        }
+        _ => plus,
+    };
     let tree = KdTree::new(plus, dim);
     let verdicts: Vec<(Verdict, usize)> = uncertain
         .par_chunks_exact(dim)
@@ -128,7 +154,18 @@ pub fn autolabel(
                     return (Verdict::TooFew, n);
                 }
                 let v = match tester.contains(x, neighbours.iter().map(|&p| tree.point(p)), rho) {
-                    Membership::Inside => Verdict::Inside,
+                    Membership::Inside
+                        if vertices_at_least(
+                            tester,
+                            &tree,
+                            neighbours,
+                            rho,
+                            options.min_vertices,
+                        ) =>
+                    {
+                        Verdict::Inside
+                    }
+                    Membership::Inside => Verdict::FewVertices,
                     Membership::Outside => Verdict::Outside,
                     Membership::Undecided => Verdict::Undecided,
                 };
@@ -139,6 +176,7 @@ pub fn autolabel(
     let mut report = AutolabelReport {
         queries,
         rho,
+        plus_used: tree.len(),
         ..Default::default()
     };
     let mut total_neighbours = 0usize;
@@ -149,6 +187,7 @@ pub fn autolabel(
             Verdict::Outside => report.outside += 1,
             Verdict::TooFew => report.too_few_neighbours += 1,
             Verdict::Undecided => report.undecided += 1,
+            Verdict::FewVertices => report.few_vertices += 1,
         }
     }
     report.mean_neighbours = total_neighbours as f64 / queries.max(1) as f64;
@@ -175,6 +214,97 @@ enum Verdict {
     Outside,
     TooFew,
     Undecided,
+    FewVertices,
+}
+
+/// Whether the hull of the `neighbours` (positions in `tree`) has at least `min` vertices: a point is a vertex when
+/// it lies outside the hull of the others (one LP each, stopping at the `min`-th vertex). `min` = 0 always holds.
+fn vertices_at_least(
+    tester: &mut HullTester,
+    tree: &KdTree,
+    neighbours: &[usize],
+    scale: f64,
+    min: usize,
+) -> bool {
+    if min == 0 {
+        return true;
+    }
+    if neighbours.len() < min {
+        return false;
+    }
+    let mut found = 0;
+    for (k, &p) in neighbours.iter().enumerate() {
+        let others = neighbours
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != k)
+            .map(|(_, &q)| tree.point(q));
+        if tester.contains(tree.point(p), others, scale) == Membership::Outside {
+            found += 1;
+            if found >= min {
+                return true;
+            }
+        }
+        // Too few candidates left to reach `min`.
+        if found + (neighbours.len() - k - 1) < min {
+            return false;
+        }
+    }
+    false
+}
+
+/// Bins per dimension of the thinning's grid.
+const THIN_BINS: usize = 5;
+
+/// At most `cap` of the row-major `points`, spread over their support: each point's weight is the inverse of how
+/// many points share its cell of a grid of [`THIN_BINS`] bins per dimension over the points' bounding box, and
+/// `cap` points are drawn without replacement by weight (Efraimidis-Spirakis keys, seeded), in their original
+/// order. Dense regions (the racing line, visited every lap) give up points first, sparse ones (rare recoveries)
+/// keep theirs: the aim of the reference's FADS subsample (a density-inverse draw on a Gaussian-mixture density
+/// estimate), without its mixture fit.
+pub fn thin(points: &[f64], dim: usize, cap: usize, seed: u64) -> Vec<f64> {
+    use rand::{Rng, SeedableRng};
+    let n = points.len() / dim;
+    if n <= cap {
+        return points.to_vec();
+    }
+    let (mut lo, mut hi) = (vec![f64::INFINITY; dim], vec![f64::NEG_INFINITY; dim]);
+    for p in points.chunks_exact(dim) {
+        for k in 0..dim {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let cell = |p: &[f64]| -> u64 {
+        (0..dim).fold(0u64, |acc, k| {
+            let width = (hi[k] - lo[k]).max(f64::MIN_POSITIVE);
+            let bin = (((p[k] - lo[k]) / width) * THIN_BINS as f64) as usize;
+            acc * THIN_BINS as u64 + bin.min(THIN_BINS - 1) as u64
+        })
+    };
+    let cells: Vec<u64> = points.chunks_exact(dim).map(cell).collect();
+    let mut counts = std::collections::HashMap::new();
+    for &c in &cells {
+        *counts.entry(c).or_insert(0usize) += 1;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    // Key u^(1/w) with w = 1 / count: the largest `cap` keys are a weighted draw without replacement. Compared in
+    // log space: ln(u) * count.
+    let mut keyed: Vec<(f64, usize)> = cells
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let u: f64 = rng.gen_range(f64::MIN_POSITIVE..1.0);
+            (u.ln() * counts[c] as f64, i)
+        })
+        .collect();
+    keyed.select_nth_unstable_by(cap - 1, |a, b| b.0.total_cmp(&a.0));
+    let mut chosen: Vec<usize> = keyed[..cap].iter().map(|&(_, i)| i).collect();
+    chosen.sort_unstable();
+    chosen
+        .iter()
+        .flat_map(|&i| points[i * dim..(i + 1) * dim].iter().copied())
+        .collect()
 }
 
 fn std_per_dim(points: &[f64], dim: usize) -> Vec<f64> {

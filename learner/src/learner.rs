@@ -4,9 +4,10 @@
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
 use crate::plots;
+use crate::provenance::Provenance;
 use crate::replay::{Frames, ImageLog, Replay};
 use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
-use crate::train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};
+use crate::train::{EpochLosses, TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment};
@@ -35,14 +36,6 @@ const REPLAY: &str = "replay.bin";
 /// `best-policy.safetensors`, whatever its version); past this many the oldest are dropped, logged.
 const PENDING_WEIGHTS: usize = 64;
 
-/// The fits of one epoch (None: the network did not train this epoch).
-#[derive(Debug)]
-pub struct Fits {
-    pub dynamics: Option<Fit>,
-    pub critic: Option<CriticFit>,
-    pub policy: PolicyFit,
-}
-
 /// Everything the learner holds.
 pub struct Learner {
     pub config: RunConfig,
@@ -61,6 +54,10 @@ pub struct Learner {
     failed_segments: u64,
     /// Steps in incomplete segments since the last [`Learner::counts`].
     incomplete_steps: u64,
+    /// Where this epoch's D? steps came from.
+    provenance: Provenance,
+    /// The track's half-width (off-track spawns in [`Provenance`]).
+    half_width: f64,
     /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
     published: Option<u64>,
     /// Evaluation reports refused (a version not published yet).
@@ -93,7 +90,12 @@ impl Learner {
                 .map_err(|e| LearnerError::Checkpoint(e.to_string()))
                 .and_then(|bytes| {
                     Replay::from_checkpoint(&bytes, run_dir.path())
-                        .map(|(replay, log)| (replay.with_frames(Frames::of(&config)), log))
+                        .map(|(replay, log)| {
+                            let replay = replay
+                                .with_frames(Frames::of(&config))
+                                .with_dynamics_only(config.replay.dynamics_only);
+                            (replay, log)
+                        })
                         .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
                 })?;
             tracing::info!(
@@ -144,6 +146,8 @@ impl Learner {
             expert_streams: HashSet::new(),
             failed_segments: 0,
             incomplete_steps: 0,
+            provenance: Provenance::default(),
+            half_width: cabc_sim::track::Track::l_track_barc().half_width(),
             published: None,
             refused_evals: 0,
             duplicate_evals: 0,
@@ -181,6 +185,7 @@ impl Learner {
     /// difference) and zeroes the epoch's count of incomplete steps.
     pub fn begin_epoch(&mut self) -> (u64, u64) {
         self.incomplete_steps = 0;
+        self.provenance = Provenance::default();
         (
             self.state.ledger.stored_steps,
             self.state.ledger.stored_segments,
@@ -224,13 +229,19 @@ impl Learner {
             if segment.outcome == Outcome::Incomplete {
                 self.incomplete_steps += segment.steps.len() as u64;
             }
-            if let Err(e) = self.replay.add_segment(&segment) {
-                self.failed_segments += 1;
-                tracing::warn!(
-                    actor = segment.actor,
-                    seq = segment.seq,
-                    "segment not stored: {e}"
-                );
+            match self.replay.add_segment(&segment) {
+                Ok(_) => {
+                    let flush = self.config.collection.flush;
+                    self.provenance.add(&segment, flush, self.half_width);
+                }
+                Err(e) => {
+                    self.failed_segments += 1;
+                    tracing::warn!(
+                        actor = segment.actor,
+                        seq = segment.seq,
+                        "segment not stored: {e}"
+                    );
+                }
             }
         }
     }
@@ -252,10 +263,10 @@ impl Learner {
         }
     }
 
-    /// Auto-labels D? (eq. (19)) and makes what stays in it D-. Returns (points removed, rho used); None when D? is
-    /// empty.
+    /// Auto-labels D? (eq. (19)) and makes what stays in it D-. Returns (points removed, rho used); None when D? holds
+    /// fewer than `algorithm.autolabel_min_uncertain` points (or none).
     pub fn autolabel(&mut self, epoch: u64) -> Option<(usize, f64)> {
-        if self.replay.len_uncertain() == 0 {
+        if self.replay.len_uncertain() < self.config.algorithm.autolabel_min_uncertain.max(1) {
             return None;
         }
         self.progress(epoch, "auto-labelling");
@@ -342,8 +353,8 @@ impl Learner {
         (steps_before, segments_before): (u64, u64),
         collected: &Collected,
         labelled: Option<(usize, f64)>,
-        fits: &Fits,
-        [collect_s, train_s]: [f64; 2],
+        fits: &EpochLosses,
+        collect_s: f64,
     ) -> EpochRow {
         EpochRow {
             epoch,
@@ -360,14 +371,24 @@ impl Learner {
             dynamics_only: self.replay.len_dynamics_only(),
             autolabel_removed: labelled.map_or(0, |(removed, _)| removed),
             rho: labelled.map_or(self.config.algorithm.rho, |(_, rho)| rho),
-            imitation_loss: fits.policy.imitation,
-            safety_loss: fits.policy.safety,
-            dynamics_loss: fits.dynamics.as_ref().map(|f| f.loss),
-            critic_loss: fits.critic.as_ref().map(|f| f.loss),
-            critic_accuracy: fits.critic.as_ref().map(|f| f.accuracy),
-            critic_points: fits.critic.as_ref().map(|f| f.points),
+            imitation_loss: fits.imitation,
+            safety_loss: fits.safety,
+            dynamics_loss: fits.dynamics,
+            critic_loss: fits.critic,
+            critic_accuracy: fits.critic_accuracy,
+            critic_points: fits.critic_points,
+            critic_positives: fits.critic_positives,
+            critic_negatives: fits
+                .critic_points
+                .zip(fits.critic_positives)
+                .map(|(n, p)| n - p),
+            uncertain_truncating: self.provenance.truncating,
+            uncertain_spawn: self.provenance.spawn,
+            uncertain_patience: self.provenance.patience,
+            uncertain_failed_lap: self.provenance.failed_lap,
+            expert_failures: self.provenance.expert_failures,
             collect_s,
-            train_s,
+            train_s: fits.seconds,
             epoch_s: 0.0,
             closed_by_timeout: collected.timed_out,
             eval_version: self.last_eval.as_ref().map(|e| e.version),

@@ -26,6 +26,7 @@ pub mod kdtree;
 pub mod learner;
 pub mod ledger;
 pub mod plots;
+pub mod provenance;
 pub mod replay;
 pub mod rundir;
 pub mod schedule;

@@ -37,7 +37,8 @@ enum Command {
         /// Start over, discarding the run folder's checkpoint.
         #[arg(long)]
         fresh: bool,
-        /// The behaviour-cloning baseline: lambda = 0, run name suffixed with -baseline.
+        /// The run's baseline: lambda = algorithm.baseline_lambda (0: behaviour cloning), rho = algorithm.baseline_rho
+        /// when given, run name suffixed with -baseline.
         #[arg(long)]
         baseline: bool,
         /// Zenoh endpoints to listen on, overriding the configuration's `bus.listen`.
@@ -104,9 +105,13 @@ fn main() -> anyhow::Result<()> {
             baseline,
             set,
         } => {
-            let config = load(&config, baseline)?
+            // --set first, so that it can change what --baseline makes (algorithm.baseline_lambda, baseline_rho).
+            let mut config = load(&config, false)?
                 .with_overrides(&set)
                 .context("applying --set")?;
+            if baseline {
+                config.make_baseline();
+            }
             let run_dir =
                 RunDir::prepare(&config, None, false).context("preparing the run folder")?;
             println!("{}", run_dir.path().display());

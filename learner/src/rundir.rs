@@ -63,6 +63,17 @@ pub struct EpochRow {
     pub critic_accuracy: Option<f64>,
     /// The critic's training set, |D+| + |D-|, in epochs where it trained.
     pub critic_points: Option<usize>,
+    /// Of these, the positives (D+) and the negatives (D-, or all of D? with `critic_negatives = "uncertain"`).
+    pub critic_positives: Option<usize>,
+    pub critic_negatives: Option<usize>,
+    /// The steps that entered D? this epoch, by origin ([`crate::provenance::Provenance`]): truncating steps,
+    /// off-track spawns, the staged steps of episodes the expert ended, the rest of failed laps, and the expert's
+    /// failures.
+    pub uncertain_truncating: u64,
+    pub uncertain_spawn: u64,
+    pub uncertain_patience: u64,
+    pub uncertain_failed_lap: u64,
+    pub expert_failures: u64,
     pub collect_s: f64,
     pub train_s: f64,
     pub epoch_s: f64,
@@ -71,14 +82,14 @@ pub struct EpochRow {
     pub eval_laps: Option<u32>,
 }
 
-const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,steps_taken,steps_staged,incomplete_steps,incomplete_share,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps";
+const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,steps_taken,steps_staged,incomplete_steps,incomplete_share,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps,critic_positives,critic_negatives,uncertain_truncating,uncertain_spawn,uncertain_patience,uncertain_failed_lap,expert_failures";
 
 impl EpochRow {
     fn csv(&self) -> String {
         let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
         let optf = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         format!(
-            "{},{:.6},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{}",
             self.epoch,
             self.beta,
             self.steps_collected,
@@ -106,6 +117,13 @@ impl EpochRow {
             self.closed_by_timeout,
             opt(self.eval_version),
             opt(self.eval_laps.map(u64::from)),
+            opt(self.critic_positives.map(|n| n as u64)),
+            opt(self.critic_negatives.map(|n| n as u64)),
+            self.uncertain_truncating,
+            self.uncertain_spawn,
+            self.uncertain_patience,
+            self.uncertain_failed_lap,
+            self.expert_failures,
         )
     }
 }

@@ -18,6 +18,7 @@ pub struct Schedule {
     initial_passes: usize,
     passes: usize,
     aux_passes: usize,
+    initial_aux_passes: usize,
 }
 
 impl Schedule {
@@ -31,6 +32,7 @@ impl Schedule {
             initial_passes: t.initial_passes,
             passes: t.passes,
             aux_passes: t.aux_passes,
+            initial_aux_passes: t.initial_aux_passes.unwrap_or(t.aux_passes),
         }
     }
 
@@ -64,13 +66,23 @@ impl Schedule {
         }
     }
 
-    /// Passes of f_hat and p_hat when they train in epoch j: `aux_passes` (Algorithm 1), or the policy's passes
-    /// (`EveryEpoch`, the reference's full-state trainer).
+    /// Passes of f_hat and p_hat when they train in epoch j: `initial_aux_passes` (or `aux_passes`) in epoch 0 and
+    /// `aux_passes` later
+    /// (Algorithm 1; the reference's vision trainer: 50 and 10), or the policy's passes (`EveryEpoch`, the
+    /// reference's full-state trainer).
     pub fn aux_passes(&self, j: u64) -> usize {
         match self.kind {
+            ScheduleKind::Paper if j == 0 => self.initial_aux_passes,
             ScheduleKind::Paper => self.aux_passes,
             ScheduleKind::EveryEpoch => self.policy_passes(j),
         }
+    }
+
+    /// Whether L_safety stays on in an epoch whose critic fit did not run (too few negatives). Under Algorithm 1 the
+    /// critic keeps its last fit between k_p epochs; the reference's full-state trainer switches the term off for an
+    /// epoch whose D? is empty (`critic.initialized = False`).
+    pub fn safety_outlives_critic_fit(&self) -> bool {
+        self.kind == ScheduleKind::Paper
     }
 }
 
@@ -86,6 +98,7 @@ mod tests {
         c.training.initial_passes = 7;
         c.training.passes = 2;
         c.training.aux_passes = 3;
+        c.training.initial_aux_passes = Some(30);
         c.algorithm.autolabel_every = 4;
         let s = Schedule::from_config(&c);
         let due = |f: fn(&Schedule, u64) -> bool| (0..21).filter(|&j| f(&s, j)).collect::<Vec<_>>();
@@ -93,7 +106,7 @@ mod tests {
         assert_eq!(due(Schedule::critic_due), [0, 10, 20]);
         assert_eq!(due(Schedule::autolabel_due), [0, 4, 8, 12, 16, 20]);
         assert_eq!((s.policy_passes(0), s.policy_passes(1)), (7, 2));
-        assert_eq!((s.aux_passes(0), s.aux_passes(1)), (3, 3));
+        assert_eq!((s.aux_passes(0), s.aux_passes(1)), (30, 3));
         c.training.schedule = ScheduleKind::EveryEpoch;
         let s = Schedule::from_config(&c);
         assert!((0..5).all(|j| s.dynamics_due(j) && s.critic_due(j)));

@@ -184,3 +184,80 @@ fn adaptive_rho_shrinks_with_d_plus() {
     let r = o.effective_rho(1024 * 64, 6);
     assert!((r - 0.5).abs() < 1e-12, "{r}");
 }
+
+/// Issue 18 (6): the reference's hull needs at least 8 vertices. A query inside a 6-d simplex (7 vertices) is kept
+/// with that rule and removed without it; with an 8th neighbour outside the simplex it is removed again.
+#[test]
+fn the_vertex_rule_keeps_points_inside_a_bare_simplex() {
+    let dim = 6;
+    let mut simplex = vec![0.0; dim];
+    for k in 0..dim {
+        let mut v = vec![0.0; dim];
+        v[k] = 0.5;
+        simplex.extend(v);
+    }
+    let x = vec![0.05; dim];
+    let run = |plus: &[f64], min_vertices: usize| {
+        let options = AutolabelOptions {
+            min_vertices,
+            ..AutolabelOptions::fixed(1.0)
+        };
+        autolabel(plus, &x, dim, &options)
+    };
+    assert_eq!(run(&simplex, 0).removed, vec![0]);
+    let kept = run(&simplex, 8);
+    assert!(kept.removed.is_empty());
+    assert_eq!(kept.few_vertices, 1);
+    let mut eight = simplex.clone();
+    eight.extend(vec![0.2; dim]);
+    assert_eq!(run(&eight, 8).removed, vec![0], "the 8th point is a vertex");
+    // A point inside the simplex adds a neighbour, not a vertex.
+    let mut inner = simplex.clone();
+    inner.extend(vec![0.03; dim]);
+    assert!(run(&inner, 8).removed.is_empty());
+}
+
+/// Issue 18 (6): D+ is thinned to the cap before the search, spread over its support: a dense cluster gives up
+/// points before a sparse one, the draw is the seed's, and the points kept are D+'s own.
+#[test]
+fn thinning_keeps_the_cap_and_favours_sparse_regions() {
+    use cabc_learner::autolabel::thin;
+    let dim = 2;
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut points = Vec::new();
+    // 900 points in a small dense corner, 100 spread over the rest of the box.
+    for _ in 0..900 {
+        points.extend([rng.gen_range(0.0..0.1), rng.gen_range(0.0..0.1)]);
+    }
+    for _ in 0..100 {
+        points.extend([rng.gen_range(0.2..1.0), rng.gen_range(0.2..1.0)]);
+    }
+    let kept = thin(&points, dim, 200, 7);
+    assert_eq!(kept.len(), 200 * dim);
+    assert_eq!(kept, thin(&points, dim, 200, 7), "the seed's draw");
+    assert_ne!(kept, thin(&points, dim, 200, 8));
+    let sparse = kept.chunks_exact(dim).filter(|p| p[0] >= 0.2).count();
+    assert!(
+        sparse > 60,
+        "{sparse} of the 100 sparse points kept (a uniform draw keeps ~20)"
+    );
+    assert!(kept
+        .chunks_exact(dim)
+        .all(|p| points.chunks_exact(dim).any(|q| q == p)));
+    assert_eq!(
+        thin(&points, dim, 5000, 7),
+        points,
+        "under the cap nothing is dropped"
+    );
+    // autolabel reports how many D+ points it searched.
+    let report = autolabel(
+        &points,
+        &[0.5, 0.5],
+        dim,
+        &AutolabelOptions {
+            max_plus: 300,
+            ..AutolabelOptions::fixed(0.1)
+        },
+    );
+    assert_eq!(report.plus_used, 300);
+}

@@ -304,3 +304,31 @@ fn a_replay_over_its_byte_budget_evicts_and_a_tiny_budget_is_refused() {
         "{e}"
     );
 }
+
+/// Issue 18 (4): without a dynamics-only store (the reference) unfinished laps are dropped and the points
+/// auto-labelling removes are deleted.
+#[test]
+fn without_a_dynamics_only_store_nothing_is_kept_for_f_hat_alone() {
+    let mut r = Replay::new(100, 0).with_dynamics_only(false);
+    let c = r
+        .add_segment(&segment(
+            Outcome::Incomplete,
+            vec![step(5.0, true, None); 2],
+        ))
+        .unwrap();
+    assert_eq!((c.plus, c.uncertain, c.dynamics_only), (0, 0, 0));
+    r.add_segment(&segment(
+        Outcome::Failure(EndReason::OutOfTrack),
+        vec![step(3.0, true, None), step(4.0, true, None)],
+    ))
+    .unwrap();
+    r.apply_labels(&AutolabelReport {
+        removed: vec![0],
+        ..Default::default()
+    });
+    assert_eq!(
+        (r.len_uncertain(), r.len_minus(), r.len_dynamics_only()),
+        (1, 1, 0)
+    );
+    assert_eq!(r.uncertain.states[0][0], 4.0);
+}

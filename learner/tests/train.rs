@@ -7,7 +7,7 @@ use cabc_learner::train::{critic_examples, CriticTrainer, Trainer};
 use cabc_learner::{
     autolabel_replay, AutolabelOptions, AutolabelReport, Checkpoint, CheckpointWriter, Schedule,
 };
-use cabc_proto::config::{RunConfig, ScheduleKind};
+use cabc_proto::config::{CriticNegatives, RunConfig, ScheduleKind};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -175,7 +175,7 @@ fn safety_term_pushes_the_policy_away_from_unsafe_states() {
         c.training.passes = 3;
         let mut t = Trainer::with_device(&c, Device::Cpu);
         let mut last = None;
-        for epoch in 0..6 {
+        for epoch in 0..12 {
             last = Some(t.train_epoch(epoch, &r).unwrap());
         }
         (mean_action(&t, &r), last.unwrap())
@@ -371,7 +371,12 @@ fn the_critic_trains_on_d_plus_and_the_labelled_d_minus_only() {
         ))
         .unwrap();
         assert!(r.len_uncertain() > r.len_minus());
-        let (x, labels) = critic_examples(&r, c.algorithm.negative_label, Device::Cpu);
+        let (x, labels) = critic_examples(
+            &r,
+            CriticNegatives::DMinus,
+            c.algorithm.negative_label,
+            Device::Cpu,
+        );
         let rows: Vec<f32> = Vec::try_from(x.view(-1)).unwrap();
         let want: Vec<f32> = r
             .plus
@@ -445,4 +450,94 @@ fn aux_fits_stop_at_their_batch_cap() {
         uncapped,
         "a cap above the passes changes nothing"
     );
+}
+
+/// Issue 18 (1, 7): under the reference's full-state schedule all three networks fit every epoch, one pass each (5
+/// in epoch 0), and the critic's negatives are all of D? as it is, the points added since the last labelling too.
+#[test]
+fn the_every_epoch_schedule_fits_all_three_every_epoch_on_all_of_d_uncertain() {
+    let mut r = replay(11);
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    // Failures after the labelling: not in D-, but in D?.
+    r.add_segment(&segment(
+        Outcome::Failure(EndReason::Spin),
+        random_steps(100, &mut rng, 2.0..3.0, [0.5, 0.2]),
+    ))
+    .unwrap();
+    assert_eq!(r.len_uncertain(), r.len_minus() + 100);
+    let mut c = RunConfig::load("v-b-ref").unwrap();
+    c.run.seed = 11;
+    c.training.device = "cpu".into();
+    let mut t = Trainer::with_device(&c, Device::Cpu);
+    let batch = c.training.batch_size;
+    let whole = |n: usize| n / batch * batch;
+    for epoch in 0..3 {
+        let l = t.train_epoch(epoch, &r).unwrap();
+        let passes = if epoch == 0 { 5 } else { 1 };
+        assert!(
+            l.dynamics.is_some() && l.critic.is_some(),
+            "epoch {epoch}: {l:?}"
+        );
+        let n_dynamics = r.len_plus() + r.len_uncertain();
+        assert_eq!(
+            l.dynamics_samples,
+            passes * whole(n_dynamics),
+            "epoch {epoch}"
+        );
+        assert_eq!(l.critic_points, Some(r.len_plus() + r.len_uncertain()));
+        assert_eq!(l.critic_positives, Some(r.len_plus()));
+        assert_eq!(l.policy_samples, passes * whole(r.len_plus()));
+        assert!(l.safety_active);
+    }
+    // Ours: the critic's negatives are D- alone.
+    let mut ours = config(11);
+    ours.algorithm.lambda = 10.0;
+    let mut t = Trainer::with_device(&ours, Device::Cpu);
+    let l = t.train_epoch(0, &r).unwrap();
+    assert_eq!(l.critic_points, Some(r.len_plus() + r.len_minus()));
+}
+
+/// Issue 18 (2): with the reference's clip scope the critic's and the dynamics model's gradients count in the policy's
+/// clip (the policy trains differently, they do not change), and a resumed run still continues bit for bit: their
+/// gradients travel in the checkpoint.
+#[test]
+fn the_reference_clip_scope_counts_the_auxiliary_gradients_and_resumes_exactly() {
+    use cabc_models::Network;
+    use cabc_proto::config::ClipScope;
+    let r = replay(13);
+    let run = |scope: ClipScope, epochs: u64| {
+        let mut c = config(13);
+        c.algorithm.lambda = 10.0;
+        c.training.clip_scope = scope;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        for e in 0..epochs {
+            t.train_epoch(e, &r).unwrap();
+        }
+        (c, t)
+    };
+    let (_, ours) = run(ClipScope::Policy, 2);
+    let (c, theirs) = run(ClipScope::PolicyCriticDynamics, 2);
+    assert!(
+        ours.policy_bytes() != theirs.policy_bytes(),
+        "the clip changes the policy's steps"
+    );
+    assert!(
+        ours.critic().to_bytes() == theirs.critic().to_bytes(),
+        "the critic's own fit is the same"
+    );
+    assert!(ours.dynamics().to_bytes() == theirs.dynamics().to_bytes());
+    // Checkpoint after 2 epochs, resume, one more: the same as 3 straight.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("checkpoint");
+    CheckpointWriter::new(&path)
+        .files(theirs.to_checkpoint())
+        .commit()
+        .unwrap();
+    let mut resumed = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
+    let mut l = resumed.train_epoch(2, &r).unwrap();
+    let (_, mut straight) = run(ClipScope::PolicyCriticDynamics, 2);
+    let mut m = straight.train_epoch(2, &r).unwrap();
+    (l.seconds, m.seconds) = (0.0, 0.0);
+    assert_eq!(l, m);
+    assert!(resumed.policy_bytes() == straight.policy_bytes());
 }

@@ -99,6 +99,62 @@ pub enum ScheduleKind {
     EveryEpoch,
 }
 
+/// Where a segment is cut relative to the step that ends it (`collection.flush`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Flush {
+    /// Ours: the step belongs to the segment its transition ends. The lap-completing step is part of its lap (D+) and
+    /// the truncating step part of the failure (D?), so an off-track spawn puts its one state into D?.
+    WithStep,
+    /// The reference's `add_frame`: the staged steps are flushed before the current step is staged. The
+    /// lap-completing step opens the next lap's segment, and the truncating step is dropped with the reset, so an
+    /// off-track spawn stores nothing.
+    BeforeStep,
+}
+
+/// What happens to an episode's staged steps when the expert fails `expert.patience` times in a row, or fails on a
+/// step that truncates (`collection.expert_failure_staged`). The failing steps go to D? either way.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExpertFailureStaged {
+    /// Ours: they are a failed segment, into D?.
+    Uncertain,
+    /// The reference: they are discarded with the reset (`clear_buffer`).
+    Discard,
+}
+
+/// Which action a step stores for the dynamics model (`collection.stored_action`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StoredAction {
+    /// Ours: the action the plant received, clipped to the action box.
+    Clipped,
+    /// The reference: the blended action before the environment clips it (`closed_loop_action`).
+    Unclipped,
+}
+
+/// The critic's negatives (`algorithm.critic_negatives`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CriticNegatives {
+    /// Ours: D-, what the last auto-labelling left in D? (eq. (19)), held until the next labelling.
+    DMinus,
+    /// The reference's full-state trainer: all of D? as it is now, failures not yet labelled too.
+    Uncertain,
+}
+
+/// Which gradients the policy's gradient-norm clip measures (`training.clip_scope`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ClipScope {
+    /// Ours: the policy's own gradients.
+    Policy,
+    /// The reference (`base_model.py`): `clip_grad_norm_(self.parameters())` of a module that holds the critic and
+    /// the dynamics model as submodules, whose gradients are never zeroed during the policy's fit. The policy's
+    /// clip factor then also counts their last fit's gradient and what L_safety accumulates into them.
+    PolicyCriticDynamics,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RunSection {
@@ -203,6 +259,21 @@ pub struct AlgorithmSection {
     pub beta_decay: f64,
     /// Critic label for D- (reference 0.1, paper 0).
     pub negative_label: f64,
+    /// The critic's negatives: `d-minus` (ours) or all of the current D? (`uncertain`, the reference).
+    pub critic_negatives: CriticNegatives,
+    /// Auto-labelling runs only when D? holds at least this many points (ours 1, the reference 16).
+    pub autolabel_min_uncertain: usize,
+    /// Auto-labelling thins D+ to at most this many points first, spread over D+ (the reference's FADS, 32,768);
+    /// 0 for all of D+ (ours).
+    pub autolabel_max_plus: usize,
+    /// A D? point is removed only when the hull of its neighbours has at least this many vertices (the reference's
+    /// Qhull check, 8); 0 for no such check (ours).
+    pub autolabel_min_vertices: usize,
+    /// lambda of the `--baseline` variant of the run: 0 is plain behaviour cloning (ours); the paper's Fig. 6 caption
+    /// gives its V-C baseline lambda = 1, rho = 1.
+    pub baseline_lambda: f64,
+    /// rho of the `--baseline` variant; absent: the run's rho.
+    pub baseline_rho: Option<f64>,
 }
 
 impl Default for AlgorithmSection {
@@ -215,6 +286,12 @@ impl Default for AlgorithmSection {
             autolabel_every: 10,
             beta_decay: 0.95,
             negative_label: 0.1,
+            critic_negatives: CriticNegatives::DMinus,
+            autolabel_min_uncertain: 1,
+            autolabel_max_plus: 0,
+            autolabel_min_vertices: 0,
+            baseline_lambda: 0.0,
+            baseline_rho: None,
         }
     }
 }
@@ -235,6 +312,13 @@ pub struct CollectionSection {
     pub eval_laps: u32,
     /// Early stop when the evaluation completes `eval_laps` this many times.
     pub early_stop_successes: u32,
+    /// Which segment the step that completes a lap or truncates belongs to: `with-step` (ours) or `before-step` (the
+    /// reference: the truncating step is dropped).
+    pub flush: Flush,
+    /// The staged steps of an episode the expert ended: into D? (`uncertain`, ours) or `discard` (the reference).
+    pub expert_failure_staged: ExpertFailureStaged,
+    /// The action stored for the dynamics model: `clipped` (ours) or `unclipped` (the reference).
+    pub stored_action: StoredAction,
 }
 
 impl Default for CollectionSection {
@@ -247,6 +331,9 @@ impl Default for CollectionSection {
             max_laps: 50,
             eval_laps: 50,
             early_stop_successes: 2,
+            flush: Flush::WithStep,
+            expert_failure_staged: ExpertFailureStaged::Uncertain,
+            stored_action: StoredAction::Clipped,
         }
     }
 }
@@ -260,6 +347,10 @@ pub struct ReplaySection {
     /// becomes what fits in this budget once the other stores' (and D-'s) full capacity is set aside, and random
     /// eviction keeps it there. A budget too small for one batch of D+ is refused at start.
     pub max_bytes: u64,
+    /// Keep a dynamics-only store for f_hat (ours): unfinished laps, the step after the last lap, and the D? points
+    /// auto-labelling removes. false (the reference): unfinished laps are dropped, removed points deleted, and f_hat
+    /// trains on D+ and D? alone.
+    pub dynamics_only: bool,
 }
 
 impl Default for ReplaySection {
@@ -267,6 +358,7 @@ impl Default for ReplaySection {
         ReplaySection {
             capacity: 102_400,
             max_bytes: 0,
+            dynamics_only: true,
         }
     }
 }
@@ -317,6 +409,11 @@ pub struct TrainingSection {
     pub grad_clip: f64,
     /// ExponentialLR gamma, stepped once per fit call (reference 0.1^(1/100)).
     pub lr_gamma: f64,
+    /// The policy's own gamma; absent: `lr_gamma` (ours). The reference's vision trainer keeps the policy's
+    /// learning rate at 1e-3 (gamma 1).
+    pub policy_lr_gamma: Option<f64>,
+    /// Which gradients the policy's clip measures: `policy` (ours) or `policy-critic-dynamics` (the reference).
+    pub clip_scope: ClipScope,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
@@ -330,14 +427,18 @@ pub struct TrainingSection {
     pub dynamics_every: u64,
     /// k_p: the critic trains every this many epochs.
     pub critic_every: u64,
-    /// Passes of the dynamics model and critic each time they train.
+    /// Passes of the dynamics model and critic each time they train (`paper` schedule).
     pub aux_passes: usize,
+    /// Their passes in epoch 0 (`paper` schedule); absent: `aux_passes`. The reference's vision trainer makes 50
+    /// (10 x the policy's 5).
+    pub initial_aux_passes: Option<usize>,
     /// At most this many mini-batches per fit of the dynamics model or the critic (a uniform sample without
     /// replacement of the first pass, then of the next), instead of whole passes: 0 (the paper) for no cap. Both
     /// networks keep their weights from one fit to the next, so a fixed budget of steps holds their cost flat while
     /// D+ u D? grows (10 passes over it cost 45 s at epoch 140 in V-B on a 2-core CPU).
     pub aux_max_batches: usize,
-    /// The critic trains only once |D?| exceeds this.
+    /// The critic trains only when its negatives (D-, or D? with `critic_negatives = "uncertain"`) are more than
+    /// this many (ours and the reference's vision trainer 16; its full-state trainer 0).
     pub critic_min_uncertain: usize,
     /// "auto" (CUDA when present), "cpu" or "cuda:N".
     pub device: String,
@@ -350,6 +451,8 @@ impl Default for TrainingSection {
             weight_decay: 1e-4,
             grad_clip: 1.0,
             lr_gamma: 0.1f64.powf(1.0 / 100.0),
+            policy_lr_gamma: None,
+            clip_scope: ClipScope::Policy,
             batch_size: 64,
             initial_passes: 5,
             passes: 1,
@@ -358,6 +461,7 @@ impl Default for TrainingSection {
             dynamics_every: 5,
             critic_every: 10,
             aux_passes: 10,
+            initial_aux_passes: None,
             aux_max_batches: 0,
             critic_min_uncertain: 16,
             device: "auto".into(),
@@ -469,6 +573,9 @@ pub const PRESETS: &[(&str, &str)] = &[
         "smoke-camera",
         include_str!("../../deploy/configs/smoke-camera.toml"),
     ),
+    ("v-a-ref", include_str!("../../deploy/configs/v-a-ref.toml")),
+    ("v-b-ref", include_str!("../../deploy/configs/v-b-ref.toml")),
+    ("v-c-ref", include_str!("../../deploy/configs/v-c-ref.toml")),
 ];
 
 impl RunConfig {
@@ -484,8 +591,8 @@ impl RunConfig {
         Ok(config)
     }
 
-    /// A preset name ([`PRESETS`]: `v-a`, `v-b`, `v-c`, `smoke`, `v-a-cpu`, `v-c-cpu`, `smoke-camera`) or a path to a
-    /// TOML file.
+    /// A preset name ([`PRESETS`]: `v-a`, `v-b`, `v-c`, `smoke`, `v-a-cpu`, `v-c-cpu`, `smoke-camera`, and the
+    /// reference protocol's `v-a-ref`, `v-b-ref`, `v-c-ref`) or a path to a TOML file.
     pub fn load(name_or_path: &str) -> Result<Self, ConfigError> {
         if let Some((name, text)) = PRESETS.iter().find(|(n, _)| *n == name_or_path) {
             return Self::from_toml(text, &format!("preset {name}"));
@@ -510,11 +617,26 @@ impl RunConfig {
     /// run name suffixed with `-baseline`.
     pub fn load_variant(name_or_path: &str, baseline: bool) -> Result<Self, ConfigError> {
         let mut config = Self::load(name_or_path)?;
-        if baseline && config.algorithm.lambda != 0.0 {
-            config.algorithm.lambda = 0.0;
-            config.run.name = format!("{}-baseline", config.run.name);
+        if baseline {
+            config.make_baseline();
         }
         Ok(config)
+    }
+
+    /// Turns this run into its baseline: lambda = `algorithm.baseline_lambda` (0: plain behaviour cloning), rho =
+    /// `algorithm.baseline_rho` when given, under the run name suffixed with `-baseline` (unless it ends so already,
+    /// as `--set run.name=...-baseline` gives it). A run that already is its
+    /// own baseline is left as it is.
+    pub fn make_baseline(&mut self) {
+        let a = &mut self.algorithm;
+        let rho = a.baseline_rho.unwrap_or(a.rho);
+        if a.lambda == a.baseline_lambda && a.rho == rho {
+            return;
+        }
+        (a.lambda, a.rho) = (a.baseline_lambda, rho);
+        if !self.run.name.ends_with("-baseline") {
+            self.run.name = format!("{}-baseline", self.run.name);
+        }
     }
 
     /// One value of the configuration by its dotted key (e.g. `actors.count`), as text.

@@ -37,7 +37,8 @@ pub struct Step {
     pub image: Option<Image>,
     /// The expert's action at `state` (the label). Meaningless when `expert_ok` is false.
     pub expert_action: [f32; ACTION_DIM],
-    /// The action the environment received (beta mixture), which the dynamics model trains on.
+    /// The beta mixture the environment received, which the dynamics model trains on: clipped to the action box
+    /// (ours), or as blended before the environment clips it (`collection.stored_action = "unclipped"`, the reference).
     pub applied_action: [f32; ACTION_DIM],
     /// The state after the step.
     pub next_state: [f32; STATE_DIM],

@@ -120,6 +120,9 @@ pub struct Replay {
     rng: ChaCha8Rng,
     /// Steps ever added to each store (evicted ones included).
     pub added: AddCounts,
+    /// `replay.dynamics_only` (not saved: it is the configuration's): whether unfinished laps and the points
+    /// auto-labelling removes are kept for f_hat, or dropped (the reference).
+    keep_dynamics_only: bool,
 }
 
 /// Where D+'s images are in the run's image log (version 3).
@@ -238,6 +241,7 @@ impl Replay {
             minus: Vec::new(),
             rng: ChaCha8Rng::seed_from_u64(seed),
             added: AddCounts::default(),
+            keep_dynamics_only: true,
         }
     }
 
@@ -247,6 +251,14 @@ impl Replay {
         let seed = config.run.seed ^ 0x5245_504c_4159;
         Replay::with_capacities(config.plus_capacity(), config.replay.capacity, seed)
             .with_frames(Frames::of(config))
+            .with_dynamics_only(config.replay.dynamics_only)
+    }
+
+    /// The same replay, keeping a dynamics-only store (`replay.dynamics_only`, ours) or dropping what would go
+    /// there (the reference).
+    pub fn with_dynamics_only(mut self, keep: bool) -> Self {
+        self.keep_dynamics_only = keep;
+        self
     }
 
     /// Memory the steps hold (arrays and images) across the stores and D-.
@@ -303,6 +315,7 @@ impl Replay {
                     counts.uncertain += 1;
                     &mut self.uncertain
                 }
+                Which::DynamicsOnly if !self.keep_dynamics_only => continue,
                 Which::DynamicsOnly => {
                     counts.dynamics_only += 1;
                     &mut self.dynamics_only
@@ -366,14 +379,17 @@ impl Replay {
 
     /// Applies an auto-labelling pass (eq. (19)), Algorithm 1's "remove x from D?": the D? entries at
     /// `report.removed` (indices into D? as it was labelled) leave D? (as in the reference they are not labelled
-    /// safe, but stay available to the dynamics model), and D- becomes what D? then holds, until the next labelling.
+    /// safe; they stay available to the dynamics model unless `replay.dynamics_only` is off, where, as in the
+    /// reference, they are deleted), and D- becomes what D? then holds, until the next labelling.
     pub fn apply_labels(&mut self, report: &AutolabelReport) {
         let mut keep = vec![true; self.uncertain.len()];
         for &i in &report.removed {
             if i < keep.len() && keep[i] {
                 keep[i] = false;
-                self.uncertain
-                    .copy_entry(i, &mut self.dynamics_only, &mut self.rng);
+                if self.keep_dynamics_only {
+                    self.uncertain
+                        .copy_entry(i, &mut self.dynamics_only, &mut self.rng);
+                }
             }
         }
         self.uncertain.retain(&keep);
@@ -558,6 +574,7 @@ impl Replay {
             minus: saved.minus,
             rng,
             added: saved.added,
+            keep_dynamics_only: true,
         };
         Ok((replay, log))
     }

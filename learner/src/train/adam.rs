@@ -54,6 +54,9 @@ pub(crate) struct Adam {
     /// The learning rate of the next steps.
     pub lr: f64,
     weight_decay: f64,
+    /// Whether the state file also holds the gradients (`<variable>.grad`): where they outlive a fit and count in
+    /// another network's clip (`training.clip_scope = "policy-critic-dynamics"`), a resumed run needs them.
+    pub keep_grads: bool,
 }
 
 impl Adam {
@@ -80,6 +83,7 @@ impl Adam {
             params,
             lr,
             weight_decay,
+            keep_grads: false,
         }
     }
 
@@ -90,24 +94,29 @@ impl Adam {
         }
     }
 
-    /// Scales the gradients so that their joint L2 norm is at most `max` (tch's `Optimizer::clip_grad_norm`).
-    pub fn clip_grad_norm(&self, max: f64) {
+    /// Scales the gradients so that their joint L2 norm is at most `max` (tch's `Optimizer::clip_grad_norm`). The
+    /// gradients of the variables `also` (not stepped by this optimiser) count in the norm and are scaled too, as
+    /// torch's `clip_grad_norm_(module.parameters())` does for a module's submodules.
+    pub fn clip_grad_norm(&self, max: f64, also: &[Tensor]) {
         tch::no_grad(|| {
-            let norms: Vec<Tensor> = self
+            // Fetched afresh: autograd may replace a gradient tensor when it accumulates into it.
+            let grads: Vec<Tensor> = self
                 .params
                 .iter()
-                .map(|p| p.var.grad())
+                .map(|p| &p.var)
+                .chain(also)
+                .map(Tensor::grad)
                 .filter(Tensor::defined)
-                .map(|g| g.norm())
                 .collect();
+            let norms: Vec<Tensor> = grads.iter().map(Tensor::norm).collect();
+            if norms.is_empty() {
+                return;
+            }
             let total_norm = f64::try_from(Tensor::stack(&norms, 0).norm()).expect("a scalar");
             let clip_coef = max / (total_norm + 1e-6);
             if clip_coef < 1.0 {
-                for p in &self.params {
-                    let mut grad = p.var.grad();
-                    if grad.defined() {
-                        let _ = grad.g_mul_scalar_(clip_coef);
-                    }
+                for mut grad in grads {
+                    let _ = grad.g_mul_scalar_(clip_coef);
                 }
             }
         })
@@ -179,6 +188,13 @@ impl Adam {
             let step = m.step.to_le_bytes().to_vec();
             tensors.insert(format!("{}.step", p.name), ("I64", vec![], step));
         }
+        for p in self.params.iter().filter(|_| self.keep_grads) {
+            let grad = p.var.grad();
+            if grad.defined() {
+                let bytes = cabc_models::weights::f32_le_bytes(&grad);
+                tensors.insert(format!("{}.grad", p.name), ("F32", grad.size(), bytes));
+            }
+        }
         let mut header = Map::new();
         let mut data = Vec::new();
         for (name, (dtype, shape, bytes)) in tensors {
@@ -197,7 +213,12 @@ impl Adam {
     pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), String> {
         let mut tensors = parse(bytes)?;
         let mut states = Vec::with_capacity(self.params.len());
+        let mut grads = Vec::with_capacity(self.params.len());
         for p in &self.params {
+            grads.push(match tensors.remove(&format!("{}.grad", p.name)) {
+                Some((shape, raw)) => Some(f32_tensor(&p.name, "grad", &p.var, shape, raw)?),
+                None => None,
+            });
             let Some((_, step)) = tensors.remove(&format!("{}.step", p.name)) else {
                 states.push(None);
                 continue;
@@ -208,20 +229,7 @@ impl Adam {
                 let (shape, raw) = tensors
                     .remove(&key)
                     .ok_or_else(|| format!("tensor `{key}` is missing"))?;
-                if shape != p.var.size() || raw.len() != 4 * p.var.numel() {
-                    return Err(format!(
-                        "tensor `{key}` has shape {shape:?}, expected {:?}",
-                        p.var.size()
-                    ));
-                }
-                let values: Vec<f32> = raw
-                    .chunks_exact(4)
-                    .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-                    .collect();
-                Ok(Tensor::from_slice(&values)
-                    .reshape(shape.as_slice())
-                    .to_kind(p.var.kind())
-                    .to_device(p.var.device()))
+                f32_tensor(&p.name, suffix, &p.var, shape, raw)
             };
             let exp_avg = moment("exp_avg")?;
             let exp_avg_sq = moment("exp_avg_sq")?;
@@ -234,11 +242,40 @@ impl Adam {
         if let Some(extra) = tensors.keys().next() {
             return Err(format!("tensor `{extra}` matches no variable"));
         }
-        for (p, state) in self.params.iter_mut().zip(states) {
+        for ((p, state), grad) in self.params.iter_mut().zip(states).zip(grads) {
             p.state = state;
+            if let Some(grad) = grad {
+                // d(sum(var * g))/d(var) = g exactly: the gradient as it was saved.
+                p.var.zero_grad();
+                (&p.var * grad).sum(p.var.kind()).backward();
+            }
         }
         Ok(())
     }
+}
+
+/// The F32 tensor `<name>.<suffix>` of a state file, checked against the variable's shape, on its device.
+fn f32_tensor(
+    name: &str,
+    suffix: &str,
+    var: &Tensor,
+    shape: Vec<i64>,
+    raw: &[u8],
+) -> Result<Tensor, String> {
+    if shape != var.size() || raw.len() != 4 * var.numel() {
+        return Err(format!(
+            "tensor `{name}.{suffix}` has shape {shape:?}, expected {:?}",
+            var.size()
+        ));
+    }
+    let values: Vec<f32> = raw
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+        .collect();
+    Ok(Tensor::from_slice(&values)
+        .reshape(shape.as_slice())
+        .to_kind(var.kind())
+        .to_device(var.device()))
 }
 
 /// The tensors of a state file: name -> (shape, raw little-endian bytes).
@@ -330,7 +367,7 @@ mod tests {
                 let lb = nb.forward(&x).mse_loss(&y, tch::Reduction::Mean);
                 ours.zero_grad();
                 lb.backward();
-                ours.clip_grad_norm(0.5);
+                ours.clip_grad_norm(0.5, &[]);
                 ours.step();
                 assert_eq!(
                     la.double_value(&[]).to_bits(),
@@ -366,5 +403,59 @@ mod tests {
         assert_eq!(other.steps(), vec![0; 4]);
         assert!(other.load_bytes(&bytes[..bytes.len() - 4]).is_err());
         assert!(other.load_bytes(b"junk").is_err());
+    }
+
+    #[test]
+    fn the_clip_counts_other_gradients_and_gradients_survive_a_checkpoint() {
+        let (a, b, na, nb) = pair();
+        let x = Tensor::randn([8, 5], (Kind::Float, Device::Cpu));
+        let mut own = Adam::new(&a, 1e-3, 0.0);
+        own.zero_grad();
+        na.forward(&x).sum(Kind::Float).backward();
+        let other = Adam::new(&b, 1e-3, 0.0);
+        nb.forward(&x).sum(Kind::Float).backward();
+        let norm = |vs: &nn::VarStore| -> f64 {
+            let sq: f64 = vs
+                .trainable_variables()
+                .iter()
+                .map(|v| v.grad().square().sum(Kind::Double).double_value(&[]))
+                .sum();
+            sq.sqrt()
+        };
+        let (own_before, other_before) = (norm(&a), norm(&b));
+        assert!(
+            (own_before - other_before).abs() < 1e-9,
+            "identical nets, identical gradients"
+        );
+        // Alone, the clip scales to 1; with the other network's gradients counted, each half gets 1 / sqrt(2).
+        own.clip_grad_norm(1.0, &b.trainable_variables());
+        let joint = (norm(&a).powi(2) + norm(&b).powi(2)).sqrt();
+        assert!((joint - 1.0).abs() < 1e-4, "joint norm {joint}");
+        assert!(
+            (norm(&a) - 0.5f64.sqrt()).abs() < 1e-4,
+            "own norm {}",
+            norm(&a)
+        );
+        // The gradients travel with the state when asked to, and come back exactly.
+        let mut keeper = other;
+        keeper.keep_grads = true;
+        let bytes = keeper.to_bytes();
+        let saved: Vec<Tensor> = b
+            .trainable_variables()
+            .iter()
+            .map(|v| v.grad().copy())
+            .collect();
+        for mut v in b.trainable_variables() {
+            v.zero_grad();
+        }
+        keeper.load_bytes(&bytes).unwrap();
+        for (v, g) in b.trainable_variables().iter().zip(&saved) {
+            assert!(v.grad().equal(g));
+        }
+        keeper.keep_grads = false;
+        assert!(
+            keeper.to_bytes().len() < bytes.len(),
+            "no gradients unless kept"
+        );
     }
 }

@@ -4,8 +4,9 @@
 use super::fit::{cat_rows, fit, Budget, Mean, Opt};
 use super::Trainer;
 use crate::replay::Replay;
+use crate::schedule::Schedule;
 use cabc_models::{Critic, Network};
-use cabc_proto::config::RunConfig;
+use cabc_proto::config::{CriticNegatives, RunConfig};
 use cabc_proto::messages::STATE_DIM;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -20,19 +21,33 @@ pub struct CriticFit {
     pub accuracy: f64,
     /// Samples seen (all passes).
     pub samples: usize,
-    /// The training set's size: |D+| + |D-| in the trainer.
+    /// The training set's size: |D+| + the negatives in the trainer.
     pub points: usize,
+    /// Of these, the positives (label 1): `points - positives` are the negatives.
+    pub positives: usize,
 }
 
-/// The critic's training set: the states of D+ then of D- ([N, 6] on `device`), and their labels (1 for D+,
-/// `negative_label` for D-). Never a D? point that the last labelling did not see.
-pub fn critic_examples(replay: &Replay, negative_label: f64, device: Device) -> (Tensor, Tensor) {
-    let (n_plus, n_minus) = (replay.len_plus() as i64, replay.len_minus() as i64);
+/// The critic's negatives (`algorithm.critic_negatives`): D- as the last labelling left it (ours; never a D? point
+/// that labelling did not see), or all of D? as it is now (the reference's full-state trainer).
+pub fn critic_negatives(replay: &Replay, which: CriticNegatives) -> &[[f32; STATE_DIM]] {
+    match which {
+        CriticNegatives::DMinus => replay.minus(),
+        CriticNegatives::Uncertain => &replay.uncertain.states,
+    }
+}
+
+/// The critic's training set: the states of D+ then of the negatives ([N, 6] on `device`), and their labels (1 for
+/// D+, `negative_label` for the negatives).
+pub fn critic_examples(
+    replay: &Replay,
+    negatives: CriticNegatives,
+    negative_label: f64,
+    device: Device,
+) -> (Tensor, Tensor) {
+    let minus = critic_negatives(replay, negatives);
+    let (n_plus, n_minus) = (replay.len_plus() as i64, minus.len() as i64);
     let x = cat_rows(
-        [
-            replay.plus.states.as_flattened(),
-            replay.minus().as_flattened(),
-        ],
+        [replay.plus.states.as_flattened(), minus.as_flattened()],
         STATE_DIM,
         device,
     );
@@ -47,16 +62,22 @@ pub fn critic_examples(replay: &Replay, negative_label: f64, device: Device) -> 
 }
 
 impl Trainer {
-    /// One fit call of p_hat, eq. (16), on D+ against D-. None (nothing trained, the rng untouched) when |D-| is
-    /// not above `critic_min_uncertain` or D+ and D- hold fewer than `batch_size` points. Marks the critic trained.
+    /// One fit call of p_hat, eq. (16), on D+ against the negatives ([`critic_negatives`]). None (nothing trained,
+    /// the rng untouched) when the negatives are not more than `critic_min_uncertain` or the examples fewer than
+    /// `batch_size`; under the every-epoch schedule that also turns L_safety off until the critic trains again
+    /// (the reference's `critic.initialized = False`). Marks the critic trained.
     pub fn fit_critic(&mut self, replay: &Replay, passes: usize) -> Option<CriticFit> {
-        let t = &self.config.training;
-        let n = replay.len_plus() + replay.len_minus();
-        if replay.len_minus() <= t.critic_min_uncertain || n < t.batch_size {
+        let (t, a) = (&self.config.training, &self.config.algorithm);
+        let n_minus = critic_negatives(replay, a.critic_negatives).len();
+        let n = replay.len_plus() + n_minus;
+        if n_minus <= t.critic_min_uncertain || n < t.batch_size {
+            if !Schedule::from_config(&self.config).safety_outlives_critic_fit() {
+                self.critic_trained = false;
+            }
             return None;
         }
         let (x, labels) =
-            critic_examples(replay, self.config.algorithm.negative_label, self.device);
+            critic_examples(replay, a.critic_negatives, a.negative_label, self.device);
         let fit = fit_critic(
             &self.critic,
             &mut self.critic_opt,
@@ -101,6 +122,7 @@ fn fit_critic(
             passes,
             max_batches: config.training.aux_max_batches,
         },
+        &[],
         |b, pass: &mut Pass| {
             let target = labels.index_select(0, &b.idx);
             let logits = critic.logits(&x.index_select(0, &b.idx));
@@ -121,11 +143,13 @@ fn fit_critic(
         },
     )
     .expect("the critic loss does not fail");
+    let positives = labels.eq(1.0).sum(Kind::Int64).int64_value(&[]) as usize;
     CriticFit {
         loss: pass.loss.get(),
         accuracy: pass.correct as f64 / pass.seen.max(1) as f64,
         samples,
         points: n,
+        positives,
     }
 }
 

@@ -43,6 +43,7 @@ impl Trainer {
                 passes,
                 max_batches: self.config.training.aux_max_batches,
             },
+            &[],
             |b, mean: &mut Mean| {
                 let pred = dynamics.forward(&x.index_select(0, &b.idx), &u.index_select(0, &b.idx));
                 let loss = pred.mse_loss(&x_next.index_select(0, &b.idx), Reduction::Mean);

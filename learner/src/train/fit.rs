@@ -15,20 +15,29 @@ pub(crate) struct Opt {
     pub adam: Adam,
     /// Fit calls so far: lr = lr0 * gamma^fits.
     pub fits: u64,
+    lr0: f64,
+    gamma: f64,
 }
 
 impl Opt {
-    /// Adam with the configured weight decay on `vs`.
+    /// Adam with the configured learning rate, weight decay and `training.lr_gamma` on `vs`.
     pub fn adam(vs: &nn::VarStore, t: &TrainingSection) -> Self {
+        Self::with_gamma(vs, t, t.lr_gamma)
+    }
+
+    /// The same with its own ExponentialLR gamma (the policy's `training.policy_lr_gamma`).
+    pub fn with_gamma(vs: &nn::VarStore, t: &TrainingSection, gamma: f64) -> Self {
         Opt {
             adam: Adam::new(vs, t.lr, t.weight_decay),
             fits: 0,
+            lr0: t.lr,
+            gamma,
         }
     }
 
     /// The learning rate of the next fit call.
-    pub fn lr(&self, t: &TrainingSection) -> f64 {
-        t.lr * t.lr_gamma.powi(self.fits as i32)
+    pub fn lr(&self) -> f64 {
+        self.lr0 * self.gamma.powi(self.fits as i32)
     }
 }
 
@@ -58,6 +67,9 @@ pub(crate) struct Budget {
 
 /// One fit call over `n` examples: `loss` gives the batch's loss to minimise and records what it wants to report
 /// into the pass's `M` (a fresh `M` each pass). Returns the last pass's `M` and the samples seen (all passes).
+/// The gradients of `clip_also` (variables this optimiser does not step) count in the gradient-norm clip
+/// (`training.clip_scope`).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn fit<M: Default>(
     opt: &mut Opt,
     t: &TrainingSection,
@@ -65,10 +77,11 @@ pub(crate) fn fit<M: Default>(
     rng: &mut ChaCha8Rng,
     n: usize,
     budget: Budget,
+    clip_also: &[Tensor],
     mut loss: impl FnMut(&Batch, &mut M) -> Result<Tensor, ModelError>,
 ) -> Result<(M, usize), ModelError> {
     limit_cpu_threads(device);
-    opt.adam.lr = opt.lr(t);
+    opt.adam.lr = opt.lr();
     let mut last = M::default();
     let mut samples = 0;
     let mut left = match budget.max_batches {
@@ -91,7 +104,7 @@ pub(crate) fn fit<M: Default>(
             let l = loss(&batch, &mut last)?;
             opt.adam.zero_grad();
             l.backward();
-            opt.adam.clip_grad_norm(t.grad_clip);
+            opt.adam.clip_grad_norm(t.grad_clip, clip_also);
             opt.adam.step();
             samples += t.batch_size;
         }
@@ -167,6 +180,7 @@ mod tests {
             &mut rng,
             n,
             budget,
+            &[],
             |_, _: &mut Mean| {
                 count += 1;
                 Ok((&w * 2.0).sum(tch::Kind::Float))

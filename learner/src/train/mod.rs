@@ -36,7 +36,7 @@ use crate::checkpoint::CheckpointError;
 use crate::replay::Replay;
 use crate::schedule::Schedule;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
-use cabc_proto::config::RunConfig;
+use cabc_proto::config::{ClipScope, RunConfig};
 use cabc_proto::messages::STATE_DIM;
 use fit::{limit_cpu_threads, Opt};
 use rand::SeedableRng;
@@ -73,6 +73,9 @@ pub struct EpochLosses {
     pub critic: Option<f64>,
     /// Fraction of the critic's training points on the right side of p = 0.5 (last pass).
     pub critic_accuracy: Option<f64>,
+    /// The critic's training set (|D+| + its negatives) and, of it, the positives, when it trained this epoch.
+    pub critic_points: Option<usize>,
+    pub critic_positives: Option<usize>,
     pub n_plus: usize,
     /// |D-| (eq. (19)) as the last labelling left it.
     pub n_minus: usize,
@@ -115,12 +118,22 @@ impl Trainer {
         let dynamics = Dynamics::new(nets.dynamics, device, seed.wrapping_add(1));
         let critic = Critic::new(STATE_DIM, nets.critic, device, seed.wrapping_add(2));
         let t = &config.training;
+        let mut dynamics_opt = Opt::adam(dynamics.var_store(), t);
+        let mut critic_opt = Opt::adam(critic.var_store(), t);
+        // Under the reference's clip their gradients count in the policy's clip, so a checkpoint keeps them.
+        let keep_grads = t.clip_scope == ClipScope::PolicyCriticDynamics;
+        dynamics_opt.adam.keep_grads = keep_grads;
+        critic_opt.adam.keep_grads = keep_grads;
         Trainer {
             config: config.clone(),
             device,
-            policy_opt: Opt::adam(policy.var_store(), t),
-            dynamics_opt: Opt::adam(dynamics.var_store(), t),
-            critic_opt: Opt::adam(critic.var_store(), t),
+            policy_opt: Opt::with_gamma(
+                policy.var_store(),
+                t,
+                t.policy_lr_gamma.unwrap_or(t.lr_gamma),
+            ),
+            dynamics_opt,
+            critic_opt,
             policy,
             dynamics,
             critic,
@@ -176,11 +189,12 @@ impl Trainer {
 
     /// The policy's learning rate for its next fit call.
     pub fn lr_policy(&self) -> f64 {
-        self.policy_opt.lr(&self.config.training)
+        self.policy_opt.lr()
     }
 
-    /// One epoch of Algorithm 1's training part, as the [`Schedule`] says: f_hat when due (eq. (15)), p_hat when
-    /// due (eq. (16), D+ against the replay's D-), then pi_theta (eq. (14)). Auto-labelling is the caller's
+    /// One epoch of Algorithm 1's training part, as the run's [`Schedule`] says: f_hat when due (eq. (15)), p_hat
+    /// when due (eq. (16), D+ against its negatives), then pi_theta (eq. (14)). The one place the schedule is
+    /// applied: the algorithm's loop, the tests and the benchmark all call it. Auto-labelling is the caller's
     /// ([`Replay::apply_labels`]), before this call.
     pub fn train_epoch(&mut self, epoch: u64, replay: &Replay) -> Result<EpochLosses, TrainError> {
         let start = Instant::now();
@@ -204,6 +218,8 @@ impl Trainer {
                 losses.critic = Some(fit.loss);
                 losses.critic_accuracy = Some(fit.accuracy);
                 losses.critic_samples = fit.samples;
+                losses.critic_points = Some(fit.points);
+                losses.critic_positives = Some(fit.positives);
             }
         }
         losses.lr_policy = self.lr_policy();

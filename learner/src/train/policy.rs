@@ -5,6 +5,7 @@ use super::fit::{cat_rows, fit, Budget, Mean};
 use super::{TrainError, Trainer};
 use crate::replay::Replay;
 use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
+use cabc_proto::config::ClipScope;
 use cabc_proto::messages::{velocity_of, ACTION_DIM, STATE_DIM};
 use tch::{Kind, Reduction, Tensor};
 
@@ -62,8 +63,21 @@ impl Trainer {
         let dev = self.device;
         let x_all = cat_rows([plus.states.as_flattened()], STATE_DIM, dev);
         let label_all = cat_rows([plus.expert_actions.as_flattened()], ACTION_DIM, dev);
-        self.dynamics.var_store_mut().freeze();
-        self.critic.var_store_mut().freeze();
+        // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
+        // L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
+        // measures theta's gradient together with theirs.
+        let clip_also = match self.config.training.clip_scope {
+            ClipScope::Policy => {
+                self.dynamics.var_store_mut().freeze();
+                self.critic.var_store_mut().freeze();
+                Vec::new()
+            }
+            ClipScope::PolicyCriticDynamics => {
+                let mut vars = self.critic.var_store().trainable_variables();
+                vars.extend(self.dynamics.var_store().trainable_variables());
+                vars
+            }
+        };
         let (policy, dynamics, critic) = (&self.policy, &self.dynamics, &self.critic);
         let fitted = fit(
             &mut self.policy_opt,
@@ -75,6 +89,7 @@ impl Trainer {
                 passes,
                 max_batches: self.config.training.policy_max_batches,
             },
+            &clip_also,
             |b, pass: &mut Pass| {
                 let x = x_all.index_select(0, &b.idx);
                 let input = match images {

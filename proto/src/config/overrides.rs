@@ -34,10 +34,14 @@ impl RunConfig {
                     .get_mut(part)
                     .ok_or_else(|| fail(&format!("no section {part}")))?;
             }
-            let slot = table
-                .get_mut(last)
-                .ok_or_else(|| fail(&format!("no key {last} there")))?;
-            *slot = parsed;
+            let table = table.as_table_mut().ok_or_else(|| fail("not a section"))?;
+            match table.get_mut(last) {
+                Some(slot) => *slot = parsed,
+                // An optional key left out (e.g. algorithm.baseline_rho): parsing below refuses an unknown one.
+                None => {
+                    table.insert(last.to_string(), parsed);
+                }
+            }
         }
         let text = toml::to_string(&value).expect("a TOML value serialises");
         let origin = format!("--set {}", settings.join(" --set "));

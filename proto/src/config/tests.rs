@@ -174,7 +174,7 @@ fn settings_override_keys_and_are_validated() {
     assert_eq!(config.observation.pixel_noise_std, 2.5);
     assert_eq!(config.collection.episodes, Episodes::Reset);
     for (bad, says) in [
-        ("run.sed=3", "no key sed"),
+        ("run.sed=3", "unknown field `sed`"),
         ("runs.seed=3", "no section runs"),
         ("run.seed", "expected key=value"),
         ("run.seed=many", "run.seed"),
@@ -187,4 +187,86 @@ fn settings_override_keys_and_are_validated() {
             .to_string();
         assert!(e.contains(says), "{bad}: {e}");
     }
+}
+
+/// Issue 18: the reference presets set every protocol item to the reference's value, and differ from ours in those
+/// items (and the machine's) alone.
+#[test]
+fn reference_presets_follow_the_reference_protocol() {
+    let ours = RunConfig::load("v-b").unwrap();
+    let r = RunConfig::load("v-b-ref").unwrap();
+    assert_eq!(r.training.schedule, ScheduleKind::EveryEpoch);
+    assert_eq!(r.training.clip_scope, ClipScope::PolicyCriticDynamics);
+    assert_eq!((r.actors.count, r.actors.envs_per_actor), (1, 1));
+    assert_eq!(r.collection.episodes, Episodes::Reset);
+    assert_eq!(r.collection.flush, Flush::BeforeStep);
+    assert_eq!(
+        r.collection.expert_failure_staged,
+        ExpertFailureStaged::Discard
+    );
+    assert_eq!(r.collection.stored_action, StoredAction::Unclipped);
+    assert!(!r.replay.dynamics_only);
+    assert_eq!(r.algorithm.critic_negatives, CriticNegatives::Uncertain);
+    assert_eq!(
+        (
+            r.algorithm.autolabel_max_plus,
+            r.algorithm.autolabel_min_vertices,
+            r.algorithm.autolabel_min_uncertain
+        ),
+        (32_768, 8, 16)
+    );
+    assert_eq!(r.training.critic_min_uncertain, 0);
+    assert_eq!(
+        (r.algorithm.lambda, r.algorithm.rho),
+        (ours.algorithm.lambda, ours.algorithm.rho)
+    );
+    // Ours keeps its own choices.
+    assert_eq!(ours.training.schedule, ScheduleKind::Paper);
+    assert_eq!(ours.training.clip_scope, ClipScope::Policy);
+    assert_eq!(ours.collection.flush, Flush::WithStep);
+    assert!(ours.replay.dynamics_only);
+    for name in ["v-a-ref", "v-c-ref"] {
+        let v = RunConfig::load(name).unwrap();
+        assert_eq!(v.training.schedule, ScheduleKind::Paper, "{name}");
+        assert_eq!(
+            (v.training.aux_passes, v.training.initial_aux_passes),
+            (10, Some(50)),
+            "{name}"
+        );
+        assert_eq!(v.training.policy_lr_gamma, Some(1.0), "{name}");
+        assert_eq!(v.training.critic_min_uncertain, 16, "{name}");
+        assert_eq!(
+            (v.observation.width, v.observation.trunk),
+            (64, VisionTrunk::SmallCnn),
+            "{name}"
+        );
+    }
+    assert_eq!(RunConfig::load("v-a-ref").unwrap().run.max_epochs, 50);
+}
+
+/// Issue 18 item 8: --baseline is lambda = 0 unless the run names another baseline; v-c-ref's is the Fig. 6
+/// caption's (lambda 1, rho 1), and `--set` can make it plain behaviour cloning again.
+#[test]
+fn the_baseline_variant_follows_the_run() {
+    let b = RunConfig::load_variant("v-b", true).unwrap();
+    assert_eq!((b.algorithm.lambda, b.algorithm.rho), (0.0, 1.0));
+    assert_eq!(b.run.name, "v-b-baseline");
+    let c = RunConfig::load_variant("v-c-ref", true).unwrap();
+    assert_eq!((c.algorithm.lambda, c.algorithm.rho), (1.0, 1.0));
+    assert_eq!(c.run.name, "v-c-ref-baseline");
+    let mut bc = RunConfig::load("v-c-ref")
+        .unwrap()
+        .with_overrides(&[
+            "algorithm.baseline_lambda=0".into(),
+            "algorithm.baseline_rho=0.5".into(),
+            "run.name=v-c-ref-bc-s1-baseline".into(),
+        ])
+        .unwrap();
+    bc.make_baseline();
+    assert_eq!((bc.algorithm.lambda, bc.algorithm.rho), (0.0, 0.5));
+    assert_eq!(bc.run.name, "v-c-ref-bc-s1-baseline", "no second suffix");
+    // A run that is its own baseline is left alone.
+    let mut same = RunConfig::load_variant("v-b", true).unwrap();
+    same.make_baseline();
+    assert_eq!(same.run.name, "v-b-baseline");
 }
