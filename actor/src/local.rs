@@ -6,6 +6,7 @@
 use crate::collect::Collector;
 use crate::evaluate::evaluate;
 use crate::run::{act, collect_epoch};
+use cabc_bus::interrupt::Interrupt;
 use cabc_models::Policy;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{
@@ -23,6 +24,9 @@ pub struct LocalActors<E: ExpertClient> {
     expert: E,
     evaluate: bool,
     reports: Vec<EvalReport>,
+    /// Where the policy runs for collection and evaluation (the learner's device in `learner run --local`).
+    device: Device,
+    interrupt: Option<Interrupt>,
 }
 
 impl<E: ExpertClient> LocalActors<E> {
@@ -38,7 +42,26 @@ impl<E: ExpertClient> LocalActors<E> {
             expert,
             evaluate,
             reports: Vec::new(),
+            device: Device::Cpu,
+            interrupt: None,
         }
+    }
+
+    /// The same actors running the policy on `device`: on a GPU each half of an actor's environments is one batch
+    /// of the policy there.
+    pub fn on_device(mut self, device: Device) -> Self {
+        self.device = device;
+        self
+    }
+
+    /// The same actors, stopping at the next epoch boundary once `interrupt` is set (Ctrl-C).
+    pub fn with_interrupt(mut self, interrupt: Interrupt) -> Self {
+        self.interrupt = Some(interrupt);
+        self
+    }
+
+    fn is_interrupted(&self) -> bool {
+        self.interrupt.as_ref().is_some_and(Interrupt::is_set)
     }
 }
 
@@ -85,7 +108,10 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<Collected>, PortError> {
-        let policy = Policy::from_bytes(&update.weights, Device::Cpu)
+        if self.is_interrupted() {
+            return Ok(None);
+        }
+        let policy = Policy::from_bytes(&update.weights, self.device)
             .map_err(|e| PortError::Transport(format!("policy version {}: {e}", update.version)))?;
         let mut sink = Store {
             store,
@@ -127,6 +153,10 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
 
     fn evaluations(&mut self) -> Vec<EvalReport> {
         std::mem::take(&mut self.reports)
+    }
+
+    fn interrupted(&self) -> bool {
+        self.is_interrupted()
     }
 
     fn stop(&mut self, _reason: &str) -> Result<(), PortError> {

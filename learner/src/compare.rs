@@ -9,7 +9,8 @@
 //!   ([`crate::seeds`]).
 //!
 //! A run folder is read from its `config.toml`, `metrics.csv`, `evals.csv` and (when the run ended) `summary.json`;
-//! it may still be running. Proposed runs (lambda > 0) are drawn in blues, baselines (lambda = 0) in reds.
+//! it may still be running. Proposed runs are drawn in blues, baselines (named `-baseline`, or lambda = 0) in oranges, a
+//! shade per seed.
 
 use cabc_proto::config::RunConfig;
 use plotters::prelude::*;
@@ -199,8 +200,10 @@ impl RunRecord {
         self.evals.iter().filter(|e| e.laps >= self.eval_laps)
     }
 
+    /// A baseline run: named so by `--baseline` (its name ends in `-baseline`, whatever lambda it has: the Fig. 6
+    /// caption's V-C baseline keeps lambda = 1), or trained with lambda = 0.
     pub fn is_baseline(&self) -> bool {
-        self.lambda == 0.0
+        self.name.ends_with("-baseline") || self.lambda == 0.0
     }
 }
 
@@ -304,19 +307,31 @@ fn max_version(runs: &[RunRecord]) -> u64 {
 
 const SIZE: (u32, u32) = (1000, 560);
 
-/// Blues for the proposed runs, reds for the baselines, a shade per run.
+/// Two hues, blue for the proposed runs and orange for the baselines, and within each a shade per run from dark to
+/// light, spread over the runs of that method (seeds are shades of their method's colour).
 fn colour(runs: &[RunRecord], i: usize) -> RGBColor {
     let baseline = runs[i].is_baseline();
-    let k = runs[..i]
-        .iter()
-        .filter(|r| r.is_baseline() == baseline)
-        .count() as u8;
-    let shade = k.wrapping_mul(45) % 160;
-    if baseline {
-        RGBColor(220 - shade / 2, 40 + shade, 40 + shade / 2)
+    let same = |r: &&RunRecord| r.is_baseline() == baseline;
+    let k = runs[..i].iter().filter(same).count();
+    let n = runs.iter().filter(same).count();
+    // 0 (darkest) .. 1 (lightest).
+    let t = if n > 1 {
+        k as f64 / (n - 1) as f64
     } else {
-        RGBColor(30 + shade / 2, 70 + shade, 220 - shade / 3)
-    }
+        0.0
+    };
+    let (dark, light) = if baseline {
+        ([166.0, 54.0, 3.0], [253.0, 174.0, 107.0])
+    } else {
+        ([8.0, 48.0, 107.0], [107.0, 174.0, 214.0])
+    };
+    let mix = |c: usize| (dark[c] + (light[c] - dark[c]) * t).round() as u8;
+    RGBColor(mix(0), mix(1), mix(2))
+}
+
+/// Baselines dashed in the per-version figures, so that they show where they lie on a proposed run (at 0 laps).
+fn series_style(r: &RunRecord, c: RGBColor) -> ShapeStyle {
+    c.stroke_width(if r.is_baseline() { 3 } else { 2 })
 }
 
 fn label(r: &RunRecord) -> String {
@@ -342,15 +357,26 @@ fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
         .x_desc("policy version (epoch)")
         .y_desc("laps")
         .draw()?;
-    for (i, r) in runs.iter().enumerate() {
-        let c = colour(runs, i);
+    // Baselines last, on top: at 0 laps they would hide under the proposed runs' early versions.
+    let order = (0..runs.len()).filter(|&i| !runs[i].is_baseline());
+    for i in order.chain((0..runs.len()).filter(|&i| runs[i].is_baseline())) {
+        let (r, c) = (&runs[i], colour(runs, i));
+        let style = series_style(r, c);
         chart
             .draw_series(LineSeries::new(
                 r.evals.iter().map(|e| (e.version, e.laps)),
-                c.stroke_width(2),
+                style,
             ))?
             .label(label(r))
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+        if r.is_baseline() {
+            chart.draw_series(
+                r.evals
+                    .iter()
+                    .filter(|e| e.version % 5 == 0)
+                    .map(|e| Circle::new((e.version, e.laps), 3, c.filled())),
+            )?;
+        }
     }
     chart
         .configure_series_labels()

@@ -44,6 +44,13 @@ enum Command {
         /// Zenoh endpoints to listen on, overriding the configuration's `bus.listen`.
         #[arg(long)]
         listen: Vec<String>,
+        /// One process: the actors, the expert and the evaluator in-process, no bus (the policy runs on the
+        /// learner's device for collection and evaluation too).
+        #[arg(long, conflicts_with = "listen")]
+        local: bool,
+        /// A configuration value, `key=value` (e.g. `run.seed=3`); repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
     },
     /// Resolve a configuration, create its run folder with config.toml inside, and print the folder.
     Prepare {
@@ -91,14 +98,25 @@ fn main() -> anyhow::Result<()> {
             fresh,
             baseline,
             listen,
+            local,
+            set,
         } => {
-            let mut config = load(&config, baseline)?;
+            let mut config = load(&config, false)?
+                .with_overrides(&set)
+                .context("applying --set")?;
+            if baseline {
+                config.make_baseline();
+            }
             if !listen.is_empty() {
                 config.bus.listen = listen;
             }
             let run_dir =
                 RunDir::prepare(&config, run_dir, fresh).context("preparing the run folder")?;
-            cabc_learner::serve::run(config, run_dir, resume)
+            if local {
+                cabc_learner::serve::run_local(config, run_dir, resume)
+            } else {
+                cabc_learner::serve::run(config, run_dir, resume)
+            }
         }
         Command::Prepare {
             config,

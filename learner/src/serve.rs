@@ -1,4 +1,5 @@
-//! `learner run`: Algorithm 1 ([`crate::algorithm`]) with the actors over zenoh (`cabc_bus::rollouts`).
+//! `learner run`: Algorithm 1 ([`crate::algorithm`]) with the actors over zenoh (`cabc_bus::rollouts`), or in this
+//! process (`--local`).
 //!
 //! The learner listens on `bus.listen` (the embedded router of a one-machine run), resumes from the run folder's
 //! checkpoint with `resume`, and at the end publishes Stop, writes the final outputs and prints the summary.
@@ -7,12 +8,18 @@ use crate::algorithm::{self, Ending};
 use crate::learner::Learner;
 use crate::rundir::RunDir;
 use anyhow::{Context, Result};
+use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::rollouts::ZenohActors;
 use cabc_bus::{Bus, Role};
-use cabc_proto::config::RunConfig;
+use cabc_expert::mpcc::{Mpcc, MpccConfig};
+use cabc_expert::relabel::{Expert, Relabeller};
+use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
+use cabc_sim::track::Track;
+use cabc_sim::vehicle::VehicleParams;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.
@@ -32,7 +39,48 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let expected = config.actors.count as usize;
     let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
     let mut learner = Learner::open(config, run_dir, resume)?;
-    let ending = algorithm::run(&mut learner, &mut actors)?;
+    run_to_the_end(&mut learner, &mut actors)?;
+    // Give the stop a moment to reach everyone before the router goes away.
+    std::thread::sleep(Duration::from_millis(300));
+    actors.into_bus().close_blocking()?;
+    Ok(())
+}
+
+/// `learner run --local`: the same Algorithm 1 in one process, with `actors.count` in-process collectors, the
+/// expert answering directly (`Relabeller`, its batches solved on every core) and the evaluator after each epoch;
+/// no bus. The policy of collection and evaluation runs on the learner's device. For a seed it gives the numbers of
+/// the distributed run (the same streams, segment order and code; `tests/tests/local.rs`), except that every
+/// version's evaluation arrives before the next epoch, so an early stop can come a few epochs sooner.
+pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
+    let interrupt = Interrupt::on_ctrl_c();
+    let expert = match config.expert.kind {
+        ExpertKind::Mpcc => Expert::Mpcc(Arc::new(
+            Mpcc::new(
+                Track::l_track_barc(),
+                VehicleParams::default(),
+                MpccConfig::default(),
+            )
+            .context("building the MPCC")?,
+        )),
+        ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
+    };
+    let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
+    let mut learner = Learner::open(config, run_dir, resume)?;
+    tracing::info!(
+        run = learner.config.run.name,
+        dir = %learner.run_dir.path().display(),
+        device = ?learner.trainer.device(),
+        "learner up, actors in-process"
+    );
+    let mut actors = LocalActors::new(&learner.config, expert, true)
+        .on_device(learner.trainer.device())
+        .with_interrupt(interrupt);
+    run_to_the_end(&mut learner, &mut actors)
+}
+
+/// Algorithm 1 until it ends, then the stop, the final outputs and the summary (printed).
+fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<()> {
+    let ending = algorithm::run(learner, actors)?;
     let reason = match &ending {
         Ending::Interrupted => "interrupted".to_string(),
         Ending::EarlyStop(v) => format!(
@@ -47,8 +95,5 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     }
     let summary = learner.finish(&reason, interrupted, actors.rejected())?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
-    // Give the stop a moment to reach everyone before the router goes away.
-    std::thread::sleep(Duration::from_millis(300));
-    actors.into_bus().close_blocking()?;
     Ok(())
 }

@@ -1,0 +1,123 @@
+//! `learner run --local` (issue 22): Algorithm 1 in one process, no bus. For a seed it gives the distributed run's
+//! numbers: the same data, losses and evaluations, epoch by epoch. It also completes the camera smoke preset.
+
+use cabc_tests::Cluster;
+use std::time::Duration;
+
+fn csv_rows(path: &std::path::Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+/// The columns of a run's table that depend on its data and training alone (not on timing).
+fn numbers(path: &std::path::Path, names: &[&str]) -> Vec<Vec<String>> {
+    let rows = csv_rows(path);
+    let idx: Vec<usize> = names
+        .iter()
+        .map(|n| {
+            rows[0]
+                .iter()
+                .position(|h| h == n)
+                .unwrap_or_else(|| panic!("no column {n}"))
+        })
+        .collect();
+    rows[1..]
+        .iter()
+        .map(|r| idx.iter().map(|&i| r[i].clone()).collect())
+        .collect()
+}
+
+const METRICS: &[&str] = &[
+    "epoch",
+    "steps_collected",
+    "segments",
+    "d_plus",
+    "d_uncertain",
+    "d_minus",
+    "dynamics_only",
+    "imitation_loss",
+    "safety_loss",
+    "dynamics_loss",
+    "critic_loss",
+    "uncertain_truncating",
+    "expert_failures",
+];
+
+#[test]
+fn a_local_run_gives_the_distributed_runs_numbers() {
+    let tmp = cabc_tests::test_dir();
+    let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\n";
+    let epochs = 6;
+    let mut dist = Cluster::new(tmp.path(), "dist", epochs, extra).unwrap();
+    dist.start_all(2, false).unwrap();
+    let dist_summary = dist.summary("learner");
+    assert_eq!(dist_summary["epochs"], epochs);
+
+    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
+    let (config, dir) = (
+        local.config.display().to_string(),
+        local.dir.display().to_string(),
+    );
+    local
+        .start(
+            "learner",
+            "learner",
+            &["run", "--local", "--config", &config, "--run-dir", &dir],
+        )
+        .unwrap();
+    let local_summary = local.summary("learner");
+    assert_eq!(local_summary["epochs"], epochs);
+    assert_eq!(
+        local_summary["versions_not_evaluated"],
+        serde_json::json!([])
+    );
+
+    let a = numbers(&dist.dir.join("metrics.csv"), METRICS);
+    let b = numbers(&local.dir.join("metrics.csv"), METRICS);
+    assert_eq!(a.len(), epochs as usize);
+    assert_eq!(a, b, "metrics.csv: distributed (left) and local (right)");
+    let evals = ["version", "laps", "end_reason", "lap_mean"];
+    let a = numbers(&dist.dir.join("evals.csv"), &evals);
+    let b = numbers(&local.dir.join("evals.csv"), &evals);
+    assert_eq!(a, b, "evals.csv");
+    assert!(
+        std::fs::read(dist.dir.join("final-policy.safetensors")).unwrap()
+            == std::fs::read(local.dir.join("final-policy.safetensors")).unwrap(),
+        "the same final policy"
+    );
+}
+
+#[test]
+fn a_local_run_completes_the_camera_smoke_preset() {
+    let tmp = cabc_tests::test_dir();
+    let mut local = Cluster::new(tmp.path(), "unused", 1, "").unwrap();
+    let runs = tmp.path().display().to_string();
+    let runs_dir = format!("run.runs_dir={runs:?}");
+    local
+        .start(
+            "learner",
+            "learner",
+            &[
+                "run",
+                "--local",
+                "--config",
+                "smoke-camera",
+                "--set",
+                "run.max_epochs=2",
+                "--set",
+                &runs_dir,
+                "--set",
+                "training.device=\"cpu\"",
+            ],
+        )
+        .unwrap();
+    let (status, out) = local.wait("learner", Duration::from_secs(400)).unwrap();
+    assert!(status.success(), "{}", local.log_tail("learner"));
+    let summary: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(summary["epochs"], 2, "{summary:#}");
+    assert!(summary["d_plus"].as_u64().unwrap() > 0, "{summary:#}");
+    let metrics = tmp.path().join("smoke-camera").join("metrics.csv");
+    assert_eq!(csv_rows(&metrics).len(), 3);
+}
