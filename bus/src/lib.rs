@@ -227,6 +227,21 @@ impl Bus {
             .map_err(zerr)
     }
 
+    /// Publishes a message encoded once ([`codec::encode`] into `bytes::Bytes`), without copying it: the policy's
+    /// weights are held for the queryable and published (again) from the same buffer.
+    pub fn put_encoded_blocking<M: Message>(
+        &self,
+        key: &str,
+        encoded: bytes::Bytes,
+    ) -> Result<(), BusError> {
+        self.session
+            .put(key, encoded)
+            .encoding(encoding_of::<M>())
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(zerr)
+    }
+
     /// [`Bus::metrics`], blocking; a failure is logged, never fatal.
     pub fn metrics_blocking(&self, value: &str) {
         let put = self

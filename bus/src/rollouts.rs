@@ -14,6 +14,7 @@
 use crate::gate::{Closed, EpochGate};
 use crate::interrupt::Interrupt;
 use crate::{decode_sample, encoding_of, Bus};
+use bytes::Bytes;
 use cabc_proto::codec;
 use cabc_proto::messages::{EvalReport, PolicyUpdate, Segment, TrajMessage};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
@@ -99,7 +100,7 @@ pub struct ZenohActors {
     _policy: Queryable<()>,
     /// The encoded publications of the last versions (the queryable's answers): the latest for late joiners, any
     /// held version for an evaluator that missed it (`policy?version=<v>`).
-    published: Arc<Mutex<BTreeMap<u64, Vec<u8>>>>,
+    published: Arc<Mutex<BTreeMap<u64, Bytes>>>,
     live: BTreeSet<String>,
     /// Actors that left and did not come back.
     left: BTreeSet<String>,
@@ -138,7 +139,7 @@ impl ZenohActors {
             .history(true)
             .wait()
             .map_err(transport)?;
-        let published: Arc<Mutex<BTreeMap<u64, Vec<u8>>>> = Arc::default();
+        let published: Arc<Mutex<BTreeMap<u64, Bytes>>> = Arc::default();
         let answer = published.clone();
         let policy = bus
             .session
@@ -257,10 +258,12 @@ impl Rollouts for ZenohActors {
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<Collected>, PortError> {
+        // Encoded once: held for the queryable, published, and published again, from the same buffer.
+        let encoded = Bytes::from(codec::encode(update));
         {
             let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
-            held.insert(update.version, codec::encode(update));
-            let mut bytes: usize = held.values().map(Vec::len).sum();
+            held.insert(update.version, encoded.clone());
+            let mut bytes: usize = held.values().map(Bytes::len).sum();
             while bytes > HELD_BYTES && held.len() > 1 {
                 if let Some((_, dropped)) = held.pop_first() {
                     bytes -= dropped.len();
@@ -268,7 +271,7 @@ impl Rollouts for ZenohActors {
             }
         }
         self.bus
-            .put_blocking(&self.bus.keys.policy(), update)
+            .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
             .map_err(transport)?;
         self.follow_liveliness(None);
         let mut gate = EpochGate::open(
@@ -301,7 +304,7 @@ impl Rollouts for ZenohActors {
                     "publishing the policy again for actors not heard from"
                 );
                 self.bus
-                    .put_blocking(&self.bus.keys.policy(), update)
+                    .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
                     .map_err(transport)?;
             }
             if let Some(closed) = gate.closed(Instant::now()) {

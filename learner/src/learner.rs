@@ -32,9 +32,10 @@ pub enum LearnerError {
 /// The replay's file in the checkpoint.
 const REPLAY: &str = "replay.bin";
 
-/// Published versions whose weights are kept until their evaluation arrives (the best evaluated one is written to
-/// `best-policy.safetensors`, whatever its version); past this many the oldest are dropped, logged.
-const PENDING_WEIGHTS: usize = 64;
+/// Published versions' weights are kept until their evaluation arrives (the best evaluated one is written to
+/// `best-policy.safetensors`, whatever its version), up to this many bytes together (a ResNet-18 policy is 45 MB, so
+/// 11 versions; the full-state MLP is 0.1 MB): past it the oldest are dropped, logged; the newest always stays.
+const PENDING_WEIGHT_BYTES: usize = 512 << 20;
 
 /// Everything the learner holds.
 pub struct Learner {
@@ -160,12 +161,15 @@ impl Learner {
     pub fn policy_update(&mut self, epoch: u64) -> PolicyUpdate {
         let weights = self.trainer.policy_bytes();
         self.history.insert(epoch, weights.clone());
-        while self.history.len() > PENDING_WEIGHTS {
-            if let Some((version, _)) = self.history.pop_first() {
+        let mut held: usize = self.history.values().map(Vec::len).sum();
+        while held > PENDING_WEIGHT_BYTES && self.history.len() > 1 {
+            if let Some((version, dropped)) = self.history.pop_first() {
+                held -= dropped.len();
                 tracing::warn!(
                     version,
-                    "no evaluation of version {version} yet after {PENDING_WEIGHTS} versions: its weights are dropped \
-                     (it cannot become best-policy.safetensors)"
+                    "no evaluation of version {version} yet, and the versions awaiting one hold over \
+                     {} MB: its weights are dropped (it cannot become best-policy.safetensors)",
+                    PENDING_WEIGHT_BYTES >> 20
                 );
             }
         }

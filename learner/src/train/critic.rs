@@ -1,13 +1,13 @@
 //! Fitting the critic p_hat, eq. (16): binary cross-entropy of D+ (label 1) against D- (label `negative_label`),
 //! D- as auto-labelling left it (eq. (19), [`Replay::minus`]).
 
-use super::fit::{cat_rows, fit, Budget, Mean, Opt};
+use super::data::Uploaded;
+use super::fit::{fit, Budget, Mean, Opt};
 use super::Trainer;
 use crate::replay::Replay;
 use crate::schedule::Schedule;
 use cabc_models::{Critic, Network};
 use cabc_proto::config::{CriticNegatives, RunConfig};
-use cabc_proto::messages::STATE_DIM;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Reduction, Tensor};
@@ -27,30 +27,25 @@ pub struct CriticFit {
     pub positives: usize,
 }
 
-/// The critic's negatives (`algorithm.critic_negatives`): D- as the last labelling left it (ours; never a D? point
-/// that labelling did not see), or all of D? as it is now (the reference's full-state trainer).
-pub fn critic_negatives(replay: &Replay, which: CriticNegatives) -> &[[f32; STATE_DIM]] {
-    match which {
-        CriticNegatives::DMinus => replay.minus(),
-        CriticNegatives::Uncertain => &replay.uncertain.states,
-    }
-}
-
-/// The critic's training set: the states of D+ then of the negatives ([N, 6] on `device`), and their labels (1 for
-/// D+, `negative_label` for the negatives).
+/// The critic's training set: the states of D+ then of its negatives ([N, 6] on `device`), and their labels (1 for
+/// D+, `negative_label` for the negatives): D- as the last labelling left it (`critic_negatives = "d-minus"`, ours;
+/// never a D? point that labelling did not see), or all of D? as it is now (`"uncertain"`, the reference's
+/// full-state trainer).
 pub fn critic_examples(
     replay: &Replay,
     negatives: CriticNegatives,
     negative_label: f64,
     device: Device,
 ) -> (Tensor, Tensor) {
-    let minus = critic_negatives(replay, negatives);
-    let (n_plus, n_minus) = (replay.len_plus() as i64, minus.len() as i64);
-    let x = cat_rows(
-        [replay.plus.states.as_flattened(), minus.as_flattened()],
-        STATE_DIM,
-        device,
-    );
+    examples(&Uploaded::of(replay, device), negatives, negative_label)
+}
+
+/// [`critic_examples`] from the epoch's uploaded replay.
+fn examples(data: &Uploaded, negatives: CriticNegatives, negative_label: f64) -> (Tensor, Tensor) {
+    let minus = negatives_of(data, negatives);
+    let device = minus.device();
+    let (n_plus, n_minus) = (data.plus.len as i64, minus.size()[0]);
+    let x = Tensor::cat(&[&data.plus.states, minus], 0);
     let labels = Tensor::cat(
         &[
             Tensor::ones([n_plus], (Kind::Float, device)),
@@ -61,23 +56,34 @@ pub fn critic_examples(
     (x, labels)
 }
 
+fn negatives_of(data: &Uploaded, which: CriticNegatives) -> &Tensor {
+    match which {
+        CriticNegatives::DMinus => &data.minus,
+        CriticNegatives::Uncertain => &data.uncertain.states,
+    }
+}
+
 impl Trainer {
-    /// One fit call of p_hat, eq. (16), on D+ against the negatives ([`critic_negatives`]). None (nothing trained,
+    /// One fit call of p_hat, eq. (16), on D+ against its negatives ([`critic_examples`]). None (nothing trained,
     /// the rng untouched) when the negatives are not more than `critic_min_uncertain` or the examples fewer than
     /// `batch_size`; under the every-epoch schedule that also turns L_safety off until the critic trains again
     /// (the reference's `critic.initialized = False`). Marks the critic trained.
     pub fn fit_critic(&mut self, replay: &Replay, passes: usize) -> Option<CriticFit> {
+        self.fit_critic_on(&Uploaded::of(replay, self.device), passes)
+    }
+
+    /// [`Trainer::fit_critic`] on the epoch's uploaded replay.
+    pub(crate) fn fit_critic_on(&mut self, data: &Uploaded, passes: usize) -> Option<CriticFit> {
         let (t, a) = (&self.config.training, &self.config.algorithm);
-        let n_minus = critic_negatives(replay, a.critic_negatives).len();
-        let n = replay.len_plus() + n_minus;
+        let n_minus = negatives_of(data, a.critic_negatives).size()[0] as usize;
+        let n = data.plus.len + n_minus;
         if n_minus <= t.critic_min_uncertain || n < t.batch_size {
             if !Schedule::from_config(&self.config).safety_outlives_critic_fit() {
                 self.critic_trained = false;
             }
             return None;
         }
-        let (x, labels) =
-            critic_examples(replay, a.critic_negatives, a.negative_label, self.device);
+        let (x, labels) = examples(data, a.critic_negatives, a.negative_label);
         let fit = fit_critic(
             &self.critic,
             &mut self.critic_opt,
@@ -96,8 +102,8 @@ impl Trainer {
 #[derive(Default)]
 struct Pass {
     loss: Mean,
-    correct: i64,
-    seen: i64,
+    /// Per batch, the share of points on the right side of p = 0.5 (batches are all `batch_size` long).
+    accuracy: Mean,
 }
 
 /// Trains `critic` by BCE-with-logits on (x, labels) for `passes`: one fit call. Shared by the trainer and
@@ -132,13 +138,10 @@ fn fit_critic(
                 None,
                 Reduction::Mean,
             );
-            pass.loss.add(loss.double_value(&[]));
-            pass.correct += logits
-                .gt(0.0)
-                .eq_tensor(&target.gt(0.5))
-                .sum(Kind::Int64)
-                .int64_value(&[]);
-            pass.seen += b.rows.len() as i64;
+            pass.loss.add(&loss);
+            let right = logits.gt(0.0).eq_tensor(&target.gt(0.5));
+            pass.accuracy
+                .add(&right.to_kind(Kind::Float).mean(Kind::Float));
             Ok(loss)
         },
     )
@@ -146,7 +149,7 @@ fn fit_critic(
     let positives = labels.eq(1.0).sum(Kind::Int64).int64_value(&[]) as usize;
     CriticFit {
         loss: pass.loss.get(),
-        accuracy: pass.correct as f64 / pass.seen.max(1) as f64,
+        accuracy: pass.accuracy.get(),
         samples,
         points: n,
         positives,

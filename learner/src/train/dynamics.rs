@@ -1,9 +1,9 @@
 //! Fitting the dynamics model f_hat, eq. (15): min || x' - f_hat(x, u) ||^2 over every stored (x, u, x').
 
-use super::fit::{cat_rows, fit, Budget, Mean};
+use super::data::Uploaded;
+use super::fit::{fit, Budget, Mean};
 use super::Trainer;
 use crate::replay::Replay;
-use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
 use tch::Reduction;
 
 /// The result of a dynamics fit.
@@ -19,24 +19,20 @@ impl Trainer {
     /// One fit call of f_hat, eq. (15), on every stored (x, u_applied, x'): D+, D? and the dynamics-only store.
     /// None (nothing trained, the rng untouched) when they hold fewer than `batch_size` samples.
     pub fn fit_dynamics(&mut self, replay: &Replay, passes: usize) -> Option<Fit> {
-        let stores = [&replay.plus, &replay.uncertain, &replay.dynamics_only];
-        let n: usize = stores.iter().map(|s| s.len()).sum();
+        self.fit_dynamics_on(&Uploaded::of(replay, self.device), passes)
+    }
+
+    /// [`Trainer::fit_dynamics`] on the epoch's uploaded replay.
+    pub(crate) fn fit_dynamics_on(&mut self, data: &Uploaded, passes: usize) -> Option<Fit> {
+        let (x, u, x_next, n) = data.transitions();
         if n < self.config.training.batch_size {
             return None;
         }
-        let dev = self.device;
-        let x = cat_rows(stores.map(|s| s.states.as_flattened()), STATE_DIM, dev);
-        let u = cat_rows(
-            stores.map(|s| s.applied_actions.as_flattened()),
-            ACTION_DIM,
-            dev,
-        );
-        let x_next = cat_rows(stores.map(|s| s.next_states.as_flattened()), STATE_DIM, dev);
         let dynamics = &self.dynamics;
         let (mean, samples) = fit(
             &mut self.dynamics_opt,
             &self.config.training,
-            dev,
+            self.device,
             &mut self.rng,
             n,
             Budget {
@@ -47,7 +43,7 @@ impl Trainer {
             |b, mean: &mut Mean| {
                 let pred = dynamics.forward(&x.index_select(0, &b.idx), &u.index_select(0, &b.idx));
                 let loss = pred.mse_loss(&x_next.index_select(0, &b.idx), Reduction::Mean);
-                mean.add(loss.double_value(&[]));
+                mean.add(&loss);
                 Ok(loss)
             },
         )

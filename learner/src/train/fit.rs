@@ -6,7 +6,7 @@ use cabc_models::ModelError;
 use cabc_proto::config::TrainingSection;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use tch::{nn, Device, Tensor};
+use tch::{nn, Device, Kind, Tensor};
 
 use super::adam::Adam;
 
@@ -135,24 +135,28 @@ pub(crate) fn cat_rows<'a>(
         .to_device(device)
 }
 
-/// The mean of the values added.
+/// The mean of the scalar tensors added, summed where they are (in f64, detached): reading it is the one host
+/// sync of a pass, not one per mini-batch (on a GPU, `double_value` per batch would stall the queue each time).
 #[derive(Default)]
 pub(crate) struct Mean {
-    sum: f64,
+    sum: Option<Tensor>,
     n: usize,
 }
 
 impl Mean {
-    pub fn add(&mut self, v: f64) {
-        self.sum += v;
+    pub fn add(&mut self, v: &Tensor) {
+        let v = v.detach().to_kind(Kind::Double);
+        self.sum = Some(match self.sum.take() {
+            Some(sum) => sum + v,
+            None => v,
+        });
         self.n += 1;
     }
 
     pub fn get(&self) -> f64 {
-        if self.n == 0 {
-            0.0
-        } else {
-            self.sum / self.n as f64
+        match &self.sum {
+            Some(sum) if self.n > 0 => sum.double_value(&[]) / self.n as f64,
+            _ => 0.0,
         }
     }
 }

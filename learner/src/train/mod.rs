@@ -23,6 +23,7 @@
 
 mod adam;
 mod critic;
+mod data;
 mod dynamics;
 mod fit;
 mod policy;
@@ -38,6 +39,7 @@ use crate::schedule::Schedule;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
 use cabc_proto::config::{ClipScope, RunConfig};
 use cabc_proto::messages::STATE_DIM;
+use data::Uploaded;
 use fit::{limit_cpu_threads, Opt};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -200,6 +202,7 @@ impl Trainer {
         let start = Instant::now();
         limit_cpu_threads(self.device);
         let schedule = Schedule::from_config(&self.config);
+        let data = Uploaded::of(replay, self.device);
         let mut losses = EpochLosses {
             epoch,
             n_plus: replay.len_plus(),
@@ -208,13 +211,13 @@ impl Trainer {
             ..Default::default()
         };
         if schedule.dynamics_due(epoch) {
-            if let Some(fit) = self.fit_dynamics(replay, schedule.aux_passes(epoch)) {
+            if let Some(fit) = self.fit_dynamics_on(&data, schedule.aux_passes(epoch)) {
                 losses.dynamics = Some(fit.loss);
                 losses.dynamics_samples = fit.samples;
             }
         }
         if schedule.critic_due(epoch) {
-            if let Some(fit) = self.fit_critic(replay, schedule.aux_passes(epoch)) {
+            if let Some(fit) = self.fit_critic_on(&data, schedule.aux_passes(epoch)) {
                 losses.critic = Some(fit.loss);
                 losses.critic_accuracy = Some(fit.accuracy);
                 losses.critic_samples = fit.samples;
@@ -223,7 +226,7 @@ impl Trainer {
             }
         }
         losses.lr_policy = self.lr_policy();
-        let fit = self.fit_policy(replay, schedule.policy_passes(epoch))?;
+        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
         losses.imitation = fit.imitation;
         losses.safety = fit.safety;
         losses.safety_active = fit.safety_active;

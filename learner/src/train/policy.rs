@@ -1,12 +1,13 @@
 //! Fitting the policy pi_theta on D+, eq. (14): L_CA = L_clone + L_safety, through the frozen f_hat and p_hat
 //! (Fig. 4: their variables are frozen, so gradients reach theta only).
 
-use super::fit::{cat_rows, fit, Budget, Mean};
+use super::data::Uploaded;
+use super::fit::{fit, Budget, Mean};
 use super::{TrainError, Trainer};
 use crate::replay::Replay;
 use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
 use cabc_proto::config::ClipScope;
-use cabc_proto::messages::{velocity_of, ACTION_DIM, STATE_DIM};
+use cabc_proto::messages::velocity_of;
 use tch::{Kind, Reduction, Tensor};
 
 /// L_clone, eq. (6) and the first term of eq. (14): || pi_theta(y) - pi_beta(x) ||^2, mean over batch and action.
@@ -49,6 +50,18 @@ impl Trainer {
     /// One fit call of pi_theta on D+, eq. (14). With fewer than `batch_size` steps in D+ nothing trains (the rng and
     /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images.
     pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
+        let data = Uploaded::of(replay, self.device);
+        self.fit_policy_on(replay, &data, passes)
+    }
+
+    /// [`Trainer::fit_policy`] on the epoch's uploaded replay (D+'s images, when the policy sees them, are batched
+    /// from `replay` on the host).
+    pub(crate) fn fit_policy_on(
+        &mut self,
+        replay: &Replay,
+        data: &Uploaded,
+        passes: usize,
+    ) -> Result<PolicyFit, TrainError> {
         let plus = &replay.plus;
         if plus.len() < self.config.training.batch_size {
             return Ok(PolicyFit::default());
@@ -61,8 +74,7 @@ impl Trainer {
             (PolicyArch::State { .. }, _) => None,
         };
         let dev = self.device;
-        let x_all = cat_rows([plus.states.as_flattened()], STATE_DIM, dev);
-        let label_all = cat_rows([plus.expert_actions.as_flattened()], ACTION_DIM, dev);
+        let (x_all, label_all) = (&data.plus.states, &data.plus.expert_actions);
         // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
         // L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
         // measures theta's gradient together with theirs.
@@ -105,12 +117,12 @@ impl Trainer {
                 };
                 let u = policy.forward_t(&input, true);
                 let l_clone = l_clone(&u, &label_all.index_select(0, &b.idx));
-                pass.clone.add(l_clone.double_value(&[]));
+                pass.clone.add(&l_clone);
                 if !safety_active {
                     return Ok(l_clone);
                 }
                 let l_safety = l_safety(dynamics, critic, &x, &u, lambda);
-                pass.safety.add(l_safety.double_value(&[]));
+                pass.safety.add(&l_safety);
                 Ok(l_clone + l_safety)
             },
         );

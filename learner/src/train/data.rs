@@ -1,0 +1,61 @@
+//! The replay's arrays on the training device, uploaded once per epoch ([`Uploaded::of`]) and shared by the three
+//! fits of [`Trainer::train_epoch`](super::Trainer::train_epoch): each network's examples are then views and
+//! concatenations on the device, not a new host-side copy of the replay per network.
+
+use super::fit::cat_rows;
+use crate::replay::{Replay, Store};
+use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
+use tch::{Device, Tensor};
+
+/// One store's arrays: [N, 6] states and next states, [N, 2] actions.
+pub(crate) struct Rows {
+    pub states: Tensor,
+    pub expert_actions: Tensor,
+    pub applied_actions: Tensor,
+    pub next_states: Tensor,
+    pub len: usize,
+}
+
+impl Rows {
+    fn of(store: &Store, device: Device) -> Self {
+        Rows {
+            states: cat_rows([store.states.as_flattened()], STATE_DIM, device),
+            expert_actions: cat_rows([store.expert_actions.as_flattened()], ACTION_DIM, device),
+            applied_actions: cat_rows([store.applied_actions.as_flattened()], ACTION_DIM, device),
+            next_states: cat_rows([store.next_states.as_flattened()], STATE_DIM, device),
+            len: store.len(),
+        }
+    }
+}
+
+/// D+, D?, the dynamics-only store and D-, on the device.
+pub(crate) struct Uploaded {
+    pub plus: Rows,
+    pub uncertain: Rows,
+    pub dynamics_only: Rows,
+    /// D- [N-, 6] (the states of D? at the last labelling).
+    pub minus: Tensor,
+}
+
+impl Uploaded {
+    pub fn of(replay: &Replay, device: Device) -> Self {
+        Uploaded {
+            plus: Rows::of(&replay.plus, device),
+            uncertain: Rows::of(&replay.uncertain, device),
+            dynamics_only: Rows::of(&replay.dynamics_only, device),
+            minus: cat_rows([replay.minus().as_flattened()], STATE_DIM, device),
+        }
+    }
+
+    /// Every stored (x, u, x') for f_hat: D+, D? and the dynamics-only store, in that order.
+    pub fn transitions(&self) -> (Tensor, Tensor, Tensor, usize) {
+        let stores = [&self.plus, &self.uncertain, &self.dynamics_only];
+        let cat = |f: fn(&Rows) -> &Tensor| Tensor::cat(&stores.map(f), 0);
+        (
+            cat(|r| &r.states),
+            cat(|r| &r.applied_actions),
+            cat(|r| &r.next_states),
+            stores.iter().map(|r| r.len).sum(),
+        )
+    }
+}
