@@ -121,12 +121,12 @@ impl Learner {
                 max_bytes = config.replay.max_bytes,
                 "replay"
             );
-            (
-                Trainer::with_device(&config, device),
-                replay,
-                None,
-                LearnerState::default(),
-            )
+            let mut trainer = Trainer::with_device(&config, device);
+            let state = LearnerState {
+                trunk_init: Some(trainer.init_trunk()?),
+                ..LearnerState::default()
+            };
+            (trainer, replay, None, state)
         };
         let bar = ProgressBar::new(config.run.max_epochs);
         bar.set_style(
@@ -548,6 +548,7 @@ impl Learner {
             "first_version_with_eval_laps": first_50,
             "best_eval": best,
             "last_eval": self.state.evals.last(),
+            "trunk_init": self.state.trunk_init,
             "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
             "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
             "learner_peak_rss_mb": peak_rss_mb(),

@@ -141,6 +141,9 @@ pub struct LearnerState {
     /// Lap times of the expert seen in the data (complete laps collected with beta = 1).
     pub expert_lap_times: Vec<f64>,
     pub stopped: Option<String>,
+    /// What the policy's vision trunk started from ([`crate::train::Trainer::init_trunk`]).
+    #[serde(default)]
+    pub trunk_init: Option<String>,
 }
 
 /// An evaluation, without its line.

@@ -16,6 +16,8 @@ pub mod error;
 pub mod init;
 pub mod mlp;
 pub mod policy;
+pub mod precision;
+pub mod pretrained;
 pub mod vision;
 pub mod weights;
 

@@ -98,9 +98,15 @@ fn numel(shape: &[i64]) -> Option<usize> {
         .try_fold(1usize, |n, &d| n.checked_mul(usize::try_from(d).ok()?))
 }
 
-/// Reads the header; every tensor's declared size is checked against the bytes present. Allocates in proportion to
-/// the header's length only, never to a declared shape or offset.
-fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
+/// A safetensors file's tensors: name -> (dtype, shape, raw little-endian bytes), and its metadata (if any).
+pub struct Tensors<'a> {
+    pub metadata: Option<Value>,
+    pub tensors: BTreeMap<String, (String, Vec<i64>, &'a [u8])>,
+}
+
+/// Reads a safetensors header of any dtypes; every tensor's declared size is checked against the bytes present.
+/// Allocates in proportion to the header's length only, never to a declared shape or offset.
+pub fn tensors(bytes: &[u8]) -> Result<Tensors<'_>, ModelError> {
     let bad = |why: &str| ModelError::MalformedWeights(why.to_string());
     let (len, rest) = bytes
         .split_first_chunk::<8>()
@@ -112,20 +118,25 @@ fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
     let (header, data) = rest.split_at(n);
     let header: Map<String, Value> =
         serde_json::from_slice(header).map_err(|e| bad(&format!("header JSON: {e}")))?;
-    let architecture = header
-        .get("__metadata__")
-        .and_then(|m| m.get(ARCHITECTURE_KEY))
-        .and_then(Value::as_str)
-        .ok_or_else(|| bad("no architecture in the metadata"))?
-        .to_string();
-    let mut tensors = BTreeMap::new();
+    let mut out = Tensors {
+        metadata: header.get("__metadata__").cloned(),
+        tensors: BTreeMap::new(),
+    };
     for (name, entry) in &header {
         if name == "__metadata__" {
             continue;
         }
-        if entry.get("dtype").and_then(Value::as_str) != Some("F32") {
-            return Err(bad(&format!("tensor `{name}` is not F32")));
-        }
+        let dtype = entry
+            .get("dtype")
+            .and_then(Value::as_str)
+            .ok_or_else(|| bad(&format!("tensor `{name}`: no dtype")))?;
+        let width = match dtype {
+            "F64" | "I64" | "U64" => 8,
+            "F32" | "I32" | "U32" => 4,
+            "F16" | "BF16" | "I16" | "U16" => 2,
+            "I8" | "U8" | "BOOL" => 1,
+            other => return Err(bad(&format!("tensor `{name}`: unknown dtype {other}"))),
+        };
         let shape: Vec<i64> = entry
             .get("shape")
             .and_then(|s| serde_json::from_value(s.clone()).ok())
@@ -135,13 +146,35 @@ fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
             .and_then(|s| serde_json::from_value(s.clone()).ok())
             .ok_or_else(|| bad(&format!("tensor `{name}`: no data_offsets")))?;
         let want = numel(&shape)
-            .and_then(|n| n.checked_mul(4))
+            .and_then(|n| n.checked_mul(width))
             .ok_or_else(|| bad(&format!("tensor `{name}`: shape {shape:?} is not a size")))?;
         let raw = data
             .get(start..end)
             .filter(|raw| raw.len() == want)
             .ok_or_else(|| bad(&format!("tensor `{name}`: data_offsets do not fit")))?;
-        tensors.insert(name.clone(), (shape, raw));
+        out.tensors
+            .insert(name.clone(), (dtype.to_string(), shape, raw));
+    }
+    Ok(out)
+}
+
+/// Reads cabc's own weights: every tensor F32, the architecture's name in the metadata.
+fn parse(bytes: &[u8]) -> Result<Parsed<'_>, ModelError> {
+    let bad = |why: &str| ModelError::MalformedWeights(why.to_string());
+    let all = tensors(bytes)?;
+    let architecture = all
+        .metadata
+        .as_ref()
+        .and_then(|m| m.get(ARCHITECTURE_KEY))
+        .and_then(Value::as_str)
+        .ok_or_else(|| bad("no architecture in the metadata"))?
+        .to_string();
+    let mut tensors = BTreeMap::new();
+    for (name, (dtype, shape, raw)) in all.tensors {
+        if dtype != "F32" {
+            return Err(bad(&format!("tensor `{name}` is not F32")));
+        }
+        tensors.insert(name, (shape, raw));
     }
     Ok(Parsed {
         architecture,

@@ -99,6 +99,16 @@ pub enum ScheduleKind {
     EveryEpoch,
 }
 
+/// The arithmetic of training (`training.precision`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// fp32 throughout (the paper's).
+    Fp32,
+    /// Forward passes under CUDA autocast in bfloat16; weights and optimiser in fp32. CUDA only (fp32 on a CPU).
+    Bf16,
+}
+
 /// Where a segment is cut relative to the step that ends it (`collection.flush`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -226,6 +236,10 @@ pub struct ObservationSection {
     pub state_noise_std: [f64; 6],
     /// Sensor noise on the camera image: standard deviation per channel, in intensity units (0..255); 0 for none.
     pub pixel_noise_std: f64,
+    /// ImageNet weights for the ResNet-18 trunk: a safetensors file of torchvision's `resnet18` state dict (the
+    /// reference starts from them; they cannot be fetched here). Absent: random initialisation, which the run's
+    /// summary states (`trunk_init`).
+    pub pretrained: Option<String>,
 }
 
 impl Default for ObservationSection {
@@ -238,6 +252,7 @@ impl Default for ObservationSection {
             trunk: VisionTrunk::Resnet18,
             state_noise_std: [0.0; 6],
             pixel_noise_std: 0.0,
+            pretrained: None,
         }
     }
 }
@@ -442,6 +457,8 @@ pub struct TrainingSection {
     pub critic_min_uncertain: usize,
     /// "auto" (CUDA when present), "cpu" or "cuda:N".
     pub device: String,
+    /// "fp32" (default) or "bf16" (CUDA autocast for the forward passes; fp32 on a CPU).
+    pub precision: Precision,
 }
 
 impl Default for TrainingSection {
@@ -465,6 +482,7 @@ impl Default for TrainingSection {
             aux_max_batches: 0,
             critic_min_uncertain: 16,
             device: "auto".into(),
+            precision: Precision::Fp32,
         }
     }
 }

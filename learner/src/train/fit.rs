@@ -1,7 +1,10 @@
 //! The one fit loop the three networks share: one fit call is `passes` passes of shuffled mini-batches (the last
 //! partial batch dropped), each batch a zero_grad / backward / gradient-norm clip / Adam step, at the learning rate
-//! lr0 * gamma^fits (ExponentialLR stepped once per fit call); the figures reported are those of the last pass.
+//! lr0 * gamma^fits (ExponentialLR stepped once per fit call); the figures reported are those of the last pass. The
+//! loss (the forward pass) runs at `training.precision` (bf16 autocast on CUDA), the backward pass and the step in
+//! fp32.
 
+use cabc_models::precision::with_precision;
 use cabc_models::ModelError;
 use cabc_proto::config::TrainingSection;
 use rand::seq::SliceRandom;
@@ -101,7 +104,7 @@ pub(crate) fn fit<M: Default>(
                 idx: Tensor::from_slice(&rows).to_device(device),
                 rows: &rows,
             };
-            let l = loss(&batch, &mut last)?;
+            let l = with_precision(t.precision, device, || loss(&batch, &mut last))?;
             opt.adam.zero_grad();
             l.backward();
             opt.adam.clip_grad_norm(t.grad_clip, clip_also);

@@ -37,7 +37,7 @@ use crate::checkpoint::CheckpointError;
 use crate::replay::Replay;
 use crate::schedule::Schedule;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
-use cabc_proto::config::{ClipScope, RunConfig};
+use cabc_proto::config::{ClipScope, Precision, RunConfig, VisionTrunk};
 use cabc_proto::messages::STATE_DIM;
 use data::Uploaded;
 use fit::{limit_cpu_threads, Opt};
@@ -113,9 +113,21 @@ impl Trainer {
         Ok(Self::with_device(config, device))
     }
 
+    /// Logs the arithmetic training will use (bf16 asked for on a CPU is fp32, said once).
+    fn log_precision(config: &RunConfig, device: Device) {
+        let asked = config.training.precision;
+        if asked == Precision::Bf16 && !cabc_models::precision::mixed(asked, device) {
+            tracing::warn!(
+                ?device,
+                "training.precision = \"bf16\" applies on CUDA only: training in fp32"
+            );
+        }
+    }
+
     pub fn with_device(config: &RunConfig, device: Device) -> Self {
         let seed = config.run.seed;
         let nets = &config.networks;
+        Self::log_precision(config, device);
         let policy = Policy::new(PolicyArch::from_config(config), device, seed);
         let dynamics = Dynamics::new(nets.dynamics, device, seed.wrapping_add(1));
         let critic = Critic::new(STATE_DIM, nets.critic, device, seed.wrapping_add(2));
@@ -174,6 +186,44 @@ impl Trainer {
     /// Whether the critic has trained at least once (L_safety is active from then on when lambda > 0).
     pub fn critic_trained(&self) -> bool {
         self.critic_trained
+    }
+
+    /// Loads `observation.pretrained` (torchvision ResNet-18 weights) into the policy's trunk; returns what the
+    /// trunk starts from, for the run's summary.
+    pub fn init_trunk(&mut self) -> Result<String, TrainError> {
+        let arch = self.policy.arch();
+        let PolicyArch::Camera { trunk, .. } = arch else {
+            return Ok("none (full-state policy)".into());
+        };
+        match (&self.config.observation.pretrained, trunk) {
+            (None, VisionTrunk::Resnet18) => {
+                tracing::warn!(
+                    "the ResNet-18 trunk starts from random weights (observation.pretrained is not set; the \
+                     reference starts from ImageNet's)"
+                );
+                Ok("random (observation.pretrained not set)".into())
+            }
+            (None, _) => Ok("random".into()),
+            (Some(path), _) => {
+                let bytes = std::fs::read(path).map_err(|e| TrainError::State {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?;
+                let n =
+                    self.policy
+                        .load_pretrained_trunk(&bytes)
+                        .map_err(|e| TrainError::State {
+                            path: path.clone(),
+                            message: e.to_string(),
+                        })?;
+                tracing::info!(
+                    path,
+                    tensors = n,
+                    "the trunk starts from pretrained weights"
+                );
+                Ok(format!("pretrained: {path} ({n} tensors)"))
+            }
+        }
     }
 
     /// Marks the critic as trained (benchmarks and tests of L_safety with a hand-set critic).
