@@ -17,6 +17,7 @@
 pub mod algorithm;
 pub mod autolabel;
 pub mod bench;
+pub mod bench_vision;
 pub mod checkpoint;
 pub mod compare;
 pub mod demo;

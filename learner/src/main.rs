@@ -79,6 +79,9 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// The camera policy's training and inference images per second (ResNet-18 at 224x224 by default), on a GPU
+    /// where there is one; prints JSON.
+    BenchVision(cabc_learner::bench_vision::VisionBenchOptions),
     /// Throughput of auto-labelling and training.
     Bench {
         #[command(flatten)]
@@ -154,6 +157,10 @@ fn main() -> anyhow::Result<()> {
             print_json(json, &report)
         }
         Command::Bench { options, json } => print_json(json, &run_bench(&options)),
+        Command::BenchVision(options) => {
+            let report = cabc_learner::bench_vision::run(&options).context("bench-vision")?;
+            print_json(true, &report)
+        }
     }
 }
 

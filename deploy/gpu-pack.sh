@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Packs what a session with the lent GPU machine carries there (issue 22): the learner, stripped, and the C
+# libraries of its plots that the machine may lack, and the CUDA test, into .gpu/ (git-ignored), with .gpu/run.sh,
+# which runs them
+# against the machine's own libtorch 2.11.0 (the version this source builds against).
+#
+#   deploy/gpu-pack.sh            # here; then, with the device tool: carry [".gpu"], command ".gpu/run.sh learner ..."
+#
+# On that machine PyTorch 2.11.0 lives in /opt/torch/.venv/lib/python3.12/site-packages/torch (its lib/ is
+# libtorch); TORCH_LIB overrides that. The binary's runpath names this machine's .deps/, which is not there, so
+# LD_LIBRARY_PATH decides. Fails if the pack is over the device tool's 64 MiB.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+"$root/deploy/setup.sh"
+cargo build --release --quiet --bin learner
+# The CUDA test (learner/tests/cuda.rs), which runs there as `.gpu/run.sh cuda-test`.
+test_bin=$(cargo test --release -p cabc-learner --test cuda --no-run 2>&1 | grep -o 'target/release/deps/cuda-[0-9a-f]*' | head -1)
+[ -x "$test_bin" ] || { echo "[gpu-pack] error: the CUDA test was not built" >&2; exit 1; }
+rm -rf .gpu && mkdir -p .gpu/lib
+strip -o .gpu/learner target/release/learner
+strip -o .gpu/cuda-test "$test_bin"
+# Everything the binary needs besides glibc, the C++ runtime and libtorch: the plots' fontconfig and freetype and
+# what they pull in.
+ldd target/release/learner | awk '$3 ~ /^\// {print $1, $3}' | while read -r name path; do
+  case "$name" in
+    libc.so*|libm.so*|libdl.so*|librt.so*|libpthread.so*|libutil.so*|libstdc++.so*|libgcc_s.so*|ld-linux*) ;;
+    *) case "$path" in "$root"/.deps/*) ;; *) cp -L "$path" ".gpu/lib/$name" ;; esac ;;
+  esac
+done
+cat > .gpu/run.sh <<'RUN'
+#!/usr/bin/env bash
+# Runs a packed binary (deploy/gpu-pack.sh) against the machine's libtorch: .gpu/run.sh learner ARGS...
+set -euo pipefail
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+torch_lib=${TORCH_LIB:-/opt/torch/.venv/lib/python3.12/site-packages/torch/lib}
+[ -f "$torch_lib/libtorch_cuda.so" ] || { echo "no libtorch_cuda.so in $torch_lib (set TORCH_LIB)" >&2; exit 1; }
+export LD_LIBRARY_PATH="$torch_lib:$here/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+bin=$1; shift
+exec "$here/$bin" "$@"
+RUN
+chmod +x .gpu/run.sh
+size=$(du -sm .gpu | cut -f1)
+echo "[gpu-pack] .gpu/: $size MB ($(ls .gpu/lib | tr '\n' ' '))" >&2
+[ "$size" -le 60 ] || { echo "[gpu-pack] error: $size MB is over what the device tool carries (64 MiB)" >&2; exit 1; }
