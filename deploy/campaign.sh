@@ -36,14 +36,22 @@ ABL_CLIP=(--set 'training.clip_scope="policy"')
 ABL_COLLECTION=(--set 'collection.episodes="carry"' --set actors.count=2 --set actors.envs_per_actor=4)
 ABL_UNCERTAIN=(--set 'collection.flush="with-step"' --set 'collection.expert_failure_staged="uncertain"' --set replay.dynamics_only=true)
 
-slices=(
-  "--seeds 3 --epochs $E v-b-ref"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-b-ref"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-schedule ${ABL_SCHEDULE[*]} v-b-ref"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-b-ref"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-b-ref"
+# Seed-major: every protocol and ablation at seed 1, then at seed 2, ..., so that each slice of a session adds a
+# whole row of the ablation table.
+slices=()
+for k in 1 2 3; do
+  slices+=(
+    "--seeds $k-$k --epochs $E v-b-ref"
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-b-ref"
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-schedule ${ABL_SCHEDULE[*]} v-b-ref"
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-b-ref"
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-b-ref"
+    "--seeds $k-$k --epochs $E --tag rerun v-b"
+  )
+done
+slices+=(
   "--seeds 4-5 --epochs $E v-b-ref"
-  "--seeds 5 --epochs $E v-b"
+  "--seeds 4-5 --epochs $E --tag rerun v-b"
   "--seeds 3 v-a-ref"
   "--seeds 3 v-c-ref"
   "--seeds 3 --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"

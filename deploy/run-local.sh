@@ -67,23 +67,23 @@ cleanup() {
 trap cleanup INT TERM EXIT
 
 # The learner's log also goes to this terminal: one line per epoch and per evaluation.
-"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee "$logs/learner.log" >&2) &
+"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee -a "$logs/learner.log" >&2) &
 learner_pid=$!
 pids+=("$learner_pid")
 sleep 1
-"$bin/expert-server" serve --config "$cfg" --id 0 2> "$logs/expert-server-0.log" &
+"$bin/expert-server" serve --config "$cfg" --id 0 2>> "$logs/expert-server-0.log" &
 pids+=($!)
 for i in $(seq 0 $((actors - 1))); do
-  "$bin/actor" --config "$cfg" --id "actor-$i" 2> "$logs/actor-$i.log" &
+  "$bin/actor" --config "$cfg" --id "actor-$i" 2>> "$logs/actor-$i.log" &
   pids+=($!)
 done
 if [ "$evaluators" = 1 ]; then
-  "$bin/actor" --config "$cfg" --id eval --eval 2> "$logs/eval.log" &
+  "$bin/actor" --config "$cfg" --id eval --eval 2>> "$logs/eval.log" &
   pids+=($!)
 else
   # Evaluator i evaluates the versions v with v mod evaluators = i.
   for i in $(seq 0 $((evaluators - 1))); do
-    "$bin/actor" --config "$cfg" --id "eval-$i" --eval 2> "$logs/eval-$i.log" &
+    "$bin/actor" --config "$cfg" --id "eval-$i" --eval 2>> "$logs/eval-$i.log" &
     pids+=($!)
   done
 fi
