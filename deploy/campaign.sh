@@ -3,12 +3,14 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin] [--list] [--only N]
+#   deploy/campaign.sh [--pin] [--list] [--only N] [--lane I/N]
 #
 # --pin copies the current release binaries to .deps/campaign-bin/<commit>/ and uses them for every later call, so
 # that the campaign's runs come from one code whatever is built meanwhile (the folder used is printed, and named in
-# docs/reproduction/CAMPAIGN.md by the report). --list prints the slices; --only N runs slice N alone.
-# Logs: runs/<run>/logs/, and the campaign's own in runs/campaign.log.
+# docs/REPRODUCTION.md by the report). --list prints the slices; --only N runs slice N alone. --lane I/N runs the
+# slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
+# numbers do not depend on its port or its neighbours; only its wall clock does).
+# Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -16,11 +18,13 @@ cd "$root"
 pin=0
 list=0
 only=""
+lane="0/1"
 while [ $# -gt 0 ]; do
   case "$1" in
     --pin) pin=1 ;;
     --list) list=1 ;;
     --only) only=$2; shift ;;
+    --lane) lane=$2; shift ;;
     -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
@@ -76,13 +80,22 @@ if [ "$pin" = 1 ]; then
 fi
 [ -x "$pinned/learner" ] || { echo "[campaign] no pinned binaries: run with --pin first" >&2; exit 1; }
 export CABC_BIN="$pinned"
+[[ "$lane" =~ ^([0-9]+)/([1-9][0-9]*)$ ]] && [ "${BASH_REMATCH[1]}" -lt "${BASH_REMATCH[2]}" ] \
+  || { echo "--lane needs I/N with I < N" >&2; exit 2; }
+lane_i=${BASH_REMATCH[1]}
+lanes=${BASH_REMATCH[2]}
+port=$((7447 + lane_i))
+bus=(--set "bus.listen=[\"tcp/127.0.0.1:$port\"]" --set "bus.connect=[\"tcp/127.0.0.1:$port\"]")
+log=runs/campaign.log
+[ "$lanes" = 1 ] || log=runs/campaign-lane$lane_i.log
 mkdir -p runs
-echo "[campaign] $(date -u +%FT%TZ) binaries $(readlink -f "$pinned")" >> runs/campaign.log
+echo "[campaign] $(date -u +%FT%TZ) binaries $(readlink -f "$pinned"), lane $lane, port $port" >> "$log"
 for i in "${!slices[@]}"; do
   [ -z "$only" ] || [ "$only" = "$i" ] || continue
-  echo "[campaign] $(date -u +%FT%TZ) slice $i: ${slices[$i]}" | tee -a runs/campaign.log >&2
+  [ $((i % lanes)) = "$lane_i" ] || continue
+  echo "[campaign] $(date -u +%FT%TZ) slice $i: ${slices[$i]}" | tee -a "$log" >&2
   # shellcheck disable=SC2086 # the slice is a word list by design
-  eval "\"$root/deploy/reproduce.sh\" ${slices[$i]}" >> runs/campaign.log 2>&1 \
-    || echo "[campaign] slice $i failed (see runs/campaign.log)" | tee -a runs/campaign.log >&2
+  eval "\"$root/deploy/reproduce.sh\" \"\${bus[@]}\" ${slices[$i]}" >> "$log" 2>&1 \
+    || echo "[campaign] slice $i failed (see $log)" | tee -a "$log" >&2
 done
-echo "[campaign] $(date -u +%FT%TZ) done" | tee -a runs/campaign.log >&2
+echo "[campaign] $(date -u +%FT%TZ) done" | tee -a "$log" >&2

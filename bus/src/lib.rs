@@ -60,6 +60,22 @@ fn zerr(e: impl std::fmt::Display) -> BusError {
 /// The largest zenoh message a process reassembles: a codec header and the largest body the codec decodes.
 pub const MAX_MESSAGE: usize = codec::HEADER_LEN + codec::MAX_BODY;
 
+/// Whether the router listening on `listen` would dial itself through the connect endpoint `endpoint`: one of its
+/// listeners, or the same protocol and port as a listener (a connect address is the name the other machines use for
+/// this one, `tls/<host-A>:7447`, while the listener is `tls/0.0.0.0:7447`). A standalone router on another machine
+/// must therefore listen on another port than the learner (deploy/SCALE-OUT.md, §2).
+pub fn dials_itself(endpoint: &str, listen: &[String]) -> bool {
+    let proto_port = |e: &str| -> Option<(String, String)> {
+        let (proto, rest) = e.split_once('/')?;
+        let address = rest.split(['?', '#']).next()?;
+        let (_, port) = address.rsplit_once(':')?;
+        Some((proto.to_string(), port.to_string()))
+    };
+    listen.iter().any(|l| {
+        l == endpoint || (proto_port(l).is_some() && proto_port(l) == proto_port(endpoint))
+    })
+}
+
 /// Builds the zenoh configuration of the process `component` (`learner`, `actor/<id>`, ...): endpoints from the
 /// run configuration, and with `[bus.security]` its certificate (or password) and, for the learner, the access
 /// control of `keys`'s run.
@@ -80,16 +96,21 @@ pub fn zenoh_config(
             })
     };
     let endpoints = |list: &[String]| serde_json::to_string(list).expect("strings serialise");
+    if role == Role::Listen {
+        for e in bus.connect.iter().filter(|e| dials_itself(e, &bus.listen)) {
+            tracing::debug!(endpoint = %e, "not dialled: one of this router's own listeners");
+        }
+    }
     match role {
         Role::Listen => {
             set(&mut config, "mode", "\"router\"".into())?;
             set(&mut config, "listen/endpoints", endpoints(&bus.listen))?;
             // A standalone zenohd (runs over several machines): join it through the connect endpoints that are
-            // not this process's own listeners.
+            // not this process's own listeners ([`dials_itself`]).
             let routers: Vec<String> = bus
                 .connect
                 .iter()
-                .filter(|e| !bus.listen.contains(e))
+                .filter(|e| !dials_itself(e, &bus.listen))
                 .cloned()
                 .collect();
             if !routers.is_empty() {
@@ -327,6 +348,38 @@ mod tests {
             .get_json("connect/endpoints")
             .unwrap();
         assert!(!json.contains("7447"), "{json}");
+    }
+
+    /// Issue 21: the guide's learner (`listen = tls/0.0.0.0:7447`, `connect = tls/<host-A>:7447`) does not dial
+    /// itself; a router on another port is still joined.
+    #[test]
+    fn the_guides_learner_does_not_dial_itself() {
+        let listen = vec!["tls/0.0.0.0:7447".to_string()];
+        assert!(dials_itself("tls/10.200.0.1:7447", &listen));
+        assert!(dials_itself("tls/0.0.0.0:7447", &listen));
+        assert!(!dials_itself("tls/10.200.0.1:7448", &listen));
+        assert!(
+            !dials_itself("tcp/10.200.0.1:7447", &listen),
+            "another protocol"
+        );
+        assert!(dials_itself(
+            "tls/[::1]:7447",
+            &["tls/[::]:7447".to_string()]
+        ));
+        let bus = BusSection {
+            listen,
+            connect: vec![
+                "tls/learner.example:7447".into(),
+                "tls/router.example:7450".into(),
+            ],
+            ..BusSection::default()
+        };
+        let json = config(&bus, Role::Listen)
+            .unwrap()
+            .get_json("connect/endpoints")
+            .unwrap();
+        assert!(!json.contains("learner.example"), "{json}");
+        assert!(json.contains("router.example:7450"), "{json}");
     }
 
     #[test]

@@ -358,8 +358,13 @@ fn actors_in_another_network_namespace_join_over_tls() {
         &["--host", SERVER_IP, "--actors", "2"],
     )
     .unwrap();
-    let endpoint = format!("tls/{SERVER_IP}:{}", free_port());
-    let mut cluster = mtls_cluster(tmp.path(), "netns", 4, &endpoint, &endpoint);
+    // As deploy/SCALE-OUT.md §1 says: the learner listens on every address, the others dial <host-A>.
+    let port = free_port();
+    let (listen, endpoint) = (
+        format!("tls/0.0.0.0:{port}"),
+        format!("tls/{SERVER_IP}:{port}"),
+    );
+    let mut cluster = mtls_cluster(tmp.path(), "netns", 4, &listen, &endpoint);
     let (servers, actors) = (
         NetnsPair::exec(&pair.servers),
         NetnsPair::exec(&pair.actors),
@@ -370,6 +375,15 @@ fn actors_in_another_network_namespace_join_over_tls() {
         "netns run: learner + expert server in {}, actors in {}, over {endpoint}: {} epochs",
         pair.servers, pair.actors, summary["epochs"]
     );
+    // Issue 21: the learner does not dial itself through <host-A> (zenoh logged CONNECTION_TO_SELF errors).
+    let log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
+    let errors: Vec<&str> = log
+        .lines()
+        .filter(|l| {
+            l.contains("ERROR") || l.contains("CONNECTION_TO_SELF") || l.contains("to itself")
+        })
+        .collect();
+    assert!(errors.is_empty(), "the learner's log: {errors:#?}");
     drop(cluster);
     drop(pair);
 }
