@@ -541,3 +541,26 @@ fn the_reference_clip_scope_counts_the_auxiliary_gradients_and_resumes_exactly()
     assert_eq!(l, m);
     assert!(resumed.policy_bytes() == straight.policy_bytes());
 }
+
+/// Issue 18 (9): `training.policy_lr_gamma = 1` (the reference's vision trainer) keeps the policy's learning rate at
+/// lr while the dynamics model's and the critic's decay by `lr_gamma` per fit; absent, the policy decays too.
+#[test]
+fn the_policys_own_gamma_holds_its_learning_rate() {
+    let r = replay(14);
+    let lrs = |gamma: Option<f64>| {
+        let mut c = config(14);
+        c.training.policy_lr_gamma = gamma;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        (0..3)
+            .map(|e| {
+                t.train_epoch(e, &r).unwrap();
+                t.lr_policy()
+            })
+            .collect::<Vec<f64>>()
+    };
+    let lr = RunConfig::default().training.lr;
+    assert_eq!(lrs(Some(1.0)), vec![lr; 3]);
+    let gamma = RunConfig::default().training.lr_gamma;
+    let decayed = lrs(None);
+    assert!((decayed[2] - lr * gamma.powi(3)).abs() < 1e-12, "{decayed:?}");
+}
