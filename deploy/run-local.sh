@@ -55,6 +55,10 @@ actors=$("$bin/learner" show --config "$cfg" actors.count)
 evaluators=$("$bin/learner" show --config "$cfg" actors.evaluators)
 echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s); logs in $logs" >&2
 
+# This script writes each process's stderr into its log (panics included): the binaries' own log files would be a
+# second copy.
+export CABC_NO_LOG_FILE=1
+
 pids=()
 cleanup() {
   trap - INT TERM EXIT

@@ -50,6 +50,7 @@ fn main() -> Result<()> {
     let mut config = RunConfig::load(&cli.config)
         .with_context(|| format!("loading configuration {}", cli.config))?;
     cabc_proto::keys::check_chunk(&cli.id)?;
+    cabc_proto::telemetry::log_to_file(&cabc_proto::telemetry::log_path(&config, &cli.id));
     if !cli.connect.is_empty() {
         config.bus.connect = cli.connect.clone();
     }

@@ -44,7 +44,7 @@ impl Admission {
 pub struct ServeArgs {
     /// Replica id (several servers may run at once).
     #[arg(long, default_value = "0")]
-    id: String,
+    pub id: String,
     /// Zenoh endpoints to connect to, overriding the configuration's `bus.connect`.
     #[arg(long)]
     connect: Vec<String>,

@@ -115,6 +115,7 @@ fn main() -> anyhow::Result<()> {
             }
             let run_dir =
                 RunDir::prepare(&config, run_dir, fresh).context("preparing the run folder")?;
+            cabc_proto::telemetry::log_to_file(&run_dir.path().join("logs").join("learner.log"));
             if local {
                 cabc_learner::serve::run_local(config, run_dir, resume)
             } else {

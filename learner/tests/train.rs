@@ -562,5 +562,8 @@ fn the_policys_own_gamma_holds_its_learning_rate() {
     assert_eq!(lrs(Some(1.0)), vec![lr; 3]);
     let gamma = RunConfig::default().training.lr_gamma;
     let decayed = lrs(None);
-    assert!((decayed[2] - lr * gamma.powi(3)).abs() < 1e-12, "{decayed:?}");
+    assert!(
+        (decayed[2] - lr * gamma.powi(3)).abs() < 1e-12,
+        "{decayed:?}"
+    );
 }

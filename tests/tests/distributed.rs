@@ -74,6 +74,22 @@ fn a_smoke_run_completes_survives_faults_and_resumes() {
 
     let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], 10, "{summary:#}");
+    // Issue 21: started directly (as deploy/SCALE-OUT.md does), each process logs into the run folder itself.
+    let logs = cluster.dir.join("logs");
+    for (file, line) in [
+        ("learner.log", "epoch done"),
+        ("actor-0.log", "actor started"),
+        ("eval.log", "actor started"),
+        ("expert-server-0.log", "logging to this file"),
+    ] {
+        let text = std::fs::read_to_string(logs.join(file))
+            .unwrap_or_else(|e| panic!("{}: {e}", logs.join(file).display()));
+        assert!(text.contains(line), "{file} lacks {line:?}");
+        assert!(
+            !text.contains('\u{1b}'),
+            "{file}: no terminal colours in a file"
+        );
+    }
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     assert_eq!(summary["segments_not_stored"], 0, "{summary:#}");
     assert!(
