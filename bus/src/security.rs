@@ -47,8 +47,9 @@ fn rule(id: &str, messages: &[&str], flow: &str, key_exprs: &[String]) -> Value 
     json!({"id": id, "messages": messages, "flows": [flow], "permission": "allow", "key_exprs": key_exprs})
 }
 
-/// zenoh's `access_control` object for the learner's router: default deny; every authenticated process may
-/// follow the learner (subscribe to / query `policy`, subscribe to `control`); actors ask `expert/*`, expert
+/// zenoh's `access_control` object for the learner's router: default deny; actors, evaluators (and a learner that
+/// is a client) may follow the learner (subscribe to / query `policy`), they and the expert servers hear the stop
+/// (`control`); only the learner reads `traj/*` and `eval/*`; actors ask `expert/*` and alone hear its replies, expert
 /// servers answer it; each process puts only its own keys (`traj/<id>` or `eval/<id>`, `metrics/<component>`)
 /// and declares only its own `alive/<component>`; the observer reads metrics and liveliness; the `learner` rules
 /// serve a learner that is itself a client of a standalone zenohd carrying this object.
@@ -56,15 +57,21 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
     let k = |s: String| vec![s];
     let (policy, control) = (keys.policy(), keys.control());
     let expert = keys.expert("*");
-    let both = vec![policy.clone(), control.clone()];
     let mut rules = vec![
         rule(
-            "sub-policy-control",
+            "sub-policy",
             &["declare_subscriber"],
             "ingress",
-            &both,
+            &k(policy.clone()),
         ),
-        rule("recv-policy-control", &["put"], "egress", &both),
+        rule("recv-policy", &["put"], "egress", &k(policy.clone())),
+        rule(
+            "sub-control",
+            &["declare_subscriber"],
+            "ingress",
+            &k(control.clone()),
+        ),
+        rule("recv-control", &["put"], "egress", &k(control.clone())),
         rule("query-policy", &["query"], "ingress", &k(policy.clone())),
         rule(
             "recv-policy-reply",
@@ -165,15 +172,27 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
         .iter()
         .map(|id| component("expert-server", id))
         .collect();
-    let mut subjects = vec![json!({"id": "authenticated", "link_protocols": ["tls"]})];
-    let mut policies = vec![
-        json!({"id": "follow-learner", "subjects": ["authenticated"],
-        "rules": ["sub-policy-control", "recv-policy-control", "query-policy", "recv-policy-reply"]}),
-    ];
+    let eval_names: Vec<String> = who
+        .evaluators
+        .iter()
+        .map(|id| component("eval", id))
+        .collect();
+    let mut subjects = Vec::new();
+    let mut policies = Vec::new();
+    // Least privilege for reads: the policy goes to actors, evaluators and the learner alone; the stop (`control`)
+    // to them and the expert servers; the observer reads metrics and liveliness only.
+    let (mut policy_readers, mut control_readers) = (vec!["learner"], vec!["learner"]);
     // zenoh refuses a subject without names, so the group subjects exist only when the group does.
     if !actor_names.is_empty() {
         subjects.push(subject("actors", actor_names));
         policies.push(json!({"id": "actors", "subjects": ["actors"], "rules": ["query-expert", "recv-expert-reply"]}));
+        policy_readers.push("actors");
+        control_readers.push("actors");
+    }
+    if !eval_names.is_empty() {
+        subjects.push(subject("evaluators", eval_names));
+        policy_readers.push("evaluators");
+        control_readers.push("evaluators");
     }
     if !expert_names.is_empty() {
         subjects.push(subject("expert-servers", expert_names));
@@ -181,7 +200,12 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
             json!({"id": "expert-servers", "subjects": ["expert-servers"],
             "rules": ["serve-expert", "recv-expert-query"]}),
         );
+        control_readers.push("expert-servers");
     }
+    policies.push(json!({"id": "follow-policy", "subjects": policy_readers,
+        "rules": ["sub-policy", "recv-policy", "query-policy", "recv-policy-reply"]}));
+    policies.push(json!({"id": "follow-control", "subjects": control_readers,
+        "rules": ["sub-control", "recv-control"]}));
     for (c, _) in &processes {
         subjects.push(subject(c, vec![c.clone()]));
         policies

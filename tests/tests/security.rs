@@ -264,6 +264,28 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
                 .unwrap();
             subscribers.push(sub);
         }
+        // Issue 21, least privilege for reads: the observer subscribes to the policy, the stop and the metrics, and
+        // an actor (actor-1's certificate) to every actor's segments and the evaluations. Only the metrics may reach
+        // them.
+        let heard: Arc<Mutex<Vec<String>>> = Arc::default();
+        let observer = zenoh::open(client(&config, "observer", false)).await.expect("the observer connects");
+        let reader = zenoh::open(client(&config, "actor/actor-1", false)).await.expect("actor-1 connects");
+        let mut eavesdrop = Vec::new();
+        for (session, key) in [
+            (&observer, keys.policy()),
+            (&observer, keys.control()),
+            (&observer, keys.metrics("**")),
+            (&reader, keys.traj_all()),
+            (&reader, keys.eval_all()),
+        ] {
+            let heard = heard.clone();
+            let sub = session
+                .declare_subscriber(&key)
+                .callback(move |s| heard.lock().unwrap().push(s.key_expr().to_string()))
+                .await
+                .unwrap();
+            eavesdrop.push(sub);
+        }
         let forger = zenoh::open(client(&config, "actor/actor-0", false))
             .await
             .expect("actor-0's certificate connects");
@@ -303,6 +325,15 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
         forger.close().await.unwrap();
         let seen = std::mem::take(&mut *seen.lock().unwrap());
         assert!(seen.policy >= 1 && seen.traj >= 1, "the witness hears nothing: {seen:?}");
+        drop(eavesdrop);
+        let heard = std::mem::take(&mut *heard.lock().unwrap());
+        let metrics = heard.iter().filter(|k| k.contains("/metrics/")).count();
+        let leaked: Vec<&String> = heard.iter().filter(|k| !k.contains("/metrics/")).collect();
+        println!("the observer and actor-1 heard {metrics} metrics and {} other messages", leaked.len());
+        assert!(metrics >= 1, "the observer hears no metrics: is it connected?");
+        assert!(leaked.is_empty(), "read beyond their rights: {leaked:?}");
+        observer.close().await.unwrap();
+        reader.close().await.unwrap();
         drop(subscribers);
         witness.close().await.unwrap();
         // actor-1's own token, not a second one; the forged queryable hears no query.

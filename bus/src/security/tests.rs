@@ -43,9 +43,10 @@ fn the_access_control_is_the_verified_router_file() {
         assert_eq!(a.len(), b.len(), "{list}");
     }
     assert_eq!(generated, reference);
-    // Size: 20 + 2 n rules, 5 + n subjects and policies for n = 4 processes.
-    assert_eq!(ours["rules"].as_array().unwrap().len(), 28);
+    // Size: 22 + 2 n rules, 5 + n subjects and 6 + n policies for n = 4 processes.
+    assert_eq!(ours["rules"].as_array().unwrap().len(), 30);
     assert_eq!(ours["subjects"].as_array().unwrap().len(), 9);
+    assert_eq!(ours["policies"].as_array().unwrap().len(), 10);
 }
 
 #[test]
