@@ -59,6 +59,8 @@ pub struct Learner {
     provenance: Provenance,
     /// The track's half-width (off-track spawns in [`Provenance`]).
     half_width: f64,
+    /// Messages the router's access control had dropped at the last epoch's end (logged when it grows).
+    acl_denied: u64,
     /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
     published: Option<u64>,
     /// Evaluation reports refused (a version not published yet).
@@ -149,6 +151,7 @@ impl Learner {
             incomplete_steps: 0,
             provenance: Provenance::default(),
             half_width: cabc_sim::track::Track::l_track_barc().half_width(),
+            acl_denied: 0,
             published: None,
             refused_evals: 0,
             duplicate_evals: 0,
@@ -414,12 +417,29 @@ impl Learner {
             train_s = format!("{:.2}", row.train_s),
             "epoch done"
         );
+        self.report_denials(row.epoch);
         self.state.next_epoch = row.epoch + 1;
         self.state.rows.push(row);
         self.checkpoint()?;
         self.write_outputs(false)?;
         self.bar.set_position(self.state.next_epoch);
         Ok(())
+    }
+
+    /// Warns when the router's access control dropped messages since the last epoch (zenoh logs its decisions only
+    /// at TRACE): an operator under attack sees who tried what.
+    fn report_denials(&mut self, epoch: u64) {
+        let by = cabc_proto::telemetry::acl_denials();
+        let total: u64 = by.values().sum();
+        if total > self.acl_denied {
+            tracing::warn!(
+                epoch,
+                new = total - self.acl_denied,
+                total,
+                "the access control dropped messages: {by:?}"
+            );
+            self.acl_denied = total;
+        }
     }
 
     /// The learner's metrics after epoch `epoch` (JSON on `metrics/learner`).
@@ -431,6 +451,7 @@ impl Learner {
             "rejected_messages": rejected,
             "segments_not_stored": self.failed_segments,
             "refused_evals": self.refused_evals,
+            "acl_denied": self.acl_denied,
         })
         .to_string()
     }
@@ -560,6 +581,7 @@ impl Learner {
             "duplicate_evals": self.duplicate_evals,
             "versions_not_evaluated": not_evaluated,
             "rejected_messages": rejected,
+            "acl_denied": cabc_proto::telemetry::acl_denials(),
             "d_plus": self.replay.len_plus(),
             "d_uncertain": self.replay.len_uncertain(),
             "d_minus": self.replay.len_minus(),

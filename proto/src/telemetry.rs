@@ -3,12 +3,16 @@
 //! `<runs_dir>/<run>/logs/<component>.log`, however the process was started. A panic is logged too, so that it
 //! lands in that file.
 
+use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::{self, Write};
 use std::path::Path;
 use std::sync::{Mutex, OnceLock};
+use tracing::field::{Field, Visit};
+use tracing::{Event, Level, Subscriber};
+use tracing_subscriber::filter::Targets;
 use tracing_subscriber::fmt::MakeWriter;
-use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{fmt, EnvFilter};
 
@@ -52,17 +56,25 @@ impl<'a> MakeWriter<'a> for ToFile {
 
 /// Installs the global subscriber and the panic hook. Safe to call twice (the second call is a no-op).
 pub fn init() {
-    let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"));
+    let filter = || {
+        EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"))
+    };
     let installed = tracing_subscriber::registry()
-        .with(filter)
-        .with(fmt::layer().with_writer(std::io::stderr).with_target(false))
+        .with(
+            fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_target(false)
+                .with_filter(filter()),
+        )
         .with(
             fmt::layer()
                 .with_writer(ToFile)
                 .with_ansi(false)
-                .with_target(false),
+                .with_target(false)
+                .with_filter(filter()),
         )
+        .with(AclDenials.with_filter(Targets::new().with_target(ACL_TARGET, Level::TRACE)))
         .try_init()
         .is_ok();
     if installed {
@@ -99,4 +111,199 @@ pub fn log_path(config: &crate::config::RunConfig, component: &str) -> std::path
         .join(&config.run.name)
         .join("logs")
         .join(format!("{}.log", component.replace('/', "-")))
+}
+
+/// Where zenoh 1.10 logs its access-control decisions, at TRACE. A fresh decision logs one line per subject the
+/// client matches, "<zid> on <subject> is unauthorized to <action> on <key>" (or "authorized", which ends the
+/// decision as allowed), and nothing once all denied; a cached one logs "Using cached result: <zid> is
+/// unauthorized to ...", one line per message.
+const ACL_TARGET: &str = "zenoh::net::routing::interceptor::access_control";
+
+/// Messages the access control of this process's router dropped, by "<subject>: <action> on <key>".
+#[derive(Default)]
+struct Denials {
+    by: BTreeMap<String, u64>,
+    /// The subject (certificate or user name) of each zenoh id seen in a fresh decision.
+    subjects: BTreeMap<String, String>,
+}
+
+impl Denials {
+    fn count(&mut self, who: &str, what: &str) {
+        *self.by.entry(format!("{who}: {what}")).or_insert(0) += 1;
+    }
+}
+
+static DENIALS: OnceLock<Mutex<Denials>> = OnceLock::new();
+
+fn denials() -> &'static Mutex<Denials> {
+    DENIALS.get_or_init(Default::default)
+}
+
+/// This thread's last fresh denial (zid, what, subject): a permission for the same right after it undoes it.
+type Pending = Option<(String, String, String)>;
+
+/// While zenoh fills its permission cache for a key (a line "caching permissions for ..."), it decides every kind
+/// of message for it, the last being a liveliness subscriber: these decisions are no message, and are not counted.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Caching {
+    No,
+    Yes,
+    /// At the last of the cache's decisions.
+    Last,
+}
+
+/// The action of the cache's last decision.
+const CACHE_LAST: &str = "Declare Liveliness Subscriber (";
+
+thread_local! {
+    static PENDING: std::cell::RefCell<Pending> = const { std::cell::RefCell::new(None) };
+    static CACHING: std::cell::Cell<Caching> = const { std::cell::Cell::new(Caching::No) };
+}
+
+/// The client's name in a subject's description: its certificate's common name or its user name (zenoh prints
+/// `Interface(lo)+CertCommonName(actor/actor-0)+Transport(Tls)+...`), else the description.
+fn subject_name(subject: &str) -> String {
+    for tag in ["CertCommonName(", "Username("] {
+        if let Some(rest) = subject.split_once(tag).map(|(_, r)| r) {
+            if let Some((name, _)) = rest.split_once(')') {
+                return name.to_string();
+            }
+        }
+    }
+    subject.to_string()
+}
+
+/// The layer that counts zenoh's access-control denials (only that target's events reach it).
+struct AclDenials;
+
+struct Message(String);
+
+impl Visit for Message {
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            self.0 = format!("{value:?}");
+        }
+    }
+}
+
+impl AclDenials {
+    /// One decision line ([`ACL_TARGET`]).
+    fn line(text: &str) {
+        if text.contains("caching permissions for") {
+            CACHING.with(|c| c.set(Caching::Yes));
+            return;
+        }
+        let (who, what, allowed) = match text.split_once(" is unauthorized to ") {
+            Some((who, what)) => (who, what, false),
+            None => match text.split_once(" is authorized to ") {
+                Some((who, what)) => (who, what, true),
+                None => return,
+            },
+        };
+        let mut d = denials().lock().unwrap_or_else(|e| e.into_inner());
+        let (zid, subject) = match who.strip_prefix("Using cached result: ") {
+            Some(zid) => {
+                let subject = d.subjects.get(zid).cloned();
+                (zid, subject.unwrap_or_else(|| zid.to_string()))
+            }
+            None => match who.split_once(" on ") {
+                Some((zid, subject)) => {
+                    let subject = subject_name(subject);
+                    d.subjects.insert(zid.to_string(), subject.clone());
+                    (zid, subject)
+                }
+                None => return,
+            },
+        };
+        let cached = who.starts_with("Using cached result: ");
+        let caching = CACHING.with(|c| {
+            let next = match (c.get(), cached || !what.starts_with(CACHE_LAST)) {
+                (Caching::No, _) => Caching::No,
+                (_, false) => Caching::Last,
+                (Caching::Yes, true) => Caching::Yes,
+                (Caching::Last, true) => Caching::No,
+            };
+            c.set(next);
+            next != Caching::No
+        });
+        let pending = PENDING.with(|p| p.borrow_mut().take());
+        if caching {
+            return;
+        }
+        if allowed {
+            // A client matched by several subjects: a first subject's denial, then another's permission, is one
+            // allowed message.
+            if let Some((z, w, s)) = pending.filter(|(z, w, _)| !cached && z == zid && w == what) {
+                let key = format!("{s}: {w}");
+                if let Some(n) = d.by.get_mut(&key) {
+                    *n -= 1;
+                    if *n == 0 {
+                        d.by.remove(&key);
+                    }
+                }
+                let _ = z;
+            }
+            return;
+        }
+        d.count(&subject, what);
+        if !cached {
+            PENDING.with(|p| *p.borrow_mut() = Some((zid.into(), what.into(), subject)));
+        }
+    }
+}
+
+impl<S: Subscriber> Layer<S> for AclDenials {
+    fn on_event(&self, event: &Event<'_>, _: Context<'_, S>) {
+        let mut m = Message(String::new());
+        event.record(&mut m);
+        AclDenials::line(&m.0);
+    }
+}
+
+/// The messages this process's access control dropped so far, by "<subject>: <action> on <key>" (empty where the
+/// process runs no access control: every process but a secured learner).
+pub fn acl_denials() -> BTreeMap<String, u64> {
+    denials()
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .by
+        .clone()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// zenoh's lines for: an allowed put (one subject denies, another allows), two denied puts, the filling of a
+    /// cache (not messages), a cached denial, and an allowed put of another client.
+    #[test]
+    fn denials_are_counted_once_per_message_and_allowed_ones_not_at_all() {
+        let a0 = "Interface(lo)+CertCommonName(actor/actor-0)+Transport(Tls)+z1";
+        let lines = [
+            format!("z1 on {a0} is unauthorized to Put (ingress) on cabc/r/traj/actor-0"),
+            format!("z1 on {a0} is authorized to Put (ingress) on cabc/r/traj/actor-0"),
+            format!("z1 on {a0} is unauthorized to Put (ingress) on cabc/r/policy"),
+            format!("z1 on {a0} is unauthorized to Put (ingress) on cabc/r/policy"),
+            // Filling the cache for a declared key: decisions for every kind of message, none of them a message.
+            "ACL (ingress): caching permissions for `cabc/r/traj/*` ...".into(),
+            format!("z1 on {a0} is unauthorized to Query (ingress) on cabc/r/traj/*"),
+            format!("z1 on {a0} is unauthorized to Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*"),
+            format!("z1 on {a0} is unauthorized to Declare Liveliness Subscriber (ingress) on cabc/r/traj/*"),
+            format!("z1 on {a0} is unauthorized to Declare Liveliness Subscriber (ingress) on cabc/r/traj/*"),
+            "Using cached result: z1 is unauthorized to Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*".into(),
+            "z2 on Interface(lo)+Username(observer)+z2 is authorized to Put (ingress) on cabc/r/metrics/observer".into(),
+        ];
+        for line in &lines {
+            AclDenials::line(line);
+        }
+        let d = acl_denials();
+        assert_eq!(
+            d.get("actor/actor-0: Put (ingress) on cabc/r/policy"),
+            Some(&2),
+            "two puts: {d:?}"
+        );
+        let sub = "actor/actor-0: Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*";
+        assert_eq!(d.get(sub), Some(&1), "{d:?}");
+        assert_eq!(d.values().sum::<u64>(), 3, "{d:?}");
+    }
 }

@@ -356,6 +356,24 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
         steps.iter().all(|s| s.parse::<u64>().unwrap() < FORGED),
         "{steps:?}"
     );
+    // Issue 21: the drops are visible: counted in the summary by who tried what, and warned in the learner's log.
+    let denied = summary["acl_denied"]
+        .as_object()
+        .expect("acl_denied in the summary");
+    let total: u64 = denied.values().map(|v| v.as_u64().unwrap()).sum();
+    println!("access-control drops counted: {total}: {denied:?}");
+    assert!(
+        denied
+            .keys()
+            .any(|k| k.starts_with("actor/actor-0") && k.contains("/policy")),
+        "actor-0's forged policy is not among the drops: {denied:?}"
+    );
+    assert!(total >= 25, "{total} drops counted for 25 forged puts");
+    let log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
+    assert!(
+        log.contains("the access control dropped messages"),
+        "no warning in the learner's log"
+    );
     let (epochs, duplicates) = (&summary["epochs"], &summary["duplicate_segments"]);
     println!("forged messages: tried {tried}, refused {refused}");
     println!(
@@ -406,6 +424,8 @@ fn actors_in_another_network_namespace_join_over_tls() {
         "netns run: learner + expert server in {}, actors in {}, over {endpoint}: {} epochs",
         pair.servers, pair.actors, summary["epochs"]
     );
+    // An honest run: the access control dropped nothing (no false alarm in the counts).
+    assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
     // Issue 21: the learner does not dial itself through <host-A> (zenoh logged CONNECTION_TO_SELF errors).
     let log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
     let errors: Vec<&str> = log
