@@ -3,10 +3,12 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin] [--list] [--only N] [--lane I/N]
+#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N]
 #
-# --pin copies the current release binaries to .deps/campaign-bin/<commit>/ and uses them for every later call, so
-# that the campaign's runs come from one code whatever is built meanwhile (the folder used is printed, and named in
+# --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
+# repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
+# campaign's runs come from one code whatever is built meanwhile: a later session on a fresh machine re-pins the
+# campaign's commit with --pin 5da1874 (the folder used is printed, and named in
 # docs/REPRODUCTION.md by the report). --list prints the slices; --only N runs slice N alone. --lane I/N runs the
 # slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
 # numbers do not depend on its port or its neighbours; only its wall clock does).
@@ -16,16 +18,17 @@ root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
 
 pin=0
+pin_rev=HEAD
 list=0
 only=""
 lane="0/1"
 while [ $# -gt 0 ]; do
   case "$1" in
-    --pin) pin=1 ;;
+    --pin) pin=1; if [ $# -ge 2 ] && [[ "$2" != --* ]]; then pin_rev=$2; shift; fi ;;
     --list) list=1 ;;
     --only) only=$2; shift ;;
     --lane) lane=$2; shift ;;
-    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -68,13 +71,21 @@ fi
 
 pinned="$root/.deps/campaign-bin/current"
 if [ "$pin" = 1 ]; then
-  commit=$(git rev-parse --short HEAD)
-  [ -z "$(git status --porcelain -- ':!docs' ':!runs')" ] || echo "[campaign] warning: the work tree differs from $commit" >&2
+  commit=$(git rev-parse --short "$pin_rev^{commit}")
   "$root/deploy/setup.sh"
-  cargo build --release --quiet --bins
+  if [ "$commit" = "$(git rev-parse --short HEAD)" ]; then
+    [ -z "$(git status --porcelain -- ':!docs' ':!runs')" ] || echo "[campaign] warning: the work tree differs from $commit" >&2
+    src=$root
+  else
+    src="$root/.deps/campaign-src-$commit"
+    [ -d "$src" ] || git worktree add --detach "$src" "$commit" >&2
+    ln -sfn "$root/.deps" "$src/.deps"
+  fi
+  (cd "$src" && CARGO_TARGET_DIR="$root/target" cargo build --release --quiet --bins)
   dest="$root/.deps/campaign-bin/$commit"
   mkdir -p "$dest"
-  cp target/release/learner target/release/actor target/release/expert-server "$dest/"
+  cp "$root/target/release/learner" "$root/target/release/actor" "$root/target/release/expert-server" "$dest/"
+  echo "$commit" > "$dest/COMMIT"
   ln -sfn "$dest" "$pinned"
   echo "[campaign] pinned the binaries of $commit in $dest" >&2
 fi

@@ -61,27 +61,16 @@ mod tests {
     use cabc_proto::messages::Step;
 
     fn segment(outcome: Outcome, x_trans: &[f32]) -> Segment {
-        Segment {
-            actor: "a".into(),
-            env: 0,
-            episode: 0,
-            incarnation: 0,
-            seq: 0,
-            policy_version: 0,
-            outcome,
-            steps: x_trans
-                .iter()
-                .map(|&x| Step {
-                    state: [1.0, 0.0, 0.0, 0.0, x, 0.0],
-                    pose: [0.0; 3],
-                    image: None,
-                    expert_action: [0.0; 2],
-                    applied_action: [0.0; 2],
-                    next_state: [1.0, 0.0, 0.0, 0.1, x, 0.0],
-                    expert_ok: true,
-                })
-                .collect(),
-        }
+        let step = |x: f32| Step {
+            state: [1.0, 0.0, 0.0, 0.0, x, 0.0],
+            pose: [0.0; 3],
+            image: None,
+            expert_action: [0.0; 2],
+            applied_action: [0.0; 2],
+            next_state: [1.0, 0.0, 0.0, 0.1, x, 0.0],
+            expert_ok: true,
+        };
+        Segment::of("a", outcome, x_trans.iter().map(|&x| step(x)).collect())
     }
 
     #[test]

@@ -32,16 +32,7 @@ fn replay(side: u16) -> Replay {
             expert_ok: true,
         }
     };
-    let segment = |outcome, steps| Segment {
-        actor: "t".into(),
-        env: 0,
-        episode: 0,
-        incarnation: 0,
-        seq: 0,
-        policy_version: 0,
-        outcome,
-        steps,
-    };
+    let segment = |outcome, steps| Segment::of("t", outcome, steps);
     r.add_segment(&segment(
         Outcome::Lap,
         (0..512).map(|i| step(i, true)).collect(),

@@ -119,6 +119,23 @@ pub struct Segment {
     pub steps: Vec<Step>,
 }
 
+impl Segment {
+    /// The segment `steps` of `actor`'s environment 0, episode 0, first of its incarnation, collected by version 0:
+    /// for tests and benchmarks that build replays by hand.
+    pub fn of(actor: &str, outcome: Outcome, steps: Vec<Step>) -> Segment {
+        Segment {
+            actor: actor.to_string(),
+            env: 0,
+            episode: 0,
+            incarnation: 0,
+            seq: 0,
+            policy_version: 0,
+            outcome,
+            steps,
+        }
+    }
+}
+
 /// "Actor `actor` is done with policy version `version`": the epoch protocol's marker.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct EpochDone {
