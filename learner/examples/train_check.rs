@@ -38,16 +38,7 @@ fn steps(n: usize, rng: &mut ChaCha8Rng, x0: f32, camera: bool) -> Vec<Step> {
 }
 
 fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
-    Segment {
-        actor: "c".into(),
-        env: 0,
-        episode: 0,
-        incarnation: 0,
-        seq: 0,
-        policy_version: 0,
-        outcome,
-        steps,
-    }
+    Segment::of("c", outcome, steps)
 }
 
 fn show(name: &str, l: &EpochLosses) {

@@ -135,16 +135,8 @@ pub fn synthetic_replay(n: usize, seed: u64) -> Replay {
         }
     };
     for (points, outcome) in [(&plus, Outcome::Lap), (&uncertain, Outcome::ExpertFailure)] {
-        let segment = Segment {
-            actor: "bench".into(),
-            env: 0,
-            episode: 0,
-            incarnation: 0,
-            seq: 0,
-            policy_version: 0,
-            outcome,
-            steps: points.chunks_exact(STATE_DIM).map(step).collect(),
-        };
+        let steps = points.chunks_exact(STATE_DIM).map(step).collect();
+        let segment = Segment::of("bench", outcome, steps);
         replay.add_segment(&segment).expect("state-only steps");
     }
     replay.apply_labels(&AutolabelReport::default());

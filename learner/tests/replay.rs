@@ -17,16 +17,7 @@ fn step(v: f32, ok: bool, image: Option<Image>) -> Step {
 }
 
 fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
-    Segment {
-        actor: "a".into(),
-        env: 0,
-        episode: 0,
-        incarnation: 0,
-        seq: 0,
-        policy_version: 0,
-        outcome,
-        steps,
-    }
+    Segment::of("a", outcome, steps)
 }
 
 #[test]

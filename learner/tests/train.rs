@@ -22,16 +22,7 @@ fn config(seed: u64) -> RunConfig {
 }
 
 fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
-    Segment {
-        actor: "t".into(),
-        env: 0,
-        episode: 0,
-        incarnation: 0,
-        seq: 0,
-        policy_version: 0,
-        outcome,
-        steps,
-    }
+    Segment::of("t", outcome, steps)
 }
 
 /// x' = A x + B u for a fixed A (near identity) and B.
