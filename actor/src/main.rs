@@ -54,8 +54,9 @@ fn main() -> Result<()> {
     if !cli.connect.is_empty() {
         config.bus.connect = cli.connect.clone();
     }
-    // One inference thread: actors are many, cores are few.
+    // One inference thread: actors are many, cores are few; subnormal floats flushed as in the learner.
     tch::set_num_threads(1);
+    cabc_models::flush_denormals();
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
     let evaluators = config.actors.evaluators as u64;

@@ -93,6 +93,7 @@ enum Command {
 
 fn main() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();
+    cabc_models::flush_denormals();
     match Cli::parse().command {
         Command::Run {
             config,

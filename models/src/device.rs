@@ -44,6 +44,35 @@ pub fn parse_device(spec: &str) -> Result<Device, ModelError> {
     }
 }
 
+/// Flushes subnormal floats to zero in this thread's CPU arithmetic (x86-64's MXCSR flush-to-zero and
+/// denormals-are-zero, what PyTorch's `torch.set_flush_denormal(True)` sets). Late in a run the networks' small
+/// weights and gradients reach subnormal values, which the CPU handles in microcode: on a V-B checkpoint at epoch 136
+/// (`learner/examples/fit_timing.rs`) one pass of the critic took 45.5 s with them and 4.9 s without, the policy's
+/// 19.9 s and 2.3 s. Values below 1.2e-38 become 0; GPUs' fast paths flush them too. Set per thread; a no-op on
+/// other architectures.
+pub fn flush_denormals() {
+    #[cfg(target_arch = "x86_64")]
+    #[allow(deprecated)]
+    // SAFETY: sets two mode bits of this thread's SSE control register; no memory is touched.
+    unsafe {
+        use std::arch::x86_64::{_mm_getcsr, _mm_setcsr};
+        const FTZ_DAZ: u32 = 0x8040;
+        _mm_setcsr(_mm_getcsr() | FTZ_DAZ);
+    }
+}
+
+/// Whether this thread flushes subnormal floats ([`flush_denormals`]).
+pub fn flushes_denormals() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    #[allow(deprecated)]
+    // SAFETY: reads this thread's SSE control register.
+    unsafe {
+        std::arch::x86_64::_mm_getcsr() & 0x8040 == 0x8040
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -61,5 +90,33 @@ mod tests {
                 Err(ModelError::Device(..))
             ));
         }
+    }
+}
+
+#[cfg(test)]
+mod denormal_tests {
+    use super::*;
+
+    /// After `flush_denormals` a subnormal operand counts as 0, in Rust's arithmetic and in libtorch's kernels on
+    /// this thread (a thread of its own: the bit is per thread).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn subnormals_are_flushed_on_this_thread() {
+        std::thread::spawn(|| {
+            let tiny = std::hint::black_box(f32::MIN_POSITIVE / 4.0);
+            assert!(!flushes_denormals());
+            assert!(
+                std::hint::black_box(tiny) * 2.0 > 0.0,
+                "subnormals kept by default"
+            );
+            flush_denormals();
+            assert!(flushes_denormals());
+            assert_eq!(std::hint::black_box(tiny) * 2.0, 0.0);
+            tch::set_num_threads(1);
+            let t = tch::Tensor::from_slice(&[tiny; 4]) * 2.0;
+            assert_eq!(Vec::<f32>::try_from(&t).unwrap(), vec![0.0; 4]);
+        })
+        .join()
+        .unwrap();
     }
 }

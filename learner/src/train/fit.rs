@@ -53,6 +53,8 @@ pub(crate) fn limit_cpu_threads(device: Device) {
     if device == Device::Cpu {
         tch::set_num_threads(CPU_THREADS);
     }
+    // Subnormal floats cost a pass 4-9x its time late in a run (cabc_models::flush_denormals).
+    cabc_models::flush_denormals();
 }
 
 /// One mini-batch: its row indices, on the CPU and as a tensor on the training device.
