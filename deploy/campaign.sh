@@ -3,7 +3,7 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N]
+#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N] [--snapshot]
 #
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
@@ -11,7 +11,9 @@
 # campaign's commit with --pin 5da1874 (the folder used is printed, and named in
 # docs/REPRODUCTION.md by the report). --list prints the slices; --only N runs slice N alone. --lane I/N runs the
 # slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
-# numbers do not depend on its port or its neighbours; only its wall clock does).
+# numbers do not depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
+# runs still in progress to docs/reproduction/in-progress/ (a session ending mid-run commits them) and prints their
+# `learner compare` table.
 # Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -22,12 +24,14 @@ pin_rev=HEAD
 list=0
 only=""
 lane="0/1"
+snapshot=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --pin) pin=1; if [ $# -ge 2 ] && [[ "$2" != --* ]]; then pin_rev=$2; shift; fi ;;
     --list) list=1 ;;
     --only) only=$2; shift ;;
     --lane) lane=$2; shift ;;
+    --snapshot) snapshot=1 ;;
     -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
@@ -63,6 +67,27 @@ slices+=(
   "--seeds 3 v-c-ref"
   "--seeds 3 --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"
 )
+
+if [ "$snapshot" = 1 ]; then
+  out=docs/reproduction/in-progress
+  rm -rf "$out" && mkdir -p "$out"
+  folders=()
+  for dir in runs/*/; do
+    dir=${dir%/}
+    [ -f "$dir/metrics.csv" ] && [ -f "$dir/config.toml" ] || continue
+    if [ -f "$dir/summary.json" ] && ! grep -q '"ended": *"interrupted"' "$dir/summary.json"; then continue; fi
+    name=$(basename "$dir")
+    grep -q "^name = \"$name\"" "$dir/config.toml" || continue
+    mkdir -p "$out/$name"
+    cp "$dir/metrics.csv" "$dir/config.toml" "$out/$name/"
+    [ -f "$dir/evals.csv" ] && cp "$dir/evals.csv" "$out/$name/"
+    folders+=("$out/$name")
+  done
+  [ ${#folders[@]} -gt 0 ] || { echo "[campaign] no run in progress" >&2; exit 0; }
+  bin=$(readlink -f "$root/.deps/campaign-bin/current" 2>/dev/null || echo "$root/target/release")
+  "$bin/learner" compare --out "$out/campaign" "${folders[@]}" | tee "$out/campaign-table.md"
+  exit 0
+fi
 
 if [ "$list" = 1 ]; then
   for i in "${!slices[@]}"; do echo "$i: deploy/reproduce.sh ${slices[$i]}"; done
