@@ -7,6 +7,7 @@ use crate::plots;
 use crate::provenance::Provenance;
 use crate::replay::{Frames, ImageLog, Replay};
 use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
+use crate::tensorboard::EventWriter;
 use crate::train::{EpochLosses, TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_proto::config::RunConfig;
@@ -61,6 +62,8 @@ pub struct Learner {
     half_width: f64,
     /// Messages the router's access control had dropped at the last epoch's end (logged when it grows).
     acl_denied: u64,
+    /// TensorBoard's event file in the run folder's `tb/` (None when it could not be created: logged).
+    tb: Option<EventWriter>,
     /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
     published: Option<u64>,
     /// Evaluation reports refused (a version not published yet).
@@ -136,6 +139,9 @@ impl Learner {
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
         bar.set_position(state.next_epoch);
+        let tb = EventWriter::create(&run_dir.path().join("tb"))
+            .map_err(|e| tracing::warn!("no TensorBoard events: {e}"))
+            .ok();
         Ok(Learner {
             config,
             run_dir,
@@ -152,6 +158,7 @@ impl Learner {
             provenance: Provenance::default(),
             half_width: cabc_sim::track::Track::l_track_barc().half_width(),
             acl_denied: 0,
+            tb,
             published: None,
             refused_evals: 0,
             duplicate_evals: 0,
@@ -347,6 +354,10 @@ impl Learner {
                 self.early_stop = Some(report.version);
             }
         }
+        let mut eval = vec![("laps", report.laps as f32)];
+        eval.extend(summary.lap_mean.map(|m| ("lap_mean", m as f32)));
+        eval.extend(summary.lap_std.map(|s| ("lap_std", s as f32)));
+        self.record_scalars(report.version, "eval", &eval);
         self.state.evals.push(summary);
         self.last_eval = Some(report);
     }
@@ -418,12 +429,28 @@ impl Learner {
             "epoch done"
         );
         self.report_denials(row.epoch);
+        self.record_scalars(row.epoch, "metrics", &row.scalars());
         self.state.next_epoch = row.epoch + 1;
         self.state.rows.push(row);
         self.checkpoint()?;
         self.write_outputs(false)?;
         self.bar.set_position(self.state.next_epoch);
         Ok(())
+    }
+
+    /// Writes `(tag, value)` scalars of `step` under `group/` to the TensorBoard events; a failure is logged once and
+    /// ends the events (the CSV tables stay).
+    fn record_scalars(&mut self, step: u64, group: &str, scalars: &[(&str, f32)]) {
+        let Some(tb) = &mut self.tb else { return };
+        let tagged: Vec<(String, f32)> = scalars
+            .iter()
+            .map(|(name, v)| (format!("{group}/{name}"), *v))
+            .collect();
+        let refs: Vec<(&str, f32)> = tagged.iter().map(|(t, v)| (t.as_str(), *v)).collect();
+        if let Err(e) = tb.scalars(step, &refs) {
+            tracing::warn!("writing TensorBoard events: {e}; no more are written");
+            self.tb = None;
+        }
     }
 
     /// Warns when the router's access control dropped messages since the last epoch (zenoh logs its decisions only

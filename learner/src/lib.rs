@@ -34,6 +34,7 @@ pub mod schedule;
 pub mod seeds;
 #[cfg(feature = "server")]
 pub mod serve;
+pub mod tensorboard;
 pub mod train;
 
 pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};

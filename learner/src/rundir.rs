@@ -85,6 +85,28 @@ pub struct EpochRow {
 const METRICS_HEADER: &str = "epoch,beta,steps_collected,steps_published,segments,steps_taken,steps_staged,incomplete_steps,incomplete_share,d_plus,d_uncertain,d_minus,dynamics_only,autolabel_removed,rho,imitation_loss,safety_loss,dynamics_loss,critic_loss,critic_accuracy,critic_points,collect_s,train_s,epoch_s,closed_by_timeout,eval_version,eval_laps,critic_positives,critic_negatives,uncertain_truncating,uncertain_spawn,uncertain_patience,uncertain_failed_lap,expert_failures";
 
 impl EpochRow {
+    /// Every column of the row that holds a number, by its `metrics.csv` name (a flag as 0 or 1; an empty cell, a
+    /// network that did not train, left out): what TensorBoard shows of an epoch.
+    pub fn scalars(&self) -> Vec<(&'static str, f32)> {
+        METRICS_HEADER
+            .split(',')
+            .zip(
+                self.csv()
+                    .split(',')
+                    .map(str::to_string)
+                    .collect::<Vec<_>>(),
+            )
+            .filter_map(|(name, cell)| {
+                let value = match cell.as_str() {
+                    "true" => 1.0,
+                    "false" => 0.0,
+                    cell => cell.parse::<f32>().ok()?,
+                };
+                Some((name, value))
+            })
+            .collect()
+    }
+
     fn csv(&self) -> String {
         let opt = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
         let optf = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();

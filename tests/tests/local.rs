@@ -87,6 +87,38 @@ fn a_local_run_gives_the_distributed_runs_numbers() {
             == std::fs::read(local.dir.join("final-policy.safetensors")).unwrap(),
         "the same final policy"
     );
+    // Issue 19: TensorBoard events in tb/ hold every metrics.csv cell that holds a number, per epoch.
+    let tb = std::fs::read_dir(local.dir.join("tb"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let events = cabc_learner::tensorboard::read_scalars(&std::fs::read(tb).unwrap()).unwrap();
+    let rows = csv_rows(&local.dir.join("metrics.csv"));
+    let mut cells = 0;
+    for row in &rows[1..] {
+        let epoch: i64 = row[0].parse().unwrap();
+        for (name, cell) in rows[0].iter().zip(row) {
+            let Ok(value) = cell.parse::<f32>().or_else(|_| match cell.as_str() {
+                "true" => Ok(1.0),
+                "false" => Ok(0.0),
+                _ => Err(()),
+            }) else {
+                continue;
+            };
+            cells += 1;
+            let tag = format!("metrics/{name}");
+            assert!(
+                events
+                    .iter()
+                    .any(|(s, t, v)| *s == epoch && *t == tag && *v == value),
+                "{tag} = {value} at epoch {epoch} is not in the events"
+            );
+        }
+    }
+    assert!(cells > 25 * epochs as usize, "{cells} cells");
+    assert!(events.iter().any(|(_, t, _)| t == "eval/laps"));
 }
 
 #[test]
