@@ -100,12 +100,13 @@ fn a_local_run_gives_the_distributed_runs_numbers() {
     for row in &rows[1..] {
         let epoch: i64 = row[0].parse().unwrap();
         for (name, cell) in rows[0].iter().zip(row) {
-            let Ok(value) = cell.parse::<f32>().or_else(|_| match cell.as_str() {
-                "true" => Ok(1.0),
-                "false" => Ok(0.0),
-                _ => Err(()),
-            }) else {
-                continue;
+            let value = match cell.as_str() {
+                "true" => 1.0,
+                "false" => 0.0,
+                cell => match cell.parse::<f32>() {
+                    Ok(v) => v,
+                    Err(_) => continue,
+                },
             };
             cells += 1;
             let tag = format!("metrics/{name}");
