@@ -326,7 +326,25 @@ impl Learner {
         }
         let summary = EvalSummary::of(&report);
         let weights = self.history.remove(&report.version);
-        if self.state.evals.iter().all(|e| summary.better_than(e)) {
+        let best = self.state.evals.iter().all(|e| summary.better_than(e));
+        if report.laps >= self.config.collection.eval_laps {
+            // A video of every evaluation that completes the laps, and of the best policy's.
+            let plots = self.run_dir.plots();
+            let path = plots.join(format!("eval-v{}.gif", report.version));
+            let written = std::fs::create_dir_all(&plots)
+                .map_err(|e| e.to_string())
+                .and_then(|_| crate::video::eval_gif(&path, &report).map_err(|e| e.to_string()))
+                .and_then(|_| match best {
+                    true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
+                        .map(|_| ())
+                        .map_err(|e| e.to_string()),
+                    false => Ok(()),
+                });
+            if let Err(e) = written {
+                tracing::warn!(version = report.version, "the evaluation's video: {e}");
+            }
+        }
+        if best {
             match weights {
                 Some(weights) => {
                     if let Err(e) = self.run_dir.write_file("best-policy.safetensors", &weights) {

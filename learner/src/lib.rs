@@ -36,6 +36,7 @@ pub mod seeds;
 pub mod serve;
 pub mod tensorboard;
 pub mod train;
+pub mod video;
 
 pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};
 pub use checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};

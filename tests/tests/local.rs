@@ -154,3 +154,40 @@ fn a_local_run_completes_the_camera_smoke_preset() {
     let metrics = tmp.path().join("smoke-camera").join("metrics.csv");
     assert_eq!(csv_rows(&metrics).len(), 3);
 }
+
+/// Issue 19: an evaluation that completes its laps leaves a video (plots/eval-v<version>.gif), and the best one is
+/// best-policy.gif.
+#[test]
+fn an_evaluation_that_completes_its_laps_leaves_a_video() {
+    let tmp = cabc_tests::test_dir();
+    let mut local = Cluster::new(tmp.path(), "unused", 1, "").unwrap();
+    let runs_dir = format!("run.runs_dir={:?}", tmp.path().display().to_string());
+    let args = [
+        "run",
+        "--local",
+        "--config",
+        "smoke",
+        "--set",
+        "run.max_epochs=60",
+        "--set",
+        &runs_dir,
+        "--set",
+        "training.device=\"cpu\"",
+    ];
+    local.start("learner", "learner", &args).unwrap();
+    let (status, out) = local.wait("learner", Duration::from_secs(400)).unwrap();
+    assert!(status.success(), "{}", local.log_tail("learner"));
+    let summary: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let first = summary["first_version_with_eval_laps"]
+        .as_u64()
+        .expect("the smoke run completes its laps");
+    let run = tmp.path().join("smoke");
+    for gif in [
+        run.join("plots").join(format!("eval-v{first}.gif")),
+        run.join("best-policy.gif"),
+    ] {
+        let bytes = std::fs::read(&gif).unwrap_or_else(|e| panic!("{}: {e}", gif.display()));
+        assert!(bytes.starts_with(b"GIF89a"), "{}", gif.display());
+        assert!(bytes.len() < 3 << 20, "{} bytes", bytes.len());
+    }
+}
