@@ -68,6 +68,17 @@ enum Command {
         config: String,
         key: String,
     },
+    /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
+    Video {
+        /// The run folder.
+        run: PathBuf,
+        /// The final policy instead of the best.
+        #[arg(long = "final")]
+        final_: bool,
+        /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
     /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
     Compare(compare::CompareOptions),
@@ -138,6 +149,11 @@ fn main() -> anyhow::Result<()> {
             let run_dir =
                 RunDir::prepare(&config, None, false).context("preparing the run folder")?;
             println!("{}", run_dir.path().display());
+            Ok(())
+        }
+        Command::Video { run, final_, out } => {
+            let report = cabc_learner::serve::video(&run, final_, out)?;
+            println!("{} laps, ended by {}", report.laps, report.end_reason);
             Ok(())
         }
         Command::Show { config, key } => {

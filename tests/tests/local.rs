@@ -190,4 +190,18 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
         assert!(bytes.starts_with(b"GIF89a"), "{}", gif.display());
         assert!(bytes.len() < 3 << 20, "{} bytes", bytes.len());
     }
+    // `learner video RUN` evaluates the final policy anew and writes its video.
+    let out = tmp.path().join("final.gif");
+    let (run_s, out_s) = (run.display().to_string(), out.display().to_string());
+    local
+        .start(
+            "video",
+            "learner",
+            &["video", &run_s, "--final", "--out", &out_s],
+        )
+        .unwrap();
+    let (status, said) = local.wait("video", Duration::from_secs(120)).unwrap();
+    assert!(status.success(), "{}", local.log_tail("video"));
+    assert!(said.contains("laps, ended by"), "{said}");
+    assert!(std::fs::read(&out).unwrap().starts_with(b"GIF89a"));
 }
