@@ -3,11 +3,12 @@
 //! and the run folder it writes (checkpoint, `metrics.csv`, `evals.csv`, plots, summary).
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
-use crate::plots;
 use crate::provenance::Provenance;
 use crate::replay::{Frames, ImageLog, Replay};
 use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
 use crate::tensorboard::EventWriter;
+
+mod outputs;
 use crate::train::{EpochLosses, TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_proto::config::RunConfig;
@@ -328,21 +329,7 @@ impl Learner {
         let weights = self.history.remove(&report.version);
         let best = self.state.evals.iter().all(|e| summary.better_than(e));
         if report.laps >= self.config.collection.eval_laps {
-            // A video of every evaluation that completes the laps, and of the best policy's.
-            let plots = self.run_dir.plots();
-            let path = plots.join(format!("eval-v{}.gif", report.version));
-            let written = std::fs::create_dir_all(&plots)
-                .map_err(|e| e.to_string())
-                .and_then(|_| crate::video::eval_gif(&path, &report).map_err(|e| e.to_string()))
-                .and_then(|_| match best {
-                    true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
-                        .map(|_| ())
-                        .map_err(|e| e.to_string()),
-                    false => Ok(()),
-                });
-            if let Err(e) = written {
-                tracing::warn!(version = report.version, "the evaluation's video: {e}");
-            }
+            self.eval_video(&report, best);
         }
         if best {
             match weights {
@@ -456,37 +443,6 @@ impl Learner {
         Ok(())
     }
 
-    /// Writes `(tag, value)` scalars of `step` under `group/` to the TensorBoard events; a failure is logged once and
-    /// ends the events (the CSV tables stay).
-    fn record_scalars(&mut self, step: u64, group: &str, scalars: &[(&str, f32)]) {
-        let Some(tb) = &mut self.tb else { return };
-        let tagged: Vec<(String, f32)> = scalars
-            .iter()
-            .map(|(name, v)| (format!("{group}/{name}"), *v))
-            .collect();
-        let refs: Vec<(&str, f32)> = tagged.iter().map(|(t, v)| (t.as_str(), *v)).collect();
-        if let Err(e) = tb.scalars(step, &refs) {
-            tracing::warn!("writing TensorBoard events: {e}; no more are written");
-            self.tb = None;
-        }
-    }
-
-    /// Warns when the router's access control dropped messages since the last epoch (zenoh logs its decisions only
-    /// at TRACE): an operator under attack sees who tried what.
-    fn report_denials(&mut self, epoch: u64) {
-        let by = cabc_proto::telemetry::acl_denials();
-        let total: u64 = by.values().sum();
-        if total > self.acl_denied {
-            tracing::warn!(
-                epoch,
-                new = total - self.acl_denied,
-                total,
-                "the access control dropped messages: {by:?}"
-            );
-            self.acl_denied = total;
-        }
-    }
-
     /// The learner's metrics after epoch `epoch` (JSON on `metrics/learner`).
     pub fn metrics_json(&self, epoch: u64, collected: &Collected, rejected: u64) -> String {
         json!({
@@ -532,23 +488,6 @@ impl Learner {
             if let Err(e) = log.prune() {
                 tracing::warn!("removing an old image log: {e}");
             }
-        }
-        Ok(())
-    }
-
-    fn write_outputs(&self, final_: bool) -> Result<(), LearnerError> {
-        self.run_dir.write_tables(&self.state)?;
-        if let Err(e) = plots::draw_all(
-            &self.run_dir.plots(),
-            &self.state,
-            self.last_eval.as_ref(),
-            self.config.collection.eval_laps,
-        ) {
-            tracing::warn!("drawing plots: {e}");
-        }
-        if final_ {
-            self.run_dir
-                .write_file("final-policy.safetensors", &self.trainer.policy_bytes())?;
         }
         Ok(())
     }
