@@ -2,105 +2,15 @@
 //! function; the distributed run (`run`) is added beside the others.
 
 use anyhow::Context;
-use cabc_learner::bench::{run_bench, BenchOptions};
+use cabc_learner::bench::run_bench;
 use cabc_learner::compare;
-use cabc_learner::demo::{autolabel_demo, DemoOptions};
+use cabc_learner::demo::autolabel_demo;
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::RunConfig;
-use clap::{Parser, Subcommand};
-use std::path::PathBuf;
+use clap::Parser;
+use cli::{Cli, Command};
 
-#[derive(Parser)]
-#[command(
-    name = "learner",
-    version,
-    about = "cabc learner: replay, safety auto-labelling, constraint-aware training, the distributed run"
-)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Subcommand)]
-enum Command {
-    /// Train: the learner of a distributed run (Algorithm 1 over zenoh), writing into the run folder.
-    Run {
-        /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
-        #[arg(long, short, default_value = "v-b")]
-        config: String,
-        /// The run folder (default: <runs_dir>/<run name>).
-        #[arg(long)]
-        run_dir: Option<PathBuf>,
-        /// Continue the run from its checkpoint.
-        #[arg(long, conflicts_with = "fresh")]
-        resume: bool,
-        /// Start over, discarding the run folder's checkpoint.
-        #[arg(long)]
-        fresh: bool,
-        /// The run's baseline: lambda = algorithm.baseline_lambda (0: behaviour cloning), rho = algorithm.baseline_rho
-        /// when given, run name suffixed with -baseline.
-        #[arg(long)]
-        baseline: bool,
-        /// Zenoh endpoints to listen on, overriding the configuration's `bus.listen`.
-        #[arg(long)]
-        listen: Vec<String>,
-        /// One process: the actors, the expert and the evaluator in-process, no bus (the policy runs on the
-        /// learner's device for collection and evaluation too).
-        #[arg(long, conflicts_with = "listen")]
-        local: bool,
-        /// A configuration value, `key=value` (e.g. `run.seed=3`); repeatable.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-    },
-    /// Resolve a configuration, create its run folder with config.toml inside, and print the folder.
-    Prepare {
-        #[arg(long, short, default_value = "v-b")]
-        config: String,
-        #[arg(long)]
-        baseline: bool,
-        /// A configuration value, `key=value` (e.g. `run.seed=3`); repeatable.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-    },
-    /// Print one value of a configuration (dotted key, e.g. actors.count).
-    Show {
-        #[arg(long, short, default_value = "v-b")]
-        config: String,
-        key: String,
-    },
-    /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
-    Video {
-        /// The run folder.
-        run: PathBuf,
-        /// The final policy instead of the best.
-        #[arg(long = "final")]
-        final_: bool,
-        /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
-    /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
-    /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
-    Compare(compare::CompareOptions),
-    /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
-    AutolabelDemo {
-        #[command(flatten)]
-        options: DemoOptions,
-        /// Print the report as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-    },
-    /// The camera policy's training and inference images per second (ResNet-18 at 224x224 by default), on a GPU
-    /// where there is one; prints JSON.
-    BenchVision(cabc_learner::bench_vision::VisionBenchOptions),
-    /// Throughput of auto-labelling and training.
-    Bench {
-        #[command(flatten)]
-        options: BenchOptions,
-        #[arg(long)]
-        json: bool,
-    },
-}
+mod cli;
 
 fn main() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();
