@@ -196,9 +196,8 @@ pub(crate) fn expert_band(
     Ok(())
 }
 
-fn line(path: &Path, report: &EvalReport) -> PlotResult {
-    let track = Track::l_track_barc();
-    let n = 400;
+/// The track's centre line and its two edges as (X, Y) points, `n` + 1 each: for the line plot and the videos.
+pub(crate) fn track_edges(track: &Track, n: usize) -> [Vec<(f64, f64)>; 3] {
     let edge = |e: f64| -> Vec<(f64, f64)> {
         (0..=n)
             .map(|i| {
@@ -207,6 +206,13 @@ fn line(path: &Path, report: &EvalReport) -> PlotResult {
             })
             .collect()
     };
+    let half = track.half_width();
+    [edge(0.0), edge(half), edge(-half)]
+}
+
+fn line(path: &Path, report: &EvalReport) -> PlotResult {
+    let track = Track::l_track_barc();
+    let [centre, left, right] = track_edges(&track, 400);
     let (x0, x1, y0, y1) = (-3.2, 4.4, -1.2, 5.8);
     let root = BitMapBackend::new(path, (760, 700)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -227,10 +233,9 @@ fn line(path: &Path, report: &EvalReport) -> PlotResult {
         .x_desc("X (m)")
         .y_desc("Y (m)")
         .draw()?;
-    let half = track.half_width();
-    chart.draw_series(LineSeries::new(edge(0.0), BLACK.mix(0.3)))?;
-    for e in [half, -half] {
-        chart.draw_series(LineSeries::new(edge(e), BLACK.stroke_width(2)))?;
+    chart.draw_series(LineSeries::new(centre, BLACK.mix(0.3)))?;
+    for e in [left, right] {
+        chart.draw_series(LineSeries::new(e, BLACK.stroke_width(2)))?;
     }
     chart
         .draw_series(LineSeries::new(

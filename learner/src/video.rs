@@ -15,21 +15,6 @@ const DELAY: u16 = 8;
 
 type Drawn = Result<(), Box<dyn std::error::Error>>;
 
-/// The track's centre line and edges, for every frame.
-fn edges(track: &Track) -> [Vec<(f64, f64)>; 3] {
-    let n = 300;
-    let edge = |e: f64| -> Vec<(f64, f64)> {
-        (0..=n)
-            .map(|i| {
-                let p = track.local_to_global(track.length() * i as f64 / n as f64, e, 0.0);
-                (p.x, p.y)
-            })
-            .collect()
-    };
-    let half = track.half_width();
-    [edge(0.0), edge(half), edge(-half)]
-}
-
 /// One frame: the track, the trail of the first `upto` points of the line, the car at the last of them.
 fn frame(buf: &mut [u8], edges: &[Vec<(f64, f64)>; 3], line: &[(f64, f64)], title: &str) -> Drawn {
     let root = BitMapBackend::with_buffer(buf, SIZE).into_drawing_area();
@@ -53,7 +38,7 @@ fn frame(buf: &mut [u8], edges: &[Vec<(f64, f64)>; 3], line: &[(f64, f64)], titl
 /// Writes the GIF of `report`'s driven line to `path`: [`FRAMES`] frames of 380x350.
 pub fn eval_gif(path: &Path, report: &EvalReport) -> Drawn {
     let track = Track::l_track_barc();
-    let edges = edges(&track);
+    let edges = crate::plots::track_edges(&track, 300);
     let line: Vec<(f64, f64)> = report
         .line
         .iter()
