@@ -8,7 +8,7 @@
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
 # campaign's runs come from one code whatever is built meanwhile: a later session on a fresh machine re-pins the
-# campaign's commit with --pin 5da1874 (the folder used is printed, and named in
+# campaign's commit with --pin f1047ba (the folder used is printed, and named in
 # docs/REPRODUCTION.md by the report). --list prints the slices; --only N runs slice N alone. --lane I/N runs the
 # slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
 # numbers do not depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
