@@ -50,13 +50,12 @@ fn main() -> Result<()> {
     let mut config = RunConfig::load(&cli.config)
         .with_context(|| format!("loading configuration {}", cli.config))?;
     cabc_proto::keys::check_chunk(&cli.id)?;
-    cabc_proto::telemetry::log_to_file(&cabc_proto::telemetry::log_path(&config, &cli.id));
+    cabc_proto::telemetry::log_run(&config, &cli.id);
     if !cli.connect.is_empty() {
         config.bus.connect = cli.connect.clone();
     }
-    // One inference thread: actors are many, cores are few; subnormal floats flushed as in the learner.
-    tch::set_num_threads(1);
-    cabc_models::flush_denormals();
+    // One inference thread (actors are many, cores few); subnormals flushed as in the learner.
+    cabc_models::device::one_cpu_thread();
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
     let evaluators = config.actors.evaluators as u64;

@@ -69,10 +69,7 @@ fn main() -> Result<()> {
         .unwrap_or(Command::Serve(server::ServeArgs::default()))
     {
         Command::Serve(args) => {
-            let component = format!("expert-server-{}", args.id);
-            cabc_proto::telemetry::log_to_file(&cabc_proto::telemetry::log_path(
-                &config, &component,
-            ));
+            cabc_proto::telemetry::log_run(&config, &format!("expert-server-{}", args.id));
             let expert = match config.expert.kind {
                 ExpertKind::Mpcc => Expert::Mpcc(Arc::new(mpcc()?)),
                 ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),

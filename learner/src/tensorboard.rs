@@ -203,13 +203,13 @@ fn fields(data: &[u8]) -> Result<Vec<(u32, u8, Vec<u8>)>, String> {
 }
 
 fn decode_event(data: &[u8], out: &mut Vec<(i64, String, f32)>) -> Result<(), String> {
-    let fields = fields(data)?;
-    let step = fields.iter().find(|f| f.0 == 2).map_or(0, |f| {
+    let top = fields(data)?;
+    let step = top.iter().find(|f| f.0 == 2).map_or(0, |f| {
         i64::from_le_bytes(f.2[..8].try_into().expect("8 bytes"))
     });
-    for (_, _, summary) in fields.iter().filter(|f| f.0 == 5) {
-        for (_, _, value) in fields_of(summary)?.iter().filter(|f| f.0 == 1) {
-            let v = fields_of(value)?;
+    for (_, _, summary) in top.iter().filter(|f| f.0 == 5) {
+        for (_, _, value) in fields(summary)?.iter().filter(|f| f.0 == 1) {
+            let v = fields(value)?;
             let tag = v.iter().find(|f| f.0 == 1).ok_or("a value without a tag")?;
             let x = v
                 .iter()
@@ -221,10 +221,6 @@ fn decode_event(data: &[u8], out: &mut Vec<(i64, String, f32)>) -> Result<(), St
         }
     }
     Ok(())
-}
-
-fn fields_of(data: &[u8]) -> Result<Vec<(u32, u8, Vec<u8>)>, String> {
-    fields(data)
 }
 
 #[cfg(test)]

@@ -61,6 +61,12 @@ pub fn flush_denormals() {
     }
 }
 
+/// One libtorch thread for this process's CPU work, with subnormals flushed ([`flush_denormals`]): an actor's.
+pub fn one_cpu_thread() {
+    tch::set_num_threads(1);
+    flush_denormals();
+}
+
 /// Whether this thread flushes subnormal floats ([`flush_denormals`]).
 pub fn flushes_denormals() -> bool {
     #[cfg(target_arch = "x86_64")]

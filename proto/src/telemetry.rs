@@ -105,12 +105,14 @@ pub fn log_to_file(path: &Path) {
     }
 }
 
-/// `<runs_dir>/<run>/logs/<component>.log` of a run: where each process logs ([`log_to_file`]).
-pub fn log_path(config: &crate::config::RunConfig, component: &str) -> std::path::PathBuf {
-    Path::new(&config.run.runs_dir)
-        .join(&config.run.name)
-        .join("logs")
-        .join(format!("{}.log", component.replace('/', "-")))
+/// Logs to `<runs_dir>/<run>/logs/<component>.log` of `config`'s run too ([`log_to_file`]).
+pub fn log_run(config: &crate::config::RunConfig, component: &str) {
+    log_to_file(
+        &Path::new(&config.run.runs_dir)
+            .join(&config.run.name)
+            .join("logs")
+            .join(format!("{}.log", component.replace('/', "-"))),
+    );
 }
 
 /// Where zenoh 1.10 logs its access-control decisions, at TRACE. A fresh decision logs one line per subject the
@@ -233,7 +235,7 @@ impl AclDenials {
         if allowed {
             // A client matched by several subjects: a first subject's denial, then another's permission, is one
             // allowed message.
-            if let Some((z, w, s)) = pending.filter(|(z, w, _)| !cached && z == zid && w == what) {
+            if let Some((_, w, s)) = pending.filter(|(z, w, _)| !cached && z == zid && w == what) {
                 let key = format!("{s}: {w}");
                 if let Some(n) = d.by.get_mut(&key) {
                     *n -= 1;
@@ -241,7 +243,6 @@ impl AclDenials {
                         d.by.remove(&key);
                     }
                 }
-                let _ = z;
             }
             return;
         }
