@@ -4,6 +4,7 @@
 #     libtorch here. tch finds it through LIBTORCH, set in .cargo/config.toml; binaries carry an rpath to it.
 #   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable;
 #   * openssl (deploy/make-certs.sh), when missing and apt is usable.
+#   * the Python package's tools (maturin, numpy, gymnasium, pyarrow, pytest) in a virtual environment, .deps/venv.
 # Prints what it does; fails with a message that names what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -48,5 +49,19 @@ if ! command -v openssl >/dev/null; then
   else
     die "openssl is missing: install it (deploy/make-certs.sh makes the bus's certificates with it)"
   fi
+fi
+# The Python package's tools (python/, issue 20): maturin, numpy, gymnasium, pyarrow and pytest at the versions of
+# python/requirements-dev.txt, in the virtual environment .deps/venv (deploy/test.sh builds the wheel and runs the Python
+# tests with them); installed again when that file changes.
+venv="$deps/venv"
+requirements="$root/python/requirements-dev.txt"
+venv_marker="$venv/.cabc-installed-$(sha256sum "$requirements" | cut -c1-16)"
+if [ ! -f "$venv_marker" ]; then
+  say "installing the Python package's tools (python/requirements-dev.txt) into $venv"
+  rm -rf "$venv"
+  "$python" -m venv "$venv" || die "$python -m venv failed (on Debian: apt-get install python3-venv)"
+  "$venv/bin/pip" install --quiet --disable-pip-version-check -r "$requirements" \
+    || die "pip install -r python/requirements-dev.txt failed (is PyPI reachable? numpy 2.4 needs Python 3.11 or later)"
+  touch "$venv_marker"
 fi
 say "ready (LIBTORCH=$torch_dir/torch, set for cargo in .cargo/config.toml)"

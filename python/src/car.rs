@@ -1,0 +1,211 @@
+//! One environment as Gymnasium sees it: the simulator's [`Env`] with its own random stream, the spawn, an optional
+//! step limit, and the simulator's end of an episode split into Gymnasium's `terminated` and `truncated`.
+
+use std::str::FromStr;
+use std::sync::{Arc, OnceLock};
+
+use cabc_proto::messages::EndReason;
+use cabc_sim::camera::{Camera, TrackLookup, REFERENCE_FOV_DEG, REFERENCE_SIZE};
+use cabc_sim::track::Pose;
+use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, Truncation};
+use pyo3::exceptions::PyValueError;
+use pyo3::PyResult;
+use rand_chacha::ChaCha8Rng;
+
+/// The track every environment drives (built once per process).
+pub fn track() -> &'static Arc<Track> {
+    static TRACK: OnceLock<Arc<Track>> = OnceLock::new();
+    TRACK.get_or_init(|| Arc::new(Track::l_track_barc()))
+}
+
+/// The camera's distance grid of the track, built on the first camera's first frame and shared.
+fn lookup() -> &'static TrackLookup {
+    /// Grid resolution (m): the actor's.
+    const LOOKUP_RESOLUTION: f64 = 0.01;
+    static LOOKUP: OnceLock<TrackLookup> = OnceLock::new();
+    LOOKUP.get_or_init(|| TrackLookup::new(track(), LOOKUP_RESOLUTION))
+}
+
+/// What the environment observes: the 6-d state, or a camera image with the three velocities.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    State,
+    Camera,
+}
+
+impl FromStr for Kind {
+    type Err = pyo3::PyErr;
+
+    fn from_str(s: &str) -> PyResult<Kind> {
+        match s {
+            "state" => Ok(Kind::State),
+            "camera" => Ok(Kind::Camera),
+            _ => Err(PyValueError::new_err(format!(
+                "unknown observation {s:?}: expected \"state\" or \"camera\""
+            ))),
+        }
+    }
+}
+
+pub fn parse_spawn(s: &str) -> PyResult<Spawn> {
+    Spawn::from_str(s).map_err(PyValueError::new_err)
+}
+
+/// The camera's size and field of view.
+#[derive(Clone, Copy, Debug)]
+pub struct Lens {
+    pub width: usize,
+    pub height: usize,
+    pub fov_deg: f64,
+}
+
+impl Lens {
+    /// `width` x `height` (each 1..=1024, the reference's 224 when not given), `fov_deg` (the reference's 110°).
+    pub fn new(
+        width: Option<usize>,
+        height: Option<usize>,
+        fov_deg: Option<f64>,
+    ) -> PyResult<Lens> {
+        let side = |v: Option<usize>, name: &str| match v.unwrap_or(REFERENCE_SIZE) {
+            v @ 1..=1024 => Ok(v),
+            v => Err(PyValueError::new_err(format!(
+                "{name} must be within 1..=1024 pixels, got {v}"
+            ))),
+        };
+        let fov_deg = fov_deg.unwrap_or(REFERENCE_FOV_DEG);
+        if !(fov_deg.is_finite() && (1.0..=179.0).contains(&fov_deg)) {
+            return Err(PyValueError::new_err(format!(
+                "fov must be within 1..=179 degrees, got {fov_deg}"
+            )));
+        }
+        Ok(Lens {
+            width: side(width, "width")?,
+            height: side(height, "height")?,
+            fov_deg,
+        })
+    }
+
+    pub fn camera(&self) -> Camera {
+        Camera::new(self.width, self.height, self.fov_deg)
+    }
+
+    /// Bytes of one RGB image.
+    pub fn image_len(&self) -> usize {
+        self.width * self.height * 3
+    }
+}
+
+/// Renders `env`'s first-person view into `out` (`lens.image_len()` bytes, HWC RGB).
+pub fn see(camera: &mut Camera, env: &Env, out: &mut [u8]) {
+    let [x, y, psi] = env.observation().pose;
+    let frame = camera.render(lookup(), Pose { x, y, psi }, env.sun());
+    out.copy_from_slice(&frame.rgb);
+}
+
+/// How the environments of one Python object are made.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub spawn: Spawn,
+    pub max_laps: u32,
+    /// Truncate after this many steps (Gymnasium's time limit; the simulator has none).
+    pub max_episode_steps: Option<u64>,
+}
+
+impl Setup {
+    pub fn new(
+        spawn: &str,
+        max_laps: Option<u32>,
+        max_episode_steps: Option<u64>,
+    ) -> PyResult<Setup> {
+        if max_episode_steps == Some(0) {
+            return Err(PyValueError::new_err(
+                "max_episode_steps must be at least 1",
+            ));
+        }
+        Ok(Setup {
+            spawn: parse_spawn(spawn)?,
+            max_laps: max_laps.unwrap_or(cabc_sim::env::MAX_LAPS),
+            max_episode_steps,
+        })
+    }
+
+    pub fn env(&self) -> Env {
+        let config = EnvConfig {
+            max_laps: self.max_laps,
+            ..EnvConfig::default()
+        };
+        Env::new(track().clone(), Default::default(), config)
+    }
+}
+
+/// One step as Gymnasium reports it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Transition {
+    /// Progress along the centreline (m), the simulator's reward.
+    pub reward: f64,
+    pub terminated: bool,
+    pub truncated: bool,
+    /// Why the episode ended, when it did.
+    pub end: Option<EndReason>,
+    /// The time of a lap completed on this step (s).
+    pub lap_time: Option<f64>,
+    /// Laps of the episode, including one completed on this step.
+    pub laps: u32,
+}
+
+/// Gymnasium's split of the simulator's end of an episode: leaving the track (the constraint, |x_tran| > 0.55, or
+/// the Frenet band) is a terminal state of the task, *terminated*; the simulator's other limits (stall, spin, the
+/// lap count) and the optional step limit cut an episode that could go on, *truncated*.
+pub fn classify(
+    truncation: Option<Truncation>,
+    steps: u64,
+    limit: Option<u64>,
+) -> (bool, bool, Option<EndReason>) {
+    match truncation {
+        Some(t @ (Truncation::OutOfTrack | Truncation::LeftBand)) => (true, false, Some(t.into())),
+        Some(t) => (false, true, Some(t.into())),
+        None if limit.is_some_and(|l| steps >= l) => (false, true, Some(EndReason::Budget)),
+        None => (false, false, None),
+    }
+}
+
+/// One environment with its random stream.
+#[derive(Clone, Debug)]
+pub struct Car {
+    pub env: Env,
+    rng: ChaCha8Rng,
+}
+
+impl Car {
+    /// An environment drawing from stream `stream` of `seed` (as `cabc-sim rollout --seed` and the actors' batches).
+    pub fn new(setup: &Setup, seed: u64, stream: u64) -> Car {
+        Car {
+            env: setup.env(),
+            rng: Env::rng(seed, stream),
+        }
+    }
+
+    /// Starts drawing from stream `stream` of `seed`.
+    pub fn reseed(&mut self, seed: u64, stream: u64) {
+        self.rng = Env::rng(seed, stream);
+    }
+
+    pub fn reset(&mut self, spawn: Spawn) -> EnvObservation {
+        self.env.reset(spawn, &mut self.rng)
+    }
+
+    /// Steps with a finite action (the caller checks; the simulator clips it to the box).
+    pub fn step(&mut self, action: &Input, setup: &Setup) -> Transition {
+        let r = self.env.step(action);
+        let (terminated, truncated, end) =
+            classify(r.truncation, self.env.steps(), setup.max_episode_steps);
+        Transition {
+            reward: r.reward,
+            terminated,
+            truncated,
+            end,
+            lap_time: r.lap_time,
+            laps: r.lap_no,
+        }
+    }
+}
