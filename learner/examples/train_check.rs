@@ -3,6 +3,7 @@
 //! every EpochLosses field with its floats' bits, so that two builds can be compared with `diff` (refactors that must
 //! not change behaviour).
 
+use cabc_learner::record::Record;
 use cabc_learner::{autolabel_replay, AutolabelOptions, EpochLosses, Replay, Trainer};
 use cabc_proto::config::{ObservationKind, RunConfig, ScheduleKind, VisionTrunk};
 use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
@@ -86,7 +87,9 @@ fn run(name: &str, config: &RunConfig, epochs: u64, per_epoch: usize, camera: bo
             );
             replay.apply_labels(&report);
         }
-        let l = trainer.train_epoch(epoch, &replay).unwrap();
+        let l = trainer
+            .train_epoch(epoch, &replay, &mut Record::default())
+            .unwrap();
         show(name, &l);
     }
     let w = trainer.policy_bytes();

@@ -6,6 +6,7 @@
 //! D? is the same curve with more spread (failed laps wander) plus a few percent uniform in the state box.
 
 use crate::autolabel::{autolabel, AutolabelOptions, AutolabelReport};
+use crate::record::Record;
 use crate::replay::Replay;
 use crate::train::{CriticTrainer, Trainer};
 use cabc_models::cuda_available;
@@ -182,7 +183,9 @@ fn train_figures(device: Device, n_train: usize, seed: u64) -> TrainFigures {
     });
     let mut fresh = Trainer::with_device(&config, device);
     let t = Instant::now();
-    fresh.train_epoch(1, &replay).expect("trains");
+    fresh
+        .train_epoch(1, &replay, &mut Record::default())
+        .expect("trains");
     fig.epoch_seconds = t.elapsed().as_secs_f64();
     fig
 }

@@ -1,22 +1,26 @@
 //! What the learner holds between epochs of Algorithm 1 ([`crate::algorithm`]): D+, D? and D- (the replay), the
-//! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations and early stopping,
-//! and the run folder it writes (checkpoint, `metrics.csv`, `evals.csv`, plots, summary).
+//! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations, the epochs' records
+//! and the checkpoint. Everything it writes besides the checkpoint goes through one port, a [`Sink`]
+//! (`crate::outputs` has the run folder's).
+
+mod state;
+
+pub use state::{LearnerState, StateError, CHECKPOINT};
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
+use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::provenance::Provenance;
+use crate::record::{Record, Sink, SinkError};
 use crate::replay::{Frames, ImageLog, Replay};
-use crate::rundir::{EpochRow, EvalSummary, LearnerState, RunDir, RunDirError};
-use crate::tensorboard::EventWriter;
-
-mod outputs;
-use crate::train::{EpochLosses, TrainError, Trainer};
+use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment};
-use cabc_proto::ports::{Collected, PortError};
-use indicatif::{ProgressBar, ProgressStyle};
+use cabc_proto::ports::PortError;
 use serde_json::json;
-use std::collections::{BTreeMap, HashSet};
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Errors that end the learner.
 #[derive(Debug, thiserror::Error)]
@@ -25,8 +29,12 @@ pub enum LearnerError {
     Port(#[from] PortError),
     #[error("training: {0}")]
     Train(#[from] TrainError),
-    #[error("the run folder: {0}")]
-    RunDir(#[from] RunDirError),
+    #[error("the learner state: {0}")]
+    State(#[from] StateError),
+    #[error("the checkpoint: {0}")]
+    CheckpointFile(#[from] CheckpointError),
+    #[error("writing the run's outputs: {0}")]
+    Sink(#[from] SinkError),
     #[error("{0}")]
     Checkpoint(String),
 }
@@ -34,69 +42,68 @@ pub enum LearnerError {
 /// The replay's file in the checkpoint.
 const REPLAY: &str = "replay.bin";
 
-/// Published versions' weights are kept until their evaluation arrives (the best evaluated one is written to
-/// `best-policy.safetensors`, whatever its version), up to this many bytes together (a ResNet-18 policy is 45 MB, so
-/// 11 versions; the full-state MLP is 0.1 MB): past it the oldest are dropped, logged; the newest always stays.
-const PENDING_WEIGHT_BYTES: usize = 512 << 20;
+/// Counts of the epoch in progress, from [`Learner::begin_epoch`] on.
+#[derive(Default)]
+struct Tally {
+    /// The ledger's stored steps and segments when the epoch began.
+    stored_before: (u64, u64),
+    /// Steps in incomplete segments.
+    incomplete_steps: u64,
+    /// Where the epoch's D? steps came from.
+    provenance: Provenance,
+}
 
 /// Everything the learner holds.
 pub struct Learner {
     pub config: RunConfig,
-    pub run_dir: RunDir,
     pub trainer: Trainer,
     /// D+, D?, D- and the dynamics-only store.
     pub replay: Replay,
+    /// The records, the evaluations, the ledger: what the checkpoint saves besides networks and replay.
     pub state: LearnerState,
-    /// The version that stopped the run early, once decided.
-    pub early_stop: Option<u64>,
-    history: BTreeMap<u64, Vec<u8>>,
+    /// The run folder: the checkpoint and D+'s image logs.
+    folder: PathBuf,
+    sink: Box<dyn Sink>,
     /// The segments of the epoch being collected, until [`Learner::partition`].
     d_new: Vec<Segment>,
-    last_eval: Option<EvalReport>,
+    tally: Tally,
     expert_streams: HashSet<(String, u32, u64)>,
+    /// Segments refused or not stored, since the process started.
     failed_segments: u64,
-    /// Steps in incomplete segments since the last [`Learner::counts`].
-    incomplete_steps: u64,
-    /// Where this epoch's D? steps came from.
-    provenance: Provenance,
     /// The track's half-width (off-track spawns in [`Provenance`]).
     half_width: f64,
-    /// Messages the router's access control had dropped at the last epoch's end (logged when it grows).
-    acl_denied: u64,
-    /// TensorBoard's event file in the run folder's `tb/` (None when it could not be created: logged).
-    tb: Option<EventWriter>,
-    /// The newest version published ([`Learner::policy_update`]): evaluation reports of later versions are refused.
-    published: Option<u64>,
-    /// Evaluation reports refused (a version not published yet).
-    refused_evals: u64,
-    /// Evaluation reports of a version already evaluated (ignored).
-    duplicate_evals: u64,
     /// D+'s images on disk (`replay-images-<generation>.log` in the run folder), appended to at each checkpoint.
     image_log: Option<ImageLog>,
-    bar: ProgressBar,
 }
 
 impl Learner {
-    /// A fresh learner for `config` writing into `run_dir`, or the one of its checkpoint with `resume` (refused
-    /// without `resume` when a checkpoint exists).
-    pub fn open(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Self, LearnerError> {
+    /// A fresh learner for `config` with its checkpoint in `folder` (`folder/checkpoint`, and D+'s image logs),
+    /// writing its outputs through `sink`; or the one of its checkpoint with `resume` (refused without `resume` when
+    /// a checkpoint exists).
+    pub fn open(
+        config: RunConfig,
+        folder: PathBuf,
+        mut sink: Box<dyn Sink>,
+        resume: bool,
+    ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
-        let (trainer, replay, image_log, state) = if run_dir.has_checkpoint() {
+        let checkpoint = folder.join(CHECKPOINT);
+        let (trainer, replay, image_log, state) = if Checkpoint::exists(&checkpoint) {
             if !resume {
                 return Err(LearnerError::Checkpoint(format!(
                     "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
-                    run_dir.path().display()
+                    folder.display()
                 )));
             }
-            let state = run_dir.load_state()?;
-            let ck = run_dir.open_checkpoint()?;
+            let ck = Checkpoint::open(&checkpoint)?;
+            let state = LearnerState::load(&ck)?;
             let mut trainer = Trainer::with_device(&config, device);
             trainer.load(&ck)?;
             let (replay, image_log) = ck
                 .read(REPLAY)
                 .map_err(|e| LearnerError::Checkpoint(e.to_string()))
                 .and_then(|bytes| {
-                    Replay::from_checkpoint(&bytes, run_dir.path())
+                    Replay::from_checkpoint(&bytes, &folder)
                         .map(|(replay, log)| {
                             let replay = replay
                                 .with_frames(Frames::of(&config))
@@ -117,7 +124,7 @@ impl Learner {
             return Err(LearnerError::Checkpoint(format!(
                 "{} holds no checkpoint to resume (not even checkpoint.old/): nothing was started; drop --resume to \
                  start a new run",
-                run_dir.path().display()
+                folder.display()
             )));
         } else {
             let replay = Replay::from_config(&config);
@@ -134,58 +141,33 @@ impl Learner {
             };
             (trainer, replay, None, state)
         };
-        let bar = ProgressBar::new(config.run.max_epochs);
-        bar.set_style(
-            ProgressStyle::with_template("{elapsed_precise} epoch {pos}/{len} {bar:30} {msg}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        bar.set_position(state.next_epoch);
-        let tb = EventWriter::create(&run_dir.path().join("tb"))
-            .map_err(|e| tracing::warn!("no TensorBoard events: {e}"))
-            .ok();
+        sink.open(&state);
         Ok(Learner {
             config,
-            run_dir,
             trainer,
             replay,
             state,
-            early_stop: None,
-            history: BTreeMap::new(),
+            folder,
+            sink,
             d_new: Vec::new(),
-            last_eval: None,
+            tally: Tally::default(),
             expert_streams: HashSet::new(),
             failed_segments: 0,
-            incomplete_steps: 0,
-            provenance: Provenance::default(),
             half_width: cabc_sim::track::Track::l_track_barc().half_width(),
-            acl_denied: 0,
-            tb,
-            published: None,
-            refused_evals: 0,
-            duplicate_evals: 0,
             image_log,
-            bar,
         })
+    }
+
+    /// The run folder (the checkpoint's parent).
+    pub fn folder(&self) -> &Path {
+        &self.folder
     }
 
     /// (pi_j, beta_j) as the actors receive it, with each actor's step budget for the epoch.
     pub fn policy_update(&mut self, epoch: u64) -> PolicyUpdate {
         let weights = self.trainer.policy_bytes();
-        self.history.insert(epoch, weights.clone());
-        let mut held: usize = self.history.values().map(Vec::len).sum();
-        while held > PENDING_WEIGHT_BYTES && self.history.len() > 1 {
-            if let Some((version, dropped)) = self.history.pop_first() {
-                held -= dropped.len();
-                tracing::warn!(
-                    version,
-                    "no evaluation of version {version} yet, and the versions awaiting one hold over \
-                     {} MB: its weights are dropped (it cannot become best-policy.safetensors)",
-                    PENDING_WEIGHT_BYTES >> 20
-                );
-            }
-        }
+        self.state.evaluations.publish(epoch, weights.clone());
         self.progress(epoch, "collecting");
-        self.published = Some(epoch);
         PolicyUpdate {
             version: epoch,
             beta: self.config.beta(epoch),
@@ -196,15 +178,13 @@ impl Learner {
         }
     }
 
-    /// Starts an epoch's bookkeeping: returns the stored steps and segments so far (the epoch's row reports the
-    /// difference) and zeroes the epoch's count of incomplete steps.
-    pub fn begin_epoch(&mut self) -> (u64, u64) {
-        self.incomplete_steps = 0;
-        self.provenance = Provenance::default();
-        (
-            self.state.ledger.stored_steps,
-            self.state.ledger.stored_segments,
-        )
+    /// Starts an epoch's counts (what the ledger stored so far, no incomplete steps, no D? steps).
+    pub fn begin_epoch(&mut self) {
+        let ledger = &self.state.ledger;
+        self.tally = Tally {
+            stored_before: (ledger.stored_steps, ledger.stored_segments),
+            ..Tally::default()
+        };
     }
 
     /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment the replay would not
@@ -232,9 +212,10 @@ impl Learner {
     }
 
     /// Partitions D_new into D+' (laps) and D?' (failures; unfinished steps go to the dynamics-only store) and adds
-    /// them to D+ and D?. Segments are added in (actor, incarnation, seq) order, whatever order the bus delivered them in, so a
-    /// distributed run with a given seed is as reproducible as an in-process one.
-    pub fn partition(&mut self) {
+    /// them to D+ and D?. Segments are added in (actor, incarnation, seq) order, whatever order the bus delivered
+    /// them in, so a distributed run with a given seed is as reproducible as an in-process one. Puts what the epoch
+    /// stored, and where its D? steps came from.
+    pub fn partition(&mut self, record: &mut Record) {
         let mut d_new = std::mem::take(&mut self.d_new);
         d_new.sort_by(|a, b| {
             (&a.actor, a.incarnation, a.seq).cmp(&(&b.actor, b.incarnation, b.seq))
@@ -242,12 +223,12 @@ impl Learner {
         for segment in d_new {
             self.expert_lap_time(&segment);
             if segment.outcome == Outcome::Incomplete {
-                self.incomplete_steps += segment.steps.len() as u64;
+                self.tally.incomplete_steps += segment.steps.len() as u64;
             }
             match self.replay.add_segment(&segment) {
                 Ok(_) => {
                     let flush = self.config.collection.flush;
-                    self.provenance.add(&segment, flush, self.half_width);
+                    self.tally.provenance.add(&segment, flush, self.half_width);
                 }
                 Err(e) => {
                     self.failed_segments += 1;
@@ -259,6 +240,23 @@ impl Learner {
                 }
             }
         }
+        let (ledger, t) = (&self.state.ledger, &self.tally);
+        let stored = ledger.stored_steps - t.stored_before.0;
+        record.count("steps_collected", stored);
+        record.count("segments", ledger.stored_segments - t.stored_before.1);
+        // Cut by the budget: dynamics only, never labelled.
+        record.count("incomplete_steps", t.incomplete_steps);
+        record.real(
+            "incomplete_share",
+            t.incomplete_steps as f64 / stored.max(1) as f64,
+            4,
+        );
+        record.count("uncertain_truncating", t.provenance.truncating);
+        record.count("uncertain_spawn", t.provenance.spawn);
+        record.count("uncertain_patience", t.provenance.patience);
+        record.count("uncertain_failed_lap", t.provenance.failed_lap);
+        record.count("expert_failures", t.provenance.expert_failures);
+        record.count("segments_not_stored", self.failed_segments);
     }
 
     /// Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
@@ -299,178 +297,52 @@ impl Learner {
         Some((removed, report.rho))
     }
 
-    /// An evaluation report: counts toward early stopping when it completed `eval_laps` laps. A report of a version
-    /// not published yet is refused and counted (`refused_evals`); the bus already checked that it came from an
-    /// evaluator under its own name.
+    /// An evaluation report ([`crate::evaluations::Evaluations::take`]).
     pub fn on_eval(&mut self, report: EvalReport) {
-        if self
-            .published
-            .is_none_or(|published| report.version > published)
-        {
-            self.refused_evals += 1;
-            tracing::warn!(
-                actor = report.actor,
-                version = report.version,
-                published = ?self.published,
-                "evaluation report of a version not published: refused"
-            );
-            return;
-        }
-        if self.state.evals.iter().any(|e| e.version == report.version) {
-            self.duplicate_evals += 1;
-            tracing::warn!(
-                actor = report.actor,
-                version = report.version,
-                "a second evaluation of a version: ignored (early stopping counts distinct versions)"
-            );
-            return;
-        }
-        let summary = EvalSummary::of(&report);
-        let weights = self.history.remove(&report.version);
-        let best = self.state.evals.iter().all(|e| summary.better_than(e));
-        if report.laps >= self.config.collection.eval_laps {
-            self.eval_video(&report, best);
-        }
-        if best {
-            match weights {
-                Some(weights) => {
-                    if let Err(e) = self.run_dir.write_file("best-policy.safetensors", &weights) {
-                        tracing::warn!("saving the best policy: {e}");
-                    }
-                }
-                None => tracing::warn!(
-                    version = report.version,
-                    "the best evaluation so far, but its weights are no longer held"
-                ),
-            }
-        }
-        tracing::info!(
-            version = report.version,
-            laps = report.laps,
-            end = %report.end_reason,
-            lap_mean = ?summary.lap_mean,
-            "evaluation"
-        );
-        if report.laps >= self.config.collection.eval_laps {
-            self.state.successes += 1;
-            if self.state.successes >= self.config.collection.early_stop_successes
-                && self.early_stop.is_none()
-            {
-                self.early_stop = Some(report.version);
-            }
-        }
-        let mut eval = vec![("laps", report.laps as f32)];
-        eval.extend(summary.lap_mean.map(|m| ("lap_mean", m as f32)));
-        eval.extend(summary.lap_std.map(|s| ("lap_std", s as f32)));
-        self.record_scalars(report.version, "eval", &eval);
-        self.state.evals.push(summary);
-        self.last_eval = Some(report);
+        let rules = &self.config.collection;
+        self.state
+            .evaluations
+            .take(report, rules, self.sink.as_mut());
     }
 
-    /// The epoch's row of `metrics.csv`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn row(
-        &self,
-        epoch: u64,
-        update: &PolicyUpdate,
-        (steps_before, segments_before): (u64, u64),
-        collected: &Collected,
-        labelled: Option<(usize, f64)>,
-        fits: &EpochLosses,
-        collect_s: f64,
-    ) -> EpochRow {
-        EpochRow {
-            epoch,
-            beta: update.beta,
-            steps_collected: self.state.ledger.stored_steps - steps_before,
-            steps_published: collected.steps_published,
-            segments: self.state.ledger.stored_segments - segments_before,
-            steps_taken: collected.steps_taken,
-            steps_staged: collected.steps_staged,
-            incomplete_steps: self.incomplete_steps,
-            d_plus: self.replay.len_plus(),
-            d_uncertain: self.replay.len_uncertain(),
-            d_minus: self.replay.len_minus(),
-            dynamics_only: self.replay.len_dynamics_only(),
-            autolabel_removed: labelled.map_or(0, |(removed, _)| removed),
-            rho: labelled.map_or(self.config.algorithm.rho, |(_, rho)| rho),
-            imitation_loss: fits.imitation,
-            safety_loss: fits.safety,
-            dynamics_loss: fits.dynamics,
-            critic_loss: fits.critic,
-            critic_accuracy: fits.critic_accuracy,
-            critic_points: fits.critic_points,
-            critic_positives: fits.critic_positives,
-            critic_negatives: fits
-                .critic_points
-                .zip(fits.critic_positives)
-                .map(|(n, p)| n - p),
-            uncertain_truncating: self.provenance.truncating,
-            uncertain_spawn: self.provenance.spawn,
-            uncertain_patience: self.provenance.patience,
-            uncertain_failed_lap: self.provenance.failed_lap,
-            expert_failures: self.provenance.expert_failures,
-            collect_s,
-            train_s: fits.seconds,
-            epoch_s: 0.0,
-            closed_by_timeout: collected.timed_out,
-            eval_version: self.last_eval.as_ref().map(|e| e.version),
-            eval_laps: self.last_eval.as_ref().map(|e| e.laps),
-        }
-    }
-
-    /// Closes an epoch: its row, the checkpoint, the tables and plots.
-    pub fn end_epoch(&mut self, mut row: EpochRow, epoch_s: f64) -> Result<(), LearnerError> {
-        row.epoch_s = epoch_s;
-        tracing::info!(
-            epoch = row.epoch,
-            beta = format!("{:.3}", row.beta),
-            d_plus = row.d_plus,
-            d_uncertain = row.d_uncertain,
-            imitation = format!("{:.5}", row.imitation_loss),
-            safety = format!("{:.5}", row.safety_loss),
-            collect_s = format!("{:.2}", row.collect_s),
-            train_s = format!("{:.2}", row.train_s),
-            "epoch done"
-        );
-        self.report_denials(row.epoch);
-        self.record_scalars(row.epoch, "metrics", &row.scalars());
-        self.state.next_epoch = row.epoch + 1;
-        self.state.rows.push(row);
+    /// Closes an epoch: puts D+, D?, D-, the evaluations and the epoch's time, checkpoints, and writes the record
+    /// through the sink.
+    pub fn end_epoch(&mut self, mut record: Record, started: Instant) -> Result<(), LearnerError> {
+        record.count("d_plus", self.replay.len_plus());
+        record.count("d_uncertain", self.replay.len_uncertain());
+        // What the last auto-labelling left in D? (the critic's negatives), held until the next labelling.
+        record.count("d_minus", self.replay.len_minus());
+        record.count("dynamics_only", self.replay.len_dynamics_only());
+        self.state.evaluations.put(&mut record);
+        record.count("acl_denied", self.acl_denied());
+        record.real("epoch_s", started.elapsed().as_secs_f64(), 3);
+        let epoch = record.epoch();
+        tracing::info!("epoch done: {record}");
+        self.state.next_epoch = epoch + 1;
+        self.state.rows.push(record);
         self.checkpoint()?;
-        self.write_outputs(false)?;
-        self.bar.set_position(self.state.next_epoch);
-        Ok(())
+        Ok(self.sink.write_last(&self.state)?)
     }
 
-    /// The learner's metrics after epoch `epoch` (JSON on `metrics/learner`).
-    pub fn metrics_json(&self, epoch: u64, collected: &Collected, rejected: u64) -> String {
-        json!({
-            "epoch": epoch,
-            "row": self.state.rows.last(),
-            "live_actors": collected.live,
-            "rejected_messages": rejected,
-            "segments_not_stored": self.failed_segments,
-            "refused_evals": self.refused_evals,
-            "acl_denied": self.acl_denied,
-        })
-        .to_string()
+    /// Messages the router's access control has dropped so far, warned about when they grew since the last epoch
+    /// (zenoh logs its decisions only at TRACE): an operator under attack sees who tried what.
+    fn acl_denied(&self) -> u64 {
+        let by = cabc_proto::telemetry::acl_denials();
+        let total: u64 = by.values().sum();
+        let before = self.state.rows.last().and_then(|r| r.u64("acl_denied"));
+        if total > before.unwrap_or(0) {
+            tracing::warn!(
+                new = total - before.unwrap_or(0),
+                total,
+                "the access control dropped messages: {by:?}"
+            );
+        }
+        total
     }
 
-    /// Shows the phase of epoch `epoch` on the progress bar.
-    pub fn progress(&self, epoch: u64, phase: &str) {
-        let eval = self
-            .last_eval
-            .as_ref()
-            .map(|e| format!("v{}: {} laps", e.version, e.laps))
-            .unwrap_or_else(|| "none".into());
-        self.bar.set_message(format!(
-            "{phase} | beta {:.3} | D+ {} D? {} D- {} | last eval {eval}",
-            self.config.beta(epoch),
-            self.replay.len_plus(),
-            self.replay.len_uncertain(),
-            self.replay.len_minus(),
-        ));
+    /// Shows the phase of epoch `epoch` (the progress bar).
+    pub fn progress(&mut self, epoch: u64, phase: &str) {
+        self.sink.phase(epoch, phase);
     }
 
     /// The networks, the replay and the learner state, written atomically (see `crate::checkpoint`).
@@ -480,10 +352,10 @@ impl Learner {
         let mut files = self.trainer.to_checkpoint();
         let replay = self
             .replay
-            .checkpoint_bytes(self.run_dir.path(), &mut self.image_log)
+            .checkpoint_bytes(&self.folder, &mut self.image_log)
             .map_err(|e| LearnerError::Checkpoint(format!("saving the replay: {e}")))?;
         files.push((REPLAY, replay));
-        self.run_dir.save_checkpoint(&self.state, files)?;
+        self.state.save(&self.folder.join(CHECKPOINT), files)?;
         if let Some(log) = &self.image_log {
             if let Err(e) = log.prune() {
                 tracing::warn!("removing an old image log: {e}");
@@ -492,16 +364,15 @@ impl Learner {
         Ok(())
     }
 
-    /// Ends the run: the final outputs (unless interrupted) and `summary.json`, which is returned.
+    /// Ends the run: the final outputs (unless interrupted) and the summary, written through the sink and returned.
     pub fn finish(
         &mut self,
         reason: &str,
         interrupted: bool,
         rejected: u64,
     ) -> Result<serde_json::Value, LearnerError> {
-        self.bar.finish_and_clear();
         tracing::info!("run ends: {reason}");
-        let not_evaluated = self.not_evaluated();
+        let not_evaluated = self.state.evaluations.not_evaluated();
         if !not_evaluated.is_empty() {
             // The rule by which a version goes unevaluated: the run ended before its report arrived.
             tracing::warn!(
@@ -511,48 +382,34 @@ impl Learner {
         }
         if !interrupted {
             self.state.stopped = Some(reason.to_string());
-            self.write_outputs(true)?;
         }
         let summary = self.summary(reason, rejected);
-        self.run_dir.write_summary(&summary)?;
+        let final_policy = (!interrupted).then(|| self.trainer.policy_bytes());
+        self.sink
+            .close(&self.state, &summary, final_policy.as_deref())?;
         Ok(summary)
     }
 
-    /// Published versions with no evaluation report.
-    fn not_evaluated(&self) -> Vec<u64> {
-        let evaluated: HashSet<u64> = self.state.evals.iter().map(|e| e.version).collect();
-        let published = self.published.map_or(0, |p| p + 1);
-        (0..published).filter(|v| !evaluated.contains(v)).collect()
-    }
-
     fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
-        let eval_laps = self.config.collection.eval_laps;
-        let first_50 = self
-            .state
-            .evals
-            .iter()
-            .find(|e| e.laps >= eval_laps)
-            .map(|e| e.version);
-        let best = self
-            .state
-            .evals
-            .iter()
-            .reduce(|best, e| if e.better_than(best) { e } else { best });
-        let not_evaluated = self.not_evaluated();
+        let evaluations = &self.state.evaluations;
         let expert = cabc_proto::stats::mean_std(&self.state.expert_lap_times);
-        let epochs = self.state.rows.len();
-        let epoch_s: Vec<f64> = self.state.rows.iter().map(|r| r.epoch_s).collect();
+        let epoch_s: Vec<f64> = self
+            .state
+            .rows
+            .iter()
+            .filter_map(|r| r.f64("epoch_s"))
+            .collect();
         json!({
             "run": self.config.run.name,
             "experiment": self.config.run.experiment,
             "lambda": self.config.algorithm.lambda,
             "rho": self.config.algorithm.rho,
             "ended": reason,
-            "epochs": epochs,
-            "early_stop_version": self.early_stop,
-            "first_version_with_eval_laps": first_50,
-            "best_eval": best,
-            "last_eval": self.state.evals.last(),
+            "epochs": self.state.rows.len(),
+            "early_stop_version": evaluations.early_stop(),
+            "first_version_with_eval_laps": evaluations.first_completing(self.config.collection.eval_laps),
+            "best_eval": evaluations.best(),
+            "last_eval": evaluations.evals.last(),
             "trunk_init": self.state.trunk_init,
             "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
             "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
@@ -561,9 +418,9 @@ impl Learner {
             "segments_stored": self.state.ledger.stored_segments,
             "duplicate_segments": self.state.ledger.duplicates,
             "segments_not_stored": self.failed_segments,
-            "refused_evals": self.refused_evals,
-            "duplicate_evals": self.duplicate_evals,
-            "versions_not_evaluated": not_evaluated,
+            "refused_evals": evaluations.refused(),
+            "duplicate_evals": evaluations.duplicates(),
+            "versions_not_evaluated": evaluations.not_evaluated(),
             "rejected_messages": rejected,
             "acl_denied": cabc_proto::telemetry::acl_denials(),
             "d_plus": self.replay.len_plus(),

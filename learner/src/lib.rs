@@ -1,7 +1,10 @@
 //! cabc-learner: the learning core of constraint-aware behaviour cloning (the paper's Algorithm 1):
 //!
 //! * [`algorithm`]: Algorithm 1 on one screen, over the actors' port (`cabc_proto::ports::Rollouts`);
-//! * [`learner`]: what the learner holds between epochs (replay, networks, ledger, evaluations, run folder);
+//! * [`learner`]: what the learner holds between epochs (replay, networks, ledger, evaluations, checkpoint);
+//! * [`record`]: an epoch's metrics as one record, each put where it is computed, and the port ([`record::Sink`]) the
+//!   learner writes through; [`outputs`]: its sinks (the run folder, TensorBoard, the progress bar, the bus);
+//! * [`evaluations`]: the evaluations, early stopping, the best version;
 //! * [`replay`]: D+, D?, D- and the dynamics-only store, filled from segments;
 //! * [`autolabel`]: safety auto-labelling, eq. (19), over a k-d tree ([`kdtree`]) and an exact hull test ([`hull`]);
 //! * [`schedule`]: when each part of Algorithm 1 runs (k_f, k_p, auto-labelling, warm-up);
@@ -21,13 +24,16 @@ pub mod bench_vision;
 pub mod checkpoint;
 pub mod compare;
 pub mod demo;
+pub mod evaluations;
 pub mod fault;
 pub mod hull;
 pub mod kdtree;
 pub mod learner;
 pub mod ledger;
+pub mod outputs;
 pub mod plots;
 pub mod provenance;
+pub mod record;
 pub mod replay;
 pub mod rundir;
 pub mod schedule;

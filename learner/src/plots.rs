@@ -1,7 +1,9 @@
 //! The run's plots (PNG, refreshed after every epoch): completed evaluation laps per policy version, imitation and
 //! safety loss per epoch, lap-time mean and spread against the expert's, and the last evaluated line on the track.
 
-use crate::rundir::{EvalSummary, LearnerState};
+use crate::evaluations::EvalSummary;
+use crate::learner::LearnerState;
+use crate::record::Record;
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
 use plotters::coord::types::RangedCoordf64;
@@ -19,13 +21,10 @@ pub fn draw_all(
     last_eval: Option<&EvalReport>,
     eval_laps: u32,
 ) -> PlotResult {
-    laps(&dir.join("laps.png"), &state.evals, eval_laps)?;
+    let evals = &state.evaluations.evals;
+    laps(&dir.join("laps.png"), evals, eval_laps)?;
     losses(&dir.join("losses.png"), state)?;
-    lap_times(
-        &dir.join("lap_times.png"),
-        &state.evals,
-        &state.expert_lap_times,
-    )?;
+    lap_times(&dir.join("lap_times.png"), evals, &state.expert_lap_times)?;
     if let Some(report) = last_eval {
         line(&dir.join("line.png"), report)?;
     }
@@ -73,7 +72,7 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
     let rows = &state.rows;
-    let max_e = rows.iter().map(|r| r.epoch).max().unwrap_or(1).max(1);
+    let max_e = rows.iter().map(Record::epoch).max().unwrap_or(1).max(1);
     let positive = |v: f64| {
         if v.is_finite() && v > 0.0 {
             Some(v)
@@ -81,9 +80,15 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
             None
         }
     };
+    // The records' metrics drawn, by name.
+    let series = [
+        ("imitation (L_clone)", BLUE, "imitation_loss"),
+        ("safety (L_safety)", RED, "safety_loss"),
+    ];
     let values: Vec<f64> = rows
         .iter()
-        .flat_map(|r| [r.imitation_loss, r.safety_loss])
+        .flat_map(|r| series.map(|(_, _, name)| r.f64(name)))
+        .flatten()
         .filter_map(positive)
         .collect();
     let lo = values
@@ -103,21 +108,14 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
         .x_desc("epoch")
         .y_desc("loss")
         .draw()?;
-    for (name, colour, get) in [
-        (
-            "imitation (L_clone)",
-            BLUE,
-            (|r| r.imitation_loss) as fn(&crate::rundir::EpochRow) -> f64,
-        ),
-        ("safety (L_safety)", RED, |r| r.safety_loss),
-    ] {
+    for (label, colour, name) in series {
         let points: Vec<(u64, f64)> = rows
             .iter()
-            .filter_map(|r| positive(get(r)).map(|v| (r.epoch, v)))
+            .filter_map(|r| positive(r.f64(name)?).map(|v| (r.epoch(), v)))
             .collect();
         chart
             .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
-            .label(name)
+            .label(label)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour));
     }
     chart.configure_series_labels().border_style(BLACK).draw()?;
@@ -252,7 +250,6 @@ fn line(path: &Path, report: &EvalReport) -> PlotResult {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rundir::EpochRow;
     use cabc_proto::messages::EndReason;
 
     #[test]
@@ -267,19 +264,19 @@ mod tests {
             steps: 60,
             line: (0..60).map(|i| [i as f32 * 0.05, 0.0]).collect(),
         };
-        let state = LearnerState {
+        let mut state = LearnerState {
             rows: (0..3)
-                .map(|e| EpochRow {
-                    epoch: e,
-                    imitation_loss: 1.0 / (e + 1) as f64,
-                    safety_loss: 0.3,
-                    ..Default::default()
+                .map(|e| {
+                    let mut r = Record::new(e);
+                    r.real("imitation_loss", 1.0 / (e + 1) as f64, 6)
+                        .real("safety_loss", 0.3, 6);
+                    r
                 })
                 .collect(),
-            evals: vec![EvalSummary::of(&report)],
             expert_lap_times: vec![4.8, 4.9],
             ..Default::default()
         };
+        state.evaluations.evals.push(EvalSummary::of(&report));
         draw_all(dir.path(), &state, Some(&report), 50).unwrap();
         for f in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
             let len = std::fs::metadata(dir.path().join(f)).unwrap().len();

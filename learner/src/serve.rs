@@ -1,7 +1,8 @@
 //! `learner run`: Algorithm 1 ([`crate::algorithm`]) with the actors over zenoh (`cabc_bus::rollouts`), or in this
 //! process (`--local`).
 //!
-//! The learner listens on `bus.listen` (the embedded router of a one-machine run), resumes from the run folder's
+//! The learner listens on `bus.listen` (the embedded router of a one-machine run; with `bus.listen = []` it is a
+//! client of the standalone router of `bus.connect`, deploy/SCALE-OUT.md §2), resumes from the run folder's
 //! checkpoint with `resume`, and at the end publishes Stop, writes the final outputs and prints the summary.
 
 use crate::algorithm::{self, Ending};
@@ -27,7 +28,7 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
     let timeout = Duration::from_secs_f64(config.bus.epoch_timeout_s);
-    let bus = Bus::join(&config.bus, Role::Listen, keys, "learner")
+    let bus = Bus::join(&config.bus, Role::of_learner(&config.bus), keys, "learner")
         .context("opening the bus (is another learner already listening on the same endpoint?)")?;
     tracing::info!(
         run = config.run.name,
@@ -38,7 +39,7 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     // Subscribe first: actors reconnecting to a restarted learner flush what they could not deliver at once.
     let expected = config.actors.count as usize;
     let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
-    let mut learner = Learner::open(config, run_dir, resume)?;
+    let mut learner = crate::outputs::learner(config, run_dir, resume)?;
     run_to_the_end(&mut learner, &mut actors)?;
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));
@@ -65,10 +66,10 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
         ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
     };
     let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
-    let mut learner = Learner::open(config, run_dir, resume)?;
+    let mut learner = crate::outputs::learner(config, run_dir, resume)?;
     tracing::info!(
         run = learner.config.run.name,
-        dir = %learner.run_dir.path().display(),
+        dir = %learner.folder().display(),
         device = ?learner.trainer.device(),
         "learner up, actors in-process"
     );

@@ -3,6 +3,7 @@
 //! model and the critic train there in fp32 and in bf16, their variables live on the GPU, and the losses are finite
 //! and fall.
 
+use cabc_learner::record::Record;
 use cabc_learner::replay::Replay;
 use cabc_learner::train::Trainer;
 use cabc_models::Network;
@@ -70,7 +71,9 @@ fn the_three_networks_train_on_cuda_in_fp32_and_bf16() {
         c.algorithm.lambda = 1.0;
         let mut t = Trainer::new(&c).unwrap();
         assert_eq!(t.device(), Device::Cuda(0));
-        let losses: Vec<_> = (0..4).map(|e| t.train_epoch(e, &r).unwrap()).collect();
+        let losses: Vec<_> = (0..4)
+            .map(|e| t.train_epoch(e, &r, &mut Record::default()).unwrap())
+            .collect();
         for l in &losses {
             assert!(
                 l.imitation.is_finite() && l.safety.is_finite(),

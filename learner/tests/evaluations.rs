@@ -2,7 +2,6 @@
 //! report of a version is ignored, the best evaluated policy is kept whatever its version (its weights are held
 //! until its report arrives, late or out of order), and the versions the run ends without are listed.
 
-use cabc_learner::learner::Learner;
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EndReason, EvalReport};
@@ -30,7 +29,7 @@ fn early_stop_counts_distinct_versions_and_the_best_policy_is_kept() {
     config.collection.eval_laps = 2;
     config.collection.early_stop_successes = 2;
     let run_dir = RunDir::create(tmp.path()).unwrap();
-    let mut learner = Learner::open(config, run_dir, false).unwrap();
+    let mut learner = cabc_learner::outputs::learner(config, run_dir, false).unwrap();
     let mut published = Vec::new();
     for version in 0..6 {
         published.push(learner.policy_update(version).weights);
@@ -46,13 +45,14 @@ fn early_stop_counts_distinct_versions_and_the_best_policy_is_kept() {
     // Version 3 again (a second evaluator, or a resumed one): ignored, not a second success.
     learner.on_eval(report(3, &[18.0, 18.0]));
     assert_eq!(
-        learner.early_stop, None,
+        learner.state.evaluations.early_stop(),
+        None,
         "one version succeeded, twice reported"
     );
     assert_eq!(std::fs::read(&best).unwrap(), published[3]);
     // A slower success: the second distinct version stops the run; the faster one stays best.
     learner.on_eval(report(2, &[21.0, 21.0]));
-    assert_eq!(learner.early_stop, Some(2));
+    assert_eq!(learner.state.evaluations.early_stop(), Some(2));
     assert_eq!(std::fs::read(&best).unwrap(), published[3]);
     let summary = learner.finish("test", false, 0).unwrap();
     assert_eq!(summary["duplicate_evals"], 1, "{summary}");

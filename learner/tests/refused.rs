@@ -1,7 +1,7 @@
 //! What the learner refuses from the bus (issue 13, item 2): segments whose images are not of the run's observation
 //! size, and evaluation reports of versions not published yet; both counted in `summary.json`.
 
-use cabc_learner::learner::Learner;
+use cabc_learner::record::Record;
 use cabc_learner::replay::{Frames, Replay, ReplayError};
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::{ObservationKind, RunConfig};
@@ -88,7 +88,7 @@ fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
     let tmp = tempfile::tempdir().unwrap();
     let config = RunConfig::load("smoke").unwrap();
     let run_dir = RunDir::create(tmp.path()).unwrap();
-    let mut learner = Learner::open(config, run_dir, false).unwrap();
+    let mut learner = cabc_learner::outputs::learner(config, run_dir, false).unwrap();
     let report = |version| EvalReport {
         actor: "eval-0".into(),
         version,
@@ -104,12 +104,16 @@ fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
     learner.on_eval(report(1));
     learner.on_eval(report(u64::MAX));
     learner.on_eval(report(0));
-    assert_eq!(learner.state.evals.len(), 1);
+    assert_eq!(learner.state.evaluations.evals.len(), 1);
     // A state run: a segment with an image is refused before the ledger sees it (its seq stays free).
+    learner.begin_epoch();
     learner.store(segment(0, vec![step(image(2, 1, 6))]));
     learner.store(segment(0, vec![step(None)]));
-    learner.partition();
-    assert_eq!(learner.begin_epoch(), (1, 1));
+    let mut record = Record::new(0);
+    learner.partition(&mut record);
+    assert_eq!(record.u64("steps_collected"), Some(1));
+    assert_eq!(record.u64("segments"), Some(1));
+    assert_eq!(record.u64("segments_not_stored"), Some(1));
     let summary = learner.finish("test", true, 0).unwrap();
     assert_eq!(summary["segments_not_stored"], 1, "{summary}");
     assert_eq!(summary["refused_evals"], 3, "{summary}");

@@ -2,6 +2,7 @@
 //! away from what the critic marks unsafe, the critic trains on D+ and D- only, training is deterministic for a seed,
 //! and the checkpoint round-trips (a resumed run continues bit for bit).
 
+use cabc_learner::record::Record;
 use cabc_learner::replay::Replay;
 use cabc_learner::train::{critic_examples, CriticTrainer, Trainer};
 use cabc_learner::{
@@ -88,7 +89,11 @@ fn dynamics_learns_a_linear_system() {
     let mut t = Trainer::with_device(&c, Device::Cpu);
     let mut last = f64::INFINITY;
     for epoch in 0..6 {
-        last = t.train_epoch(epoch, &r).unwrap().dynamics.unwrap();
+        last = t
+            .train_epoch(epoch, &r, &mut Record::default())
+            .unwrap()
+            .dynamics
+            .unwrap();
     }
     assert!(last < 2e-3, "dynamics MSE {last}");
     // Held-out states.
@@ -167,7 +172,7 @@ fn safety_term_pushes_the_policy_away_from_unsafe_states() {
         let mut t = Trainer::with_device(&c, Device::Cpu);
         let mut last = None;
         for epoch in 0..12 {
-            last = Some(t.train_epoch(epoch, &r).unwrap());
+            last = Some(t.train_epoch(epoch, &r, &mut Record::default()).unwrap());
         }
         (mean_action(&t, &r), last.unwrap())
     };
@@ -198,7 +203,9 @@ fn training_is_deterministic_for_a_seed() {
         let mut c = config(seed);
         c.algorithm.lambda = 1.0;
         let mut t = Trainer::with_device(&c, Device::Cpu);
-        let losses: Vec<_> = (0..2).map(|e| t.train_epoch(e, &r).unwrap()).collect();
+        let losses: Vec<_> = (0..2)
+            .map(|e| t.train_epoch(e, &r, &mut Record::default()).unwrap())
+            .collect();
         (
             t.policy_bytes(),
             losses
@@ -219,7 +226,7 @@ fn trainer_save_and_load_round_trip() {
     let r = replay(6);
     let c = config(6);
     let mut t = Trainer::new(&c).unwrap();
-    t.train_epoch(0, &r).unwrap();
+    t.train_epoch(0, &r, &mut Record::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("checkpoint");
     CheckpointWriter::new(&path)
@@ -258,7 +265,9 @@ fn trainer_save_and_load_round_trip() {
         unlabelled.add_segment(&segment(outcome, steps)).unwrap();
     }
     let mut fresh = Trainer::new(&c).unwrap();
-    let l = fresh.train_epoch(0, &unlabelled).unwrap();
+    let l = fresh
+        .train_epoch(0, &unlabelled, &mut Record::default())
+        .unwrap();
     assert_eq!((l.n_minus, l.critic), (0, None));
     assert!(!fresh.critic_trained());
 }
@@ -273,7 +282,7 @@ fn resume_continues_bit_for_bit() {
     c.algorithm.lambda = 1.0;
     let k = 2;
     let epoch = |t: &mut Trainer, e: u64| {
-        let mut l = t.train_epoch(e, &r).unwrap();
+        let mut l = t.train_epoch(e, &r, &mut Record::default()).unwrap();
         l.seconds = 0.0;
         l
     };
@@ -393,7 +402,7 @@ fn the_critic_trains_on_d_plus_and_the_labelled_d_minus_only() {
             .skip(r.len_plus())
             .filter(|s| s[0] >= 20.0 + l0 || (s[0] >= 10.0 + l0 + 0.75 && s[0] < 20.0));
         assert_eq!(late.count(), 0, "epoch {epoch}");
-        let l = t.train_epoch(epoch, &r).unwrap();
+        let l = t.train_epoch(epoch, &r, &mut Record::default()).unwrap();
         assert_eq!(l.n_minus, snapshot.len());
         if l.critic.is_some() {
             trained += 1;
@@ -420,7 +429,7 @@ fn aux_fits_stop_at_their_batch_cap() {
         c.training.aux_passes = 3;
         c.training.aux_max_batches = cap;
         let mut t = Trainer::with_device(&c, Device::Cpu);
-        let l = t.train_epoch(1, &r).unwrap();
+        let l = t.train_epoch(1, &r, &mut Record::default()).unwrap();
         assert!(l.critic.is_some() && l.dynamics.is_some());
         (l.dynamics_samples, l.critic_samples, l.policy_samples)
     };
@@ -463,7 +472,7 @@ fn the_every_epoch_schedule_fits_all_three_every_epoch_on_all_of_d_uncertain() {
     let batch = c.training.batch_size;
     let whole = |n: usize| n / batch * batch;
     for epoch in 0..3 {
-        let l = t.train_epoch(epoch, &r).unwrap();
+        let l = t.train_epoch(epoch, &r, &mut Record::default()).unwrap();
         let passes = if epoch == 0 { 5 } else { 1 };
         assert!(
             l.dynamics.is_some() && l.critic.is_some(),
@@ -484,7 +493,7 @@ fn the_every_epoch_schedule_fits_all_three_every_epoch_on_all_of_d_uncertain() {
     let mut ours = config(11);
     ours.algorithm.lambda = 10.0;
     let mut t = Trainer::with_device(&ours, Device::Cpu);
-    let l = t.train_epoch(0, &r).unwrap();
+    let l = t.train_epoch(0, &r, &mut Record::default()).unwrap();
     assert_eq!(l.critic_points, Some(r.len_plus() + r.len_minus()));
 }
 
@@ -502,7 +511,7 @@ fn the_reference_clip_scope_counts_the_auxiliary_gradients_and_resumes_exactly()
         c.training.clip_scope = scope;
         let mut t = Trainer::with_device(&c, Device::Cpu);
         for e in 0..epochs {
-            t.train_epoch(e, &r).unwrap();
+            t.train_epoch(e, &r, &mut Record::default()).unwrap();
         }
         (c, t)
     };
@@ -525,9 +534,9 @@ fn the_reference_clip_scope_counts_the_auxiliary_gradients_and_resumes_exactly()
         .commit()
         .unwrap();
     let mut resumed = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
-    let mut l = resumed.train_epoch(2, &r).unwrap();
+    let mut l = resumed.train_epoch(2, &r, &mut Record::default()).unwrap();
     let (_, mut straight) = run(ClipScope::PolicyCriticDynamics, 2);
-    let mut m = straight.train_epoch(2, &r).unwrap();
+    let mut m = straight.train_epoch(2, &r, &mut Record::default()).unwrap();
     (l.seconds, m.seconds) = (0.0, 0.0);
     assert_eq!(l, m);
     assert!(resumed.policy_bytes() == straight.policy_bytes());
@@ -544,7 +553,7 @@ fn the_policys_own_gamma_holds_its_learning_rate() {
         let mut t = Trainer::with_device(&c, Device::Cpu);
         (0..3)
             .map(|e| {
-                t.train_epoch(e, &r).unwrap();
+                t.train_epoch(e, &r, &mut Record::default()).unwrap();
                 t.lr_policy()
             })
             .collect::<Vec<f64>>()

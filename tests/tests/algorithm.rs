@@ -6,6 +6,7 @@ use cabc_actor::local::LocalActors;
 use cabc_expert::relabel::{Expert, Relabeller};
 use cabc_learner::algorithm::{self, Ending};
 use cabc_learner::learner::Learner;
+use cabc_learner::record::{Record, Value};
 use cabc_learner::rundir::RunDir;
 use cabc_proto::config::RunConfig;
 
@@ -23,7 +24,7 @@ fn run(config: &RunConfig, dir: &std::path::Path) -> (Learner, Ending) {
     );
     let mut actors = LocalActors::new(config, expert, true);
     let run_dir = RunDir::create(dir).unwrap();
-    let mut learner = Learner::open(config.clone(), run_dir, false).unwrap();
+    let mut learner = cabc_learner::outputs::learner(config.clone(), run_dir, false).unwrap();
     let ending = algorithm::run(&mut learner, &mut actors).unwrap();
     (learner, ending)
 }
@@ -42,60 +43,59 @@ fn three_epochs_of_algorithm_1_in_process() {
     let (learner, ending) = run(&config, tmp.path());
     assert_eq!(ending, Ending::MaxEpochs);
     let rows = &learner.state.rows;
+    // A metric of an epoch's record, by its metrics.csv name.
+    let n = |r: &Record, name: &str| r.u64(name).unwrap_or_else(|| panic!("{name} in {r}"));
     assert_eq!(
-        rows.iter().map(|r| r.epoch).collect::<Vec<_>>(),
+        rows.iter().map(Record::epoch).collect::<Vec<_>>(),
         [0, 1, 2, 3]
     );
     for r in rows {
         // Every step collected is stored once, and the epoch's budget is spent exactly (what is not published yet
         // is staged: episodes go on across epochs).
-        assert_eq!(r.steps_collected, r.steps_published, "epoch {}", r.epoch);
-        assert_eq!(
-            r.steps_taken,
-            config.epoch_steps(r.epoch),
-            "epoch {}",
-            r.epoch
-        );
-        assert!(!r.closed_by_timeout);
+        assert_eq!(n(r, "steps_collected"), n(r, "steps_published"), "{r}");
+        assert_eq!(n(r, "steps_taken"), config.epoch_steps(r.epoch()), "{r}");
+        assert_eq!(r.get("closed_by_timeout"), Some(Value::Flag(false)));
     }
-    let stored: u64 = rows.iter().map(|r| r.steps_collected).sum();
+    let stored: u64 = rows.iter().map(|r| n(r, "steps_collected")).sum();
     let last = rows.last().unwrap();
     assert_eq!(
-        (last.d_plus + last.d_uncertain + last.dynamics_only) as u64,
+        n(last, "d_plus") + n(last, "d_uncertain") + n(last, "dynamics_only"),
         stored,
         "every stored step is in D+, D? or the dynamics-only store (with the points labelled likely safe)"
     );
     // D+ fills: the PID expert drives whole laps at beta = 1.
-    assert!(rows[0].d_plus > 0, "{rows:?}");
+    assert!(n(&rows[0], "d_plus") > 0, "{rows:?}");
     // D- is made by labelling (epochs 0 and 2) and held until the next one.
     for r in rows {
-        if r.epoch % 2 == 0 {
+        let j = r.epoch() as usize;
+        if j.is_multiple_of(2) {
             assert_eq!(
-                r.d_minus, r.d_uncertain,
-                "epoch {}: right after labelling D- is D?",
-                r.epoch
+                n(r, "d_minus"),
+                n(r, "d_uncertain"),
+                "{r}: right after labelling D- is D?"
             );
         } else {
-            assert_eq!(
-                r.d_minus,
-                rows[r.epoch as usize - 1].d_minus,
-                "epoch {}: D- held",
-                r.epoch
-            );
+            assert_eq!(n(r, "d_minus"), n(&rows[j - 1], "d_minus"), "{r}: D- held");
         }
         // The critic's training set is D+ and D-, never the unlabelled part of D?.
-        if let Some(points) = r.critic_points {
-            assert_eq!(points, r.d_plus + r.d_minus, "epoch {}", r.epoch);
+        if let Some(points) = r.u64("critic_points") {
+            assert_eq!(points, n(r, "d_plus") + n(r, "d_minus"), "{r}");
         }
     }
     // The case the schedules make: the critic trained while D? held points the last labelling did not see.
     assert!(
         rows.iter()
-            .any(|r| r.critic_points.is_some() && r.d_uncertain > r.d_minus),
+            .any(|r| r.u64("critic_points").is_some() && n(r, "d_uncertain") > n(r, "d_minus")),
         "{rows:#?}"
     );
     // Each policy version was evaluated once.
-    let versions: Vec<u64> = learner.state.evals.iter().map(|e| e.version).collect();
+    let versions: Vec<u64> = learner
+        .state
+        .evaluations
+        .evals
+        .iter()
+        .map(|e| e.version)
+        .collect();
     assert_eq!(versions, [0, 1, 2, 3]);
     assert!(tmp.path().join("checkpoint").exists());
     assert!(tmp.path().join("metrics.csv").exists());

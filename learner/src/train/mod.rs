@@ -34,6 +34,7 @@ pub use dynamics::Fit;
 pub use policy::{l_clone, l_safety, PolicyFit};
 
 use crate::checkpoint::CheckpointError;
+use crate::record::Record;
 use crate::replay::Replay;
 use crate::schedule::Schedule;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
@@ -247,8 +248,13 @@ impl Trainer {
     /// One epoch of Algorithm 1's training part, as the run's [`Schedule`] says: f_hat when due (eq. (15)), p_hat
     /// when due (eq. (16), D+ against its negatives), then pi_theta (eq. (14)). The one place the schedule is
     /// applied: the algorithm's loop, the tests and the benchmark all call it. Auto-labelling is the caller's
-    /// ([`Replay::apply_labels`]), before this call.
-    pub fn train_epoch(&mut self, epoch: u64, replay: &Replay) -> Result<EpochLosses, TrainError> {
+    /// ([`Replay::apply_labels`]), before this call. The losses go into the epoch's `record` too.
+    pub fn train_epoch(
+        &mut self,
+        epoch: u64,
+        replay: &Replay,
+        record: &mut Record,
+    ) -> Result<EpochLosses, TrainError> {
         let start = Instant::now();
         limit_cpu_threads(self.device);
         let schedule = Schedule::from_config(&self.config);
@@ -262,12 +268,19 @@ impl Trainer {
         };
         if schedule.dynamics_due(epoch) {
             if let Some(fit) = self.fit_dynamics_on(&data, schedule.aux_passes(epoch)) {
+                record.real("dynamics_loss", fit.loss, 6);
                 losses.dynamics = Some(fit.loss);
                 losses.dynamics_samples = fit.samples;
             }
         }
         if schedule.critic_due(epoch) {
             if let Some(fit) = self.fit_critic_on(&data, schedule.aux_passes(epoch)) {
+                record.real("critic_loss", fit.loss, 6);
+                record.real("critic_accuracy", fit.accuracy, 6);
+                // The critic's training set, |D+| + |D-|: its positives and negatives.
+                record.count("critic_points", fit.points);
+                record.count("critic_positives", fit.positives);
+                record.count("critic_negatives", fit.points.saturating_sub(fit.positives));
                 losses.critic = Some(fit.loss);
                 losses.critic_accuracy = Some(fit.accuracy);
                 losses.critic_samples = fit.samples;
@@ -277,12 +290,15 @@ impl Trainer {
         }
         losses.lr_policy = self.lr_policy();
         let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
+        record.real("imitation_loss", fit.imitation, 6);
+        record.real("safety_loss", fit.safety, 6);
         losses.imitation = fit.imitation;
         losses.safety = fit.safety;
         losses.safety_active = fit.safety_active;
         losses.policy_samples = fit.samples;
         self.epochs_trained = self.epochs_trained.max(epoch + 1);
         losses.seconds = start.elapsed().as_secs_f64();
+        record.real("train_s", losses.seconds, 3);
         Ok(losses)
     }
 }
