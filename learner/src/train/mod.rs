@@ -289,6 +289,7 @@ impl Trainer {
             }
         }
         losses.lr_policy = self.lr_policy();
+        record.exact("lr_policy", losses.lr_policy);
         let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
         record.real("imitation_loss", fit.imitation, 6);
         record.real("safety_loss", fit.safety, 6);
