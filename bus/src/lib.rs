@@ -18,6 +18,7 @@ pub mod interrupt;
 pub mod ports;
 pub mod rollouts;
 pub mod security;
+pub mod zenohd;
 
 use cabc_proto::codec::{self, Message};
 use cabc_proto::config::BusSection;
@@ -38,6 +39,19 @@ pub enum Role {
     /// A zenoh client of `bus.connect` (actors, expert servers, tools): it waits for the router to come up and
     /// reconnects when it restarts (a learner resumed with `--resume`).
     Connect,
+}
+
+impl Role {
+    /// The learner's role: the run's router when it listens (`bus.listen`, the embedded default and §1 of
+    /// deploy/SCALE-OUT.md), a client of the standalone router(s) of `bus.connect` (zenohd, §2) when `bus.listen` is
+    /// empty, so that the router's access control alone decides who reads and writes what.
+    pub fn of_learner(bus: &BusSection) -> Role {
+        if bus.listen.is_empty() {
+            Role::Connect
+        } else {
+            Role::Listen
+        }
+    }
 }
 
 /// Errors of the bus.
@@ -86,15 +100,27 @@ pub fn zenoh_config(
     component: &str,
 ) -> Result<zenoh::Config, BusError> {
     let mut config = zenoh::Config::default();
-    let set = |config: &mut zenoh::Config, key: &'static str, value: String| {
+    for (key, value) in settings(bus, role, keys, component)? {
         config
             .insert_json5(key, &value)
             .map_err(|e| BusError::Config {
                 key,
                 value: value.clone(),
                 why: e.to_string(),
-            })
-    };
+            })?;
+    }
+    Ok(config)
+}
+
+/// The settings of [`zenoh_config`] as (`insert_json5` key, JSON value) pairs, in order (also the body of
+/// [`zenohd::config`]).
+pub fn settings(
+    bus: &BusSection,
+    role: Role,
+    keys: &Keys,
+    component: &str,
+) -> Result<Vec<(&'static str, String)>, BusError> {
+    let mut config = Vec::new();
     let endpoints = |list: &[String]| serde_json::to_string(list).expect("strings serialise");
     if role == Role::Listen {
         for e in bus.connect.iter().filter(|e| dials_itself(e, &bus.listen)) {
@@ -103,8 +129,8 @@ pub fn zenoh_config(
     }
     match role {
         Role::Listen => {
-            set(&mut config, "mode", "\"router\"".into())?;
-            set(&mut config, "listen/endpoints", endpoints(&bus.listen))?;
+            config.push(("mode", "\"router\"".into()));
+            config.push(("listen/endpoints", endpoints(&bus.listen)));
             // A standalone zenohd (runs over several machines): join it through the connect endpoints that are
             // not this process's own listeners ([`dials_itself`]).
             let routers: Vec<String> = bus
@@ -114,29 +140,39 @@ pub fn zenoh_config(
                 .cloned()
                 .collect();
             if !routers.is_empty() {
-                set(&mut config, "connect/endpoints", endpoints(&routers))?;
+                // The access control of a router applies to every transport, a router's too: a learner that is
+                // itself a router would drop what the standalone one forwards. It joins as a client (no listener).
+                if bus.security.enabled() {
+                    return Err(BusError::Config {
+                        key: "bus.listen",
+                        value: format!("{:?}", bus.listen),
+                        why: format!(
+                            "with [bus.security], a learner joining the standalone router {routers:?} is its \
+                             client: set bus.listen = [] (deploy/SCALE-OUT.md §2)"
+                        ),
+                    });
+                }
+                config.push(("connect/endpoints", endpoints(&routers)));
             }
         }
         Role::Connect => {
-            set(&mut config, "mode", "\"client\"".into())?;
-            set(&mut config, "connect/endpoints", endpoints(&bus.connect))?;
+            config.push(("mode", "\"client\"".into()));
+            config.push(("connect/endpoints", endpoints(&bus.connect)));
             // Wait for the router (it may start later) and never give up on it.
-            set(&mut config, "connect/timeout_ms", "-1".into())?;
-            set(&mut config, "connect/exit_on_failure", "false".into())?;
+            config.push(("connect/timeout_ms", "-1".into()));
+            config.push(("connect/exit_on_failure", "false".into()));
         }
     }
-    set(
-        &mut config,
+    config.push((
         "scouting/multicast/enabled",
         bus.multicast_scouting.to_string(),
-    )?;
+    ));
 
     // No payload larger than the codec takes is reassembled (zenoh's default is 1 GiB).
-    set(
-        &mut config,
+    config.push((
         "transport/link/rx/max_message_size",
         MAX_MESSAGE.to_string(),
-    )?;
+    ));
 
     if bus.security.enabled() {
         // Command-line endpoints (`--connect`) bypass the configuration's validation.
@@ -153,9 +189,7 @@ pub fn zenoh_config(
             });
         }
     }
-    for (key, value) in security::settings(&bus.security, keys, role, component)? {
-        set(&mut config, key, value)?;
-    }
+    config.extend(security::settings(&bus.security, keys, role, component)?);
     Ok(config)
 }
 

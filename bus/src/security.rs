@@ -278,19 +278,28 @@ pub fn settings(
             file(format!("{component}.key")),
         ));
     } else {
+        // A client presents its user and password; a router checks them against the dictionary and needs its
+        // own only to dial another router, which a secured run never does (`crate::settings`).
         let path = certs.join(format!("{component}.password"));
-        let password = std::fs::read_to_string(&path).map_err(|e| BusError::Config {
-            key: "bus.security.certs",
-            value: path.display().to_string(),
-            why: format!(
-                "reading this process's password: {e} (deploy/make-certs.sh --passwords makes it)"
-            ),
-        })?;
-        out.push(("transport/auth/usrpwd/user", json!(component).to_string()));
-        out.push((
-            "transport/auth/usrpwd/password",
-            json!(password.trim()).to_string(),
-        ));
+        match std::fs::read_to_string(&path) {
+            Ok(password) => {
+                out.push(("transport/auth/usrpwd/user", json!(component).to_string()));
+                out.push((
+                    "transport/auth/usrpwd/password",
+                    json!(password.trim()).to_string(),
+                ));
+            }
+            Err(_) if role == Role::Listen => {}
+            Err(e) => {
+                return Err(BusError::Config {
+                    key: "bus.security.certs",
+                    value: path.display().to_string(),
+                    why: format!(
+                        "reading this process's password: {e} (deploy/make-certs.sh --passwords makes it)"
+                    ),
+                })
+            }
+        }
         if role == Role::Listen {
             out.push((
                 "transport/auth/usrpwd/dictionary_file",

@@ -75,6 +75,26 @@ pub enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
+    /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
+    ZenohdConfig {
+        #[arg(long, short, default_value = "v-b")]
+        config: String,
+        /// Endpoints zenohd listens on (default: the protocol and port of every bus.connect endpoint, on every
+        /// address); repeatable.
+        #[arg(long)]
+        listen: Vec<String>,
+        /// A configuration value, `key=value`; repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// The messages a standalone zenohd's access control dropped, from its log (written with
+    /// `RUST_LOG=info,zenoh::net::routing::interceptor::access_control=trace`), as JSON by "<subject>: <action> on
+    /// <key>" (deploy/SCALE-OUT.md §2).
+    AclDenials {
+        /// zenohd's log file.
+        log: PathBuf,
+    },
     /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
     /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
     Compare(compare::CompareOptions),

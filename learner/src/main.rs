@@ -74,6 +74,29 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
+        Command::ZenohdConfig {
+            config,
+            listen,
+            set,
+        } => {
+            let config = load(&config, false)?
+                .with_overrides(&set)
+                .context("applying --set")?;
+            let listen = match listen.is_empty() {
+                true => cabc_bus::zenohd::default_listen(&config.bus.connect),
+                false => listen,
+            };
+            let keys = cabc_proto::keys::Keys::new(&config.run.name)?;
+            print!("{}", cabc_bus::zenohd::config(&config.bus, &keys, &listen)?);
+            Ok(())
+        }
+        Command::AclDenials { log } => {
+            let text = std::fs::read_to_string(&log)
+                .with_context(|| format!("reading {}", log.display()))?;
+            let denials = cabc_proto::telemetry::acl_denials_in_log(&text);
+            println!("{}", serde_json::to_string_pretty(&denials)?);
+            Ok(())
+        }
         Command::Compare(options) => {
             print!("{}", compare::run(&options)?);
             Ok(())

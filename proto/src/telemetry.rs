@@ -121,46 +121,40 @@ pub fn log_run(config: &crate::config::RunConfig, component: &str) {
 /// unauthorized to ...", one line per message.
 const ACL_TARGET: &str = "zenoh::net::routing::interceptor::access_control";
 
-/// Messages the access control of this process's router dropped, by "<subject>: <action> on <key>".
+/// Messages an access control dropped, by "<subject>: <action> on <key>", read off zenoh's decision lines
+/// ([`ACL_TARGET`]): those of this process's router (the tracing layer) or of a zenohd's log
+/// ([`acl_denials_in_log`]).
 #[derive(Default)]
-struct Denials {
+struct AclLedger {
     by: BTreeMap<String, u64>,
     /// The subject (certificate or user name) of each zenoh id seen in a fresh decision.
     subjects: BTreeMap<String, String>,
+    /// Each thread's place in its sequence of decision lines (zenoh decides a message on one thread).
+    threads: BTreeMap<String, ThreadState>,
 }
 
-impl Denials {
-    fn count(&mut self, who: &str, what: &str) {
-        *self.by.entry(format!("{who}: {what}")).or_insert(0) += 1;
-    }
-}
-
-static DENIALS: OnceLock<Mutex<Denials>> = OnceLock::new();
-
-fn denials() -> &'static Mutex<Denials> {
-    DENIALS.get_or_init(Default::default)
-}
-
-/// This thread's last fresh denial (zid, what, subject): a permission for the same right after it undoes it.
+/// A thread's last fresh denial (zid, what, subject): a permission for the same right after it undoes it.
 type Pending = Option<(String, String, String)>;
 
 /// While zenoh fills its permission cache for a key (a line "caching permissions for ..."), it decides every kind
 /// of message for it, the last being a liveliness subscriber: these decisions are no message, and are not counted.
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy, Default, PartialEq, Eq)]
 enum Caching {
+    #[default]
     No,
     Yes,
     /// At the last of the cache's decisions.
     Last,
 }
 
+#[derive(Default)]
+struct ThreadState {
+    pending: Pending,
+    caching: Caching,
+}
+
 /// The action of the cache's last decision.
 const CACHE_LAST: &str = "Declare Liveliness Subscriber (";
-
-thread_local! {
-    static PENDING: std::cell::RefCell<Pending> = const { std::cell::RefCell::new(None) };
-    static CACHING: std::cell::Cell<Caching> = const { std::cell::Cell::new(Caching::No) };
-}
 
 /// The client's name in a subject's description: its certificate's common name or its user name (zenoh prints
 /// `Interface(lo)+CertCommonName(actor/actor-0)+Transport(Tls)+...`), else the description.
@@ -173,6 +167,79 @@ fn subject_name(subject: &str) -> String {
         }
     }
     subject.to_string()
+}
+
+impl AclLedger {
+    fn count(&mut self, who: &str, what: &str) {
+        *self.by.entry(format!("{who}: {what}")).or_insert(0) += 1;
+    }
+
+    /// One decision line of `thread`.
+    fn line(&mut self, thread: &str, text: &str) {
+        if text.contains("caching permissions for") {
+            self.threads.entry(thread.to_string()).or_default().caching = Caching::Yes;
+            return;
+        }
+        let (who, what, allowed) = match text.split_once(" is unauthorized to ") {
+            Some((who, what)) => (who, what, false),
+            None => match text.split_once(" is authorized to ") {
+                Some((who, what)) => (who, what, true),
+                None => return,
+            },
+        };
+        let (zid, subject) = match who.strip_prefix("Using cached result: ") {
+            Some(zid) => {
+                let subject = self.subjects.get(zid).cloned();
+                (zid, subject.unwrap_or_else(|| zid.to_string()))
+            }
+            None => match who.split_once(" on ") {
+                Some((zid, subject)) => {
+                    let subject = subject_name(subject);
+                    self.subjects.insert(zid.to_string(), subject.clone());
+                    (zid, subject)
+                }
+                None => return,
+            },
+        };
+        let cached = who.starts_with("Using cached result: ");
+        let state = self.threads.entry(thread.to_string()).or_default();
+        state.caching = match (state.caching, cached || !what.starts_with(CACHE_LAST)) {
+            (Caching::No, _) => Caching::No,
+            (_, false) => Caching::Last,
+            (Caching::Yes, true) => Caching::Yes,
+            (Caching::Last, true) => Caching::No,
+        };
+        let caching = state.caching != Caching::No;
+        let pending = state.pending.take();
+        if caching {
+            return;
+        }
+        if allowed {
+            // A client matched by several subjects: a first subject's denial, then another's permission, is one
+            // allowed message.
+            if let Some((_, w, s)) = pending.filter(|(z, w, _)| !cached && z == zid && w == what) {
+                let key = format!("{s}: {w}");
+                if let Some(n) = self.by.get_mut(&key) {
+                    *n -= 1;
+                    if *n == 0 {
+                        self.by.remove(&key);
+                    }
+                }
+            }
+            return;
+        }
+        self.count(&subject, what);
+        if !cached {
+            let state = self.threads.entry(thread.to_string()).or_default();
+            state.pending = Some((zid.into(), what.into(), subject));
+        }
+    }
+}
+
+static LEDGER: OnceLock<Mutex<AclLedger>> = OnceLock::new();
+
+fn ledger() -> &'static Mutex<AclLedger> {
+    LEDGER.get_or_init(Default::default)
 }
 
 /// The layer that counts zenoh's access-control denials (only that target's events reach it).
@@ -188,87 +255,63 @@ impl Visit for Message {
     }
 }
 
-impl AclDenials {
-    /// One decision line ([`ACL_TARGET`]).
-    fn line(text: &str) {
-        if text.contains("caching permissions for") {
-            CACHING.with(|c| c.set(Caching::Yes));
-            return;
-        }
-        let (who, what, allowed) = match text.split_once(" is unauthorized to ") {
-            Some((who, what)) => (who, what, false),
-            None => match text.split_once(" is authorized to ") {
-                Some((who, what)) => (who, what, true),
-                None => return,
-            },
-        };
-        let mut d = denials().lock().unwrap_or_else(|e| e.into_inner());
-        let (zid, subject) = match who.strip_prefix("Using cached result: ") {
-            Some(zid) => {
-                let subject = d.subjects.get(zid).cloned();
-                (zid, subject.unwrap_or_else(|| zid.to_string()))
-            }
-            None => match who.split_once(" on ") {
-                Some((zid, subject)) => {
-                    let subject = subject_name(subject);
-                    d.subjects.insert(zid.to_string(), subject.clone());
-                    (zid, subject)
-                }
-                None => return,
-            },
-        };
-        let cached = who.starts_with("Using cached result: ");
-        let caching = CACHING.with(|c| {
-            let next = match (c.get(), cached || !what.starts_with(CACHE_LAST)) {
-                (Caching::No, _) => Caching::No,
-                (_, false) => Caching::Last,
-                (Caching::Yes, true) => Caching::Yes,
-                (Caching::Last, true) => Caching::No,
-            };
-            c.set(next);
-            next != Caching::No
-        });
-        let pending = PENDING.with(|p| p.borrow_mut().take());
-        if caching {
-            return;
-        }
-        if allowed {
-            // A client matched by several subjects: a first subject's denial, then another's permission, is one
-            // allowed message.
-            if let Some((_, w, s)) = pending.filter(|(z, w, _)| !cached && z == zid && w == what) {
-                let key = format!("{s}: {w}");
-                if let Some(n) = d.by.get_mut(&key) {
-                    *n -= 1;
-                    if *n == 0 {
-                        d.by.remove(&key);
-                    }
-                }
-            }
-            return;
-        }
-        d.count(&subject, what);
-        if !cached {
-            PENDING.with(|p| *p.borrow_mut() = Some((zid.into(), what.into(), subject)));
-        }
-    }
-}
-
 impl<S: Subscriber> Layer<S> for AclDenials {
     fn on_event(&self, event: &Event<'_>, _: Context<'_, S>) {
         let mut m = Message(String::new());
         event.record(&mut m);
-        AclDenials::line(&m.0);
+        let thread = format!("{:?}", std::thread::current().id());
+        let mut ledger = ledger().lock().unwrap_or_else(|e| e.into_inner());
+        ledger.line(&thread, &m.0);
     }
 }
 
 /// The messages this process's access control dropped so far, by "<subject>: <action> on <key>" (empty where the
 /// process runs no access control: every process but a secured learner).
 pub fn acl_denials() -> BTreeMap<String, u64> {
-    denials()
+    ledger()
         .lock()
         .unwrap_or_else(|e| e.into_inner())
         .by
         .clone()
+}
+
+/// The messages dropped according to a zenohd's log written with
+/// `RUST_LOG=...,zenoh::net::routing::interceptor::access_control=trace` (colours and all), by
+/// "<subject>: <action> on <key>": the decisions read as [`acl_denials`] reads this process's, each thread's lines
+/// in their order (zenohd prints `ThreadId(n)` on every line).
+pub fn acl_denials_in_log(text: &str) -> BTreeMap<String, u64> {
+    let marker = format!("{ACL_TARGET}: ");
+    let mut ledger = AclLedger::default();
+    for raw in text.lines() {
+        let line = strip_ansi(raw);
+        let Some((head, message)) = line.split_once(&marker) else {
+            continue;
+        };
+        let thread = head
+            .split_whitespace()
+            .find(|w| w.starts_with("ThreadId("))
+            .unwrap_or_default();
+        ledger.line(thread, message);
+    }
+    ledger.by
+}
+
+/// `text` without its terminal colour codes (`ESC [ ... m`).
+fn strip_ansi(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut chars = text.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for c in chars.by_ref() {
+                if c.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -294,10 +337,11 @@ mod tests {
             "Using cached result: z1 is unauthorized to Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*".into(),
             "z2 on Interface(lo)+Username(observer)+z2 is authorized to Put (ingress) on cabc/r/metrics/observer".into(),
         ];
+        let mut ledger = AclLedger::default();
         for line in &lines {
-            AclDenials::line(line);
+            ledger.line("t", line);
         }
-        let d = acl_denials();
+        let d = ledger.by;
         assert_eq!(
             d.get("actor/actor-0: Put (ingress) on cabc/r/policy"),
             Some(&2),
@@ -306,5 +350,33 @@ mod tests {
         let sub = "actor/actor-0: Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*";
         assert_eq!(d.get(sub), Some(&1), "{d:?}");
         assert_eq!(d.values().sum::<u64>(), 3, "{d:?}");
+    }
+
+    /// A zenohd's log: coloured, two threads' decisions interleaved (a cache being filled on one while the other
+    /// drops a put), and other targets' lines.
+    #[test]
+    fn a_zenohd_log_is_read_thread_by_thread() {
+        let line = |thread: &str, message: &str| {
+            format!(
+                "\u{1b}[2m2026-11-24T06:56:42.676980Z\u{1b}[0m \u{1b}[35mTRACE\u{1b}[0m rx-1 {thread} \u{1b}[2m{ACL_TARGET}\u{1b}[0m\u{1b}[2m:\u{1b}[0m {message}"
+            )
+        };
+        let a0 = "z1 on Interface(cv1s)+CertCommonName(actor/actor-0)+Transport(Tls)+z1";
+        let log = [
+            line("ThreadId(09)", "ACL (ingress): caching permissions for `cabc/r/policy` ..."),
+            line("ThreadId(11)", &format!("{a0} is unauthorized to Put (ingress) on cabc/r/traj/actor-1")),
+            line("ThreadId(09)", &format!("{a0} is unauthorized to Put (ingress) on cabc/r/policy")),
+            line("ThreadId(09)", &format!("{a0} is unauthorized to Declare Liveliness Subscriber (ingress) on cabc/r/policy")),
+            "2026-11-24T06:56:42Z  INFO main ThreadId(01) zenohd: zenohd v1.10.2".into(),
+            line("ThreadId(11)", "Using cached result: z1 is unauthorized to Put (ingress) on cabc/r/traj/actor-1"),
+        ]
+        .join("\n");
+        let d = acl_denials_in_log(&log);
+        let mut expected = BTreeMap::new();
+        expected.insert(
+            "actor/actor-0: Put (ingress) on cabc/r/traj/actor-1".to_string(),
+            2,
+        );
+        assert_eq!(d, expected);
     }
 }

@@ -97,7 +97,8 @@ impl Cluster {
     }
 
     /// [`Cluster::new`] with the learner listening on `listen` and the others connecting to `connect` (for
-    /// instance `tls/...` endpoints with a `[bus.security]` section in `extra`).
+    /// instance `tls/...` endpoints with a `[bus.security]` section in `extra`); an empty `listen` makes the
+    /// learner a client of a standalone router at `connect` (`bus.listen = []`).
     pub fn on(
         dir: &Path,
         name: &str,
@@ -106,6 +107,10 @@ impl Cluster {
         connect: &str,
         extra: &str,
     ) -> Result<Self> {
+        let listen = match listen {
+            "" => String::new(),
+            e => format!("\"{e}\""),
+        };
         let text = format!(
             "[run]\nname = \"{name}\"\nexperiment = \"smoke\"\nseed = 7\nmax_epochs = {max_epochs}\nruns_dir = \"{}\"\n\n\
              [expert]\nkind = \"pid\"\n\n\
@@ -114,7 +119,7 @@ impl Cluster {
              [replay]\ncapacity = 20000\n\n\
              [networks]\npolicy = {{ layers = 2, width = 32 }}\ndynamics = {{ layers = 2, width = 32 }}\ncritic = {{ layers = 2, width = 32 }}\n\n\
              [training]\ninitial_passes = 2\ndynamics_every = 1\ncritic_every = 2\naux_passes = 2\ncritic_min_uncertain = 4\ndevice = \"cpu\"\n\n\
-             [bus]\nlisten = [\"{listen}\"]\nconnect = [\"{connect}\"]\nepoch_timeout_s = 30.0\n\n{extra}",
+             [bus]\nlisten = [{listen}]\nconnect = [\"{connect}\"]\nepoch_timeout_s = 30.0\n\n{extra}",
             dir.display()
         );
         std::fs::create_dir_all(dir)?;
@@ -141,24 +146,52 @@ impl Cluster {
         binary: &str,
         args: &[&str],
     ) -> Result<()> {
+        self.spawn(label, wrapper, &bin(binary)?, args, "info", false)
+    }
+
+    /// [`Cluster::start_in`] for a program outside the workspace's binaries (a `zenohd`), with its `RUST_LOG`;
+    /// its stdout goes to the log too.
+    pub fn start_program(
+        &mut self,
+        label: &str,
+        wrapper: &[&str],
+        program: &Path,
+        args: &[&str],
+        rust_log: &str,
+    ) -> Result<()> {
+        self.spawn(label, wrapper, program, args, rust_log, true)
+    }
+
+    fn spawn(
+        &mut self,
+        label: &str,
+        wrapper: &[&str],
+        program: &Path,
+        args: &[&str],
+        rust_log: &str,
+        stdout_to_log: bool,
+    ) -> Result<()> {
         std::fs::create_dir_all(&self.dir)?;
         let log = std::fs::File::create(self.dir.join(format!("{label}.log")))?;
-        let program = bin(binary)?;
+        let stdout = match stdout_to_log {
+            true => Stdio::from(log.try_clone()?),
+            false => Stdio::piped(),
+        };
         let mut command = match wrapper.split_first() {
             Some((first, rest)) => {
                 let mut c = Command::new(first);
-                c.args(rest).arg(&program);
+                c.args(rest).arg(program);
                 c
             }
-            None => Command::new(&program),
+            None => Command::new(program),
         };
         let child = command
             .args(args)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::piped())
+            .env("RUST_LOG", rust_log)
+            .stdout(stdout)
             .stderr(log)
             .spawn()
-            .with_context(|| format!("starting {binary}"))?;
+            .with_context(|| format!("starting {}", program.display()))?;
         self.children.push((label.to_string(), child));
         Ok(())
     }

@@ -439,6 +439,138 @@ fn actors_in_another_network_namespace_join_over_tls() {
     drop(pair);
 }
 
+/// The zenohd of deploy/SCALE-OUT.md §2: `CABC_ZENOHD`, else `.deps/zenohd/bin/zenohd` (deploy/setup.sh
+/// --zenohd builds it); `Err` says why there is none.
+fn zenohd() -> Result<std::path::PathBuf, String> {
+    let path = match std::env::var_os("CABC_ZENOHD") {
+        Some(path) => std::path::PathBuf::from(path),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../.deps/zenohd/bin/zenohd"),
+    };
+    match path.exists() {
+        true => Ok(path),
+        false => Err(format!(
+            "no zenohd at {} (deploy/setup.sh --zenohd builds zenohd 1.10.2 there, with cabc's TLS patch; \
+             CABC_ZENOHD names another)",
+            path.display()
+        )),
+    }
+}
+
+/// deploy/SCALE-OUT.md §2 as a user follows it, in two network namespaces: a standalone zenohd configured by
+/// `learner zenohd-config` (mutual TLS, the run's access control) in the first with the learner (its client,
+/// `bus.listen = []`) and the expert server, the actors in the second. A rogue process with actor-0's certificate
+/// poses as actor-1: zenohd drops its segments and its liveliness token, and logs the drops.
+#[test]
+fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let zenohd = match zenohd() {
+        Ok(path) => path,
+        Err(why) => {
+            println!("skipped: {why}");
+            return;
+        }
+    };
+    let pair = match NetnsPair::new() {
+        Ok(pair) => pair,
+        Err(e) => {
+            println!("skipped: network namespaces are not available here ({e:#})");
+            return;
+        }
+    };
+    let tmp = cabc_tests::test_dir();
+    let certs = tmp.path().join("certs");
+    make_certs(&certs, &["--host", SERVER_IP, "--actors", "2", "--zenohd"]).unwrap();
+    let endpoint = format!("tls/{SERVER_IP}:{}", free_port());
+    let mut cluster = mtls_cluster(tmp.path(), "routed", 4, "", &endpoint);
+    // §2: zenohd's configuration from the run configuration.
+    let generated = std::process::Command::new(cabc_tests::bin("learner").unwrap())
+        .args(["zenohd-config", "--config"])
+        .arg(&cluster.config)
+        .output()
+        .unwrap();
+    assert!(
+        generated.status.success(),
+        "{}",
+        String::from_utf8_lossy(&generated.stderr)
+    );
+    let zenohd_config = tmp.path().join("zenohd.json5");
+    std::fs::write(&zenohd_config, &generated.stdout).unwrap();
+    // The rogue: actor-1's name, actor-0's certificate.
+    let rogue_certs = tmp.path().join("rogue-certs");
+    std::fs::create_dir_all(rogue_certs.join("actor")).unwrap();
+    std::fs::copy(certs.join("ca.pem"), rogue_certs.join("ca.pem")).unwrap();
+    for ext in ["pem", "key"] {
+        let to = rogue_certs.join(format!("actor/actor-1.{ext}"));
+        std::fs::copy(certs.join(format!("actor/actor-0.{ext}")), to).unwrap();
+    }
+    let text = std::fs::read_to_string(&cluster.config).unwrap();
+    let rogue_config = tmp.path().join("rogue.toml");
+    let rogue_text = text.replace(
+        &format!("certs = \"{}\"", certs.display()),
+        &format!("certs = \"{}\"", rogue_certs.display()),
+    );
+    assert_ne!(
+        rogue_text, text,
+        "the rogue's configuration names its certificates"
+    );
+    std::fs::write(&rogue_config, rogue_text).unwrap();
+
+    let (servers, actors) = (
+        NetnsPair::exec(&pair.servers),
+        NetnsPair::exec(&pair.actors),
+    );
+    let acl_trace = "info,zenoh::net::routing::interceptor::access_control=trace";
+    let zenohd_args = ["-c", zenohd_config.to_str().unwrap()];
+    cluster
+        .start_program("zenohd", &servers, &zenohd, &zenohd_args, acl_trace)
+        .unwrap();
+    cluster.start_all_in(2, false, &servers, &actors).unwrap();
+    let rogue = [
+        "--config",
+        rogue_config.to_str().unwrap(),
+        "--id",
+        "actor-1",
+    ];
+    cluster.start_in("rogue", &actors, "actor", &rogue).unwrap();
+    let summary = check_run(&mut cluster, 4);
+    println!(
+        "routed run: zenohd, learner and expert server in {}, actors in {}, over {endpoint}: {} epochs",
+        pair.servers, pair.actors, summary["epochs"]
+    );
+    // The learner, a client now, sees no drops of its own; zenohd logged the rogue's.
+    assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
+    let learner_log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
+    let errors: Vec<&str> = learner_log
+        .lines()
+        .filter(|l| l.contains("ERROR"))
+        .collect();
+    assert!(errors.is_empty(), "the learner's log: {errors:#?}");
+    let _ = cluster.kill("rogue");
+    let _ = cluster.kill("zenohd");
+    let log = std::fs::read_to_string(cluster.dir.join("zenohd.log")).unwrap();
+    // As an operator reads them (`learner acl-denials zenohd.log` prints the same).
+    let denied = cabc_proto::telemetry::acl_denials_in_log(&log);
+    println!("zenohd dropped: {denied:#?}");
+    // The rogue's segments were dropped, and nothing of the honest processes: every drop names actor-1's keys
+    // under actor-0's certificate.
+    assert!(
+        denied
+            .keys()
+            .any(|k| k.starts_with("actor/actor-0: Put (ingress)") && k.ends_with("/traj/actor-1")),
+        "zenohd did not drop the rogue's segments: {denied:?}\n{}",
+        cluster.log_tail("zenohd")
+    );
+    let honest: Vec<&String> = denied
+        .keys()
+        .filter(|k| !(k.starts_with("actor/actor-0: ") && k.contains("actor-1")))
+        .collect();
+    assert!(honest.is_empty(), "honest messages dropped: {honest:?}");
+    let errors: Vec<&str> = log.lines().filter(|l| l.contains("ERROR")).collect();
+    assert!(errors.is_empty(), "zenohd's log: {errors:#?}");
+    drop(cluster);
+    drop(pair);
+}
+
 /// `mode = "password"`: TLS that authenticates the learner, a password per process; the run completes, and a
 /// wrong password or an unknown user gets no session.
 ///

@@ -99,12 +99,10 @@ impl RunConfig {
                 "standard deviations must be finite and >= 0",
             );
         }
-        if self.bus.listen.is_empty() || self.bus.connect.is_empty() {
-            return invalid(
-                "bus.listen / bus.connect",
-                "[]".into(),
-                "need at least one endpoint",
-            );
+        // An empty `bus.listen` makes the learner a client of the routers in `bus.connect` (a standalone zenohd,
+        // deploy/SCALE-OUT.md §2); the others always need somewhere to connect to.
+        if self.bus.connect.is_empty() {
+            return invalid("bus.connect", "[]".into(), "need at least one endpoint");
         }
         let (listen, connect) = (&self.bus.listen, &self.bus.connect);
         if let Err((key, value, why)) = self.bus.security.check(listen, connect) {
