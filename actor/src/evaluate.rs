@@ -16,7 +16,19 @@ pub fn evaluate(
     actor: &str,
     version: u64,
     config: &RunConfig,
+    act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
+) -> anyhow::Result<EvalReport> {
+    evaluate_watched(actor, version, config, act, |_| {})
+}
+
+/// [`evaluate`], showing `watch` the environment before each step: the car's full state and the sun, which a video
+/// of the evaluation draws (`learner video`).
+pub fn evaluate_watched(
+    actor: &str,
+    version: u64,
+    config: &RunConfig,
     mut act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
+    mut watch: impl FnMut(&Env),
 ) -> anyhow::Result<EvalReport> {
     let laps_wanted = config.collection.eval_laps;
     // One lap more than wanted so that the env's max-laps truncation never cuts the last wanted lap.
@@ -37,6 +49,7 @@ pub fn evaluate(
     let max_steps = STEPS_PER_LAP_LIMIT * laps_wanted.max(1) as u64;
     let mut steps = 0u64;
     let end_reason = loop {
+        watch(&env);
         let obs = env.observation();
         line.push([obs.pose[0] as f32, obs.pose[1] as f32]);
         let state = [sensor.state(obs.state.map(|v| v as f32))];

@@ -58,11 +58,21 @@ pub enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
     },
-    /// Print one value of a configuration (dotted key, e.g. actors.count).
+    /// Print one value of a configuration (dotted key, e.g. actors.count); or, with --gif, write a video of a run's
+    /// policy: `learner show RUN --gif [VERSION]`.
     Show {
         #[arg(long, short, default_value = "v-b")]
         config: String,
+        /// The configuration's key; with --gif, the run folder.
         key: String,
+        /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
+        /// evaluated anew) or a version number (its evaluation's plots/eval-v<N>.gif, or the best version's weights
+        /// evaluated anew; no other version's weights are kept).
+        #[arg(long, value_name = "VERSION", num_args = 0..=1, default_missing_value = "best")]
+        gif: Option<cabc_learner::show::Which>,
+        /// Where to write the GIF (default: in the run folder).
+        #[arg(long, requires = "gif")]
+        out: Option<PathBuf>,
     },
     /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
     Video {

@@ -11,9 +11,11 @@
 //! * [`train`]: the dynamics model (eq. (15)), the critic (eq. (16)) and the policy with L_CA = L_clone + L_safety
 //!   (eq. (14));
 //! * [`checkpoint`]: the one checkpoint writer (atomic) and reader;
+//! * [`export`]: a run's data as a LeRobot v3 dataset (parquet), for Python;
 //! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
 //! * [`ledger`]: exactly-once storage of segments; [`rundir`]: the run folder; [`plots`]: the run's plots;
-//!   `serve` (feature `server`): `learner run`, Algorithm 1 with the actors over zenoh.
+//!   `serve` (feature `server`): `learner run`, Algorithm 1 with the actors over zenoh; `show` (feature `server`): a
+//!   run's evaluation videos on request; [`video`]: the GIFs.
 //!
 //! Apart from `serve` (behind the `server` feature), the library knows nothing of the bus.
 
@@ -25,6 +27,7 @@ pub mod checkpoint;
 pub mod compare;
 pub mod demo;
 pub mod evaluations;
+pub mod export;
 pub mod fault;
 pub mod hull;
 pub mod kdtree;
@@ -40,6 +43,8 @@ pub mod schedule;
 pub mod seeds;
 #[cfg(feature = "server")]
 pub mod serve;
+#[cfg(feature = "server")]
+pub mod show;
 pub mod tensorboard;
 pub mod train;
 pub mod video;

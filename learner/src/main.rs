@@ -62,11 +62,29 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Video { run, final_, out } => {
-            let report = cabc_learner::serve::video(&run, final_, out)?;
+            let report = cabc_learner::show::video(&run, final_, out)?;
             println!("{} laps, ended by {}", report.laps, report.end_reason);
             Ok(())
         }
-        Command::Show { config, key } => {
+        Command::Show {
+            key: run,
+            gif: Some(which),
+            out,
+            ..
+        } => {
+            let shown = cabc_learner::show::gif(std::path::Path::new(&run), which, out)?;
+            if let Some(report) = shown.evaluated {
+                println!("{} laps, ended by {}", report.laps, report.end_reason);
+            }
+            println!("{}", shown.gif.display());
+            Ok(())
+        }
+        Command::Show {
+            config,
+            key,
+            gif: None,
+            ..
+        } => {
             let value = load(&config, false)?.show(&key);
             println!(
                 "{}",

@@ -8,6 +8,7 @@ use crate::plots;
 use crate::record::{Record, Sink, SinkError, Sinks, Taken};
 use crate::rundir::RunDir;
 use crate::tensorboard::EventWriter;
+use crate::video::{eval_gif, CameraView};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
 use cabc_proto::ports::Rollouts;
@@ -19,7 +20,7 @@ use serde_json::json;
 pub fn learner(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Learner, LearnerError> {
     let folder = run_dir.path().to_path_buf();
     let sinks = Sinks(vec![
-        Box::new(RunFolder::new(run_dir.clone(), config.collection.eval_laps)),
+        Box::new(RunFolder::new(run_dir.clone(), &config)),
         Box::new(Tensorboard::new(&run_dir)),
         Box::new(Progress::new(config.run.max_epochs)),
     ]);
@@ -39,11 +40,17 @@ pub struct RunFolder {
     run_dir: RunDir,
     /// `collection.eval_laps`, drawn on the laps plot.
     eval_laps: u32,
+    /// A camera run's camera, drawn beside the track in the videos.
+    camera: Option<CameraView>,
 }
 
 impl RunFolder {
-    pub fn new(run_dir: RunDir, eval_laps: u32) -> Self {
-        RunFolder { run_dir, eval_laps }
+    pub fn new(run_dir: RunDir, config: &RunConfig) -> Self {
+        RunFolder {
+            run_dir,
+            eval_laps: config.collection.eval_laps,
+            camera: CameraView::of(&config.observation),
+        }
     }
 
     fn tables_and_plots(&self, run: &LearnerState) -> Result<(), SinkError> {
@@ -59,12 +66,12 @@ impl RunFolder {
 
     /// A video of an evaluation that completed the laps (`plots/eval-v<version>.gif`), also `best-policy.gif` when
     /// it is the best so far; a failure is logged.
-    fn video(&self, report: &EvalReport, best: bool) {
+    fn video(&mut self, report: &EvalReport, best: bool) {
         let plots = self.run_dir.plots();
         let path = plots.join(format!("eval-v{}.gif", report.version));
         let written = std::fs::create_dir_all(&plots)
             .map_err(|e| e.to_string())
-            .and_then(|_| crate::video::eval_gif(&path, report).map_err(|e| e.to_string()))
+            .and_then(|_| eval_gif(&path, report, self.camera.as_mut()).map_err(|e| e.to_string()))
             .and_then(|_| match best {
                 true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
                     .map(|_| ())

@@ -98,29 +98,3 @@ fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<()
     println!("{}", serde_json::to_string_pretty(&summary)?);
     Ok(())
 }
-
-/// `learner video RUN`: evaluates a run's saved policy (`best-policy.safetensors`, or `final-policy.safetensors`
-/// with `final_`) from the fixed spawn, as the evaluator does, and writes the video of that evaluation to `out`
-/// (default `RUN/<which>-policy.gif`). Returns the evaluation.
-pub fn video(
-    run: &std::path::Path,
-    final_: bool,
-    out: Option<std::path::PathBuf>,
-) -> Result<cabc_proto::messages::EvalReport> {
-    let which = if final_ { "final" } else { "best" };
-    let config_path = run.join("config.toml");
-    let config = RunConfig::load(&config_path.display().to_string())
-        .with_context(|| format!("{} is not a run folder", run.display()))?;
-    let weights_path = run.join(format!("{which}-policy.safetensors"));
-    let bytes = std::fs::read(&weights_path)
-        .with_context(|| format!("reading {}", weights_path.display()))?;
-    let policy = cabc_models::Policy::from_bytes(&bytes, tch::Device::Cpu)
-        .with_context(|| format!("{}", weights_path.display()))?;
-    let report = cabc_actor::evaluate::evaluate("video", 0, &config, |input| {
-        Ok(cabc_actor::run::act(&policy, input)?)
-    })?;
-    let out = out.unwrap_or_else(|| run.join(format!("{which}-policy.gif")));
-    crate::video::eval_gif(&out, &report).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    tracing::info!(laps = report.laps, end = %report.end_reason, "wrote {}", out.display());
-    Ok(report)
-}

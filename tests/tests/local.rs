@@ -208,4 +208,28 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
     assert!(status.success(), "{}", local.log_tail("video"));
     assert!(said.contains("laps, ended by"), "{said}");
     assert!(std::fs::read(&out).unwrap().starts_with(b"GIF89a"));
+    // `learner show RUN --gif VERSION` names the evaluation's video; `learner show --config X key` still prints a
+    // configuration value.
+    let version = first.to_string();
+    local
+        .start("show", "learner", &["show", &run_s, "--gif", &version])
+        .unwrap();
+    let (status, said) = local.wait("show", Duration::from_secs(60)).unwrap();
+    assert!(status.success(), "{}", local.log_tail("show"));
+    assert!(
+        said.trim().ends_with(&format!("eval-v{first}.gif")),
+        "{said}"
+    );
+    local
+        .start(
+            "key",
+            "learner",
+            &["show", "--config", "smoke", "actors.count"],
+        )
+        .unwrap();
+    let (status, said) = local.wait("key", Duration::from_secs(60)).unwrap();
+    assert!(
+        status.success() && said.trim().parse::<u32>().is_ok(),
+        "{said}"
+    );
 }
