@@ -230,3 +230,73 @@ impl Evaluations {
         (0..published).filter(|v| !evaluated.contains(v)).collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::learner::LearnerState;
+    use crate::record::SinkError;
+    use cabc_proto::messages::EndReason;
+
+    /// A sink that keeps what it is told of each evaluation: (version, best, completed, weights).
+    #[derive(Default)]
+    struct Told(Vec<(u64, bool, bool, Option<Vec<u8>>)>);
+
+    impl Sink for Told {
+        fn write(&mut self, _: &Record, _: &LearnerState) -> Result<(), SinkError> {
+            Ok(())
+        }
+        fn evaluation(&mut self, t: &Taken<'_>) {
+            let weights = t.weights.map(<[u8]>::to_vec);
+            self.0
+                .push((t.report.version, t.best, t.completed, weights));
+        }
+    }
+
+    fn report(version: u64, laps: u32) -> EvalReport {
+        EvalReport {
+            actor: "eval-0".into(),
+            version,
+            laps,
+            lap_times: vec![20.0; laps as usize],
+            end_reason: EndReason::OutOfTrack,
+            steps: 10,
+            line: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn refused_ignored_best_and_early_stop_go_through_the_port() {
+        let rules = CollectionSection {
+            eval_laps: 2,
+            early_stop_successes: 2,
+            ..CollectionSection::default()
+        };
+        let (mut evals, mut told) = (Evaluations::default(), Told::default());
+        evals.take(report(0, 0), &rules, &mut told);
+        (0..4).for_each(|v| evals.publish(v, vec![v as u8]));
+        evals.take(report(5, 9), &rules, &mut told);
+        evals.take(report(1, 2), &rules, &mut told);
+        evals.take(report(1, 2), &rules, &mut told);
+        evals.take(report(0, 1), &rules, &mut told);
+        assert_eq!(evals.early_stop(), None);
+        evals.take(report(3, 2), &rules, &mut told);
+        assert_eq!(evals.early_stop(), Some(3));
+        assert_eq!(
+            told.0,
+            [
+                (1, true, true, Some(vec![1])),
+                (0, false, false, None),
+                (3, false, true, None)
+            ]
+        );
+        assert_eq!((evals.refused(), evals.duplicates()), (2, 1));
+        assert_eq!(evals.not_evaluated(), [2]);
+        let mut record = Record::new(4);
+        evals.put(&mut record);
+        assert_eq!(
+            record.to_string(),
+            "epoch=4 eval_version=3 eval_laps=2 refused_evals=2 duplicate_evals=1"
+        );
+    }
+}
