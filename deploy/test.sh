@@ -17,8 +17,9 @@ cargo test --release --workspace "$@"
 venv="$root/.deps/venv"
 [ -x "$venv/bin/maturin" ] || { echo "[test] error: $venv has no maturin: deploy/setup.sh installs it" >&2; exit 1; }
 export PYO3_PYTHON="$venv/bin/python"
-(cd python && cargo fmt --check && cargo clippy --release --all-targets -- -D warnings)
 rm -rf target/python/wheels
-"$venv/bin/maturin" build --release --manifest-path python/Cargo.toml --out target/python/wheels
+# From python/, so that cargo reads python/.cargo/config.toml (the build output in target/python).
+(cd python && cargo fmt --check && cargo clippy --release --all-targets -- -D warnings \
+  && "$venv/bin/maturin" build --release --out ../target/python/wheels)
 "$venv/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps target/python/wheels/cabc-*.whl
 CABC_BIN_DIR="$root/target/release" "$venv/bin/python" -m pytest -q python/tests

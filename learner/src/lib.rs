@@ -11,6 +11,7 @@
 //! * [`train`]: the dynamics model (eq. (15)), the critic (eq. (16)) and the policy with L_CA = L_clone + L_safety
 //!   (eq. (14));
 //! * [`checkpoint`]: the one checkpoint writer (atomic) and reader;
+//! * [`export`]: a run's data as a LeRobot v3 dataset (parquet), for Python;
 //! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
 //! * [`ledger`]: exactly-once storage of segments; [`rundir`]: the run folder; [`plots`]: the run's plots;
 //!   `serve` (feature `server`): `learner run`, Algorithm 1 with the actors over zenoh; `show` (feature `server`): a
@@ -25,6 +26,7 @@ pub mod bench_vision;
 pub mod checkpoint;
 pub mod compare;
 pub mod demo;
+pub mod export;
 pub mod evaluations;
 pub mod fault;
 pub mod hull;

@@ -14,9 +14,11 @@
 //! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
 
 mod log;
+mod read;
 mod store;
 
 pub use log::ImageLog;
+pub use read::ReplaySnapshot;
 pub use store::{ImageStore, Store, STEP_BYTES};
 
 use crate::autolabel::AutolabelReport;
@@ -469,57 +471,7 @@ impl Replay {
         bytes: &[u8],
         dir: &Path,
     ) -> Result<(Self, Option<ImageLog>), ReplayError> {
-        let body = bytes.strip_prefix(MAGIC).ok_or(ReplayError::BadMagic)?;
-        let (version, body) = body
-            .split_first_chunk::<4>()
-            .ok_or_else(|| ReplayError::Decode("truncated header".into()))?;
-        let decode_err = |e: bincode::error::DecodeError| ReplayError::Decode(e.to_string());
-        let config = bincode::config::standard();
-        let mut saved: Saved = match u32::from_le_bytes(*version) {
-            VERSION => {
-                bincode::serde::decode_from_slice(body, config)
-                    .map_err(decode_err)?
-                    .0
-            }
-            2 => {
-                let v2: SavedV2 = bincode::serde::decode_from_slice(body, config)
-                    .map_err(decode_err)?
-                    .0;
-                Saved {
-                    plus: v2.plus.upgrade(true),
-                    uncertain: v2.uncertain.upgrade(false),
-                    dynamics_only: v2.dynamics_only.upgrade(false),
-                    minus: v2.minus,
-                    rng_seed: v2.rng_seed,
-                    rng_stream: v2.rng_stream,
-                    rng_word_pos: v2.rng_word_pos,
-                    added: v2.added,
-                    image_log: None,
-                }
-            }
-            1 => {
-                let v1: SavedV1 = bincode::serde::decode_from_slice(body, config)
-                    .map_err(decode_err)?
-                    .0;
-                Saved {
-                    minus: v1.uncertain.states.clone(),
-                    plus: v1.plus.upgrade(true),
-                    uncertain: v1.uncertain.upgrade(false),
-                    dynamics_only: v1.dynamics_only.upgrade(false),
-                    rng_seed: v1.rng_seed,
-                    rng_stream: v1.rng_stream,
-                    rng_word_pos: v1.rng_word_pos,
-                    added: v1.added,
-                    image_log: None,
-                }
-            }
-            found => {
-                return Err(ReplayError::Version {
-                    found,
-                    expected: VERSION,
-                })
-            }
-        };
+        let mut saved = read::decode(bytes)?;
         let plus_empty = saved.plus.is_empty();
         let log = match (saved.image_log, saved.plus.images.as_mut()) {
             (Some(at), Some(images)) => {
