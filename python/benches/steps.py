@@ -78,18 +78,24 @@ def main() -> None:
         runs["python_vec"].append(vector(args.seconds, args.envs))
         print(f"repeat {r}: " + ", ".join(f"{k} {v[-1]:,.0f}" for k, v in runs.items()), flush=True)
     med = {k: statistics.median(v) for k, v in runs.items()}
+    # Each repeat's own ratios too: the three ran back to back, under about the same load.
+    paired = {
+        k: statistics.median(p / r for p, r in zip(runs[k], runs["rust"])) for k in ("python_single", "python_vec")
+    }
     report = {
         "steps_per_s": runs,
         "median": med,
         "single_over_rust": med["python_single"] / med["rust"],
         "vec_over_rust": med["python_vec"] / med["rust"],
+        "median_of_paired_ratios": paired,
         "envs": args.envs,
         "seconds": args.seconds,
     }
     print(
         f"median steps/s: rust {med['rust']:,.0f}, python single {med['python_single']:,.0f} "
         f"({report['single_over_rust']:.0%}), python vec{args.envs} {med['python_vec']:,.0f} "
-        f"({report['vec_over_rust']:.0%})"
+        f"({report['vec_over_rust']:.0%}); median of the repeats' ratios: single {paired['python_single']:.0%}, "
+        f"vec{args.envs} {paired['python_vec']:.0%}"
     )
     if args.json:
         with open(args.json, "w") as f:
