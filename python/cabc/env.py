@@ -88,10 +88,11 @@ class BarcTrackEnv(gym.Env):
         self.render_mode = render_mode
         self.action_space = action_space()
         self.observation_space = observation_space(observation, self._sim.image_shape)
+        self._seeded = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        if seed is None and not hasattr(self, "_seeded"):
+        if seed is None and not self._seeded:
             # A first reset without a seed: one from Gymnasium's generator (itself seeded from the OS).
             seed = int(self.np_random.integers(_SEED_BOUND))
         self._seeded = True

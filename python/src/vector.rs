@@ -14,8 +14,9 @@ use crate::arrays::{f64s, rows, u8s};
 use crate::car::{parse_spawn, see, Car, Kind, Lens, Setup};
 use crate::env::observation;
 
-/// Most environments in one object (a bound on what one call allocates).
+/// Most environments in one object, and most bytes of their images (bounds on what one call allocates).
 const MAX_ENVS: usize = 65_536;
+const MAX_IMAGE_BYTES: usize = 1 << 32;
 
 /// What one environment's step left for the arrays.
 #[derive(Clone, Copy, Default)]
@@ -108,6 +109,12 @@ impl VecSim {
             Kind::Camera => n * lens.image_len(),
             Kind::State => 0,
         };
+        if image_bytes > MAX_IMAGE_BYTES {
+            return Err(PyValueError::new_err(format!(
+                "{n} cameras of {}x{} need {image_bytes} bytes of images a step, more than {MAX_IMAGE_BYTES}",
+                lens.width, lens.height
+            )));
+        }
         Ok(VecSim {
             cars: (0..n as u64).map(|i| Car::new(&setup, 0, i)).collect(),
             outcomes: vec![Outcome::default(); n],

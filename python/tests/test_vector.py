@@ -76,6 +76,9 @@ def test_bad_actions_raise(actions):
 
 
 def test_bad_sizes_raise():
-    for n in (0, -1):
+    for n in (0, -1, 10**6):
         with pytest.raises((ValueError, OverflowError)):
             cabc.make_vec(n)
+    # 60,000 cameras of 224 x 224 would need 9 GB a step.
+    with pytest.raises(ValueError, match="bytes of images"):
+        cabc.make_vec(60_000, observation="camera")
