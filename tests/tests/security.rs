@@ -391,16 +391,26 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
     );
 }
 
+/// A pair of network namespaces, or None (printed as a skip) where this machine cannot make them.
+fn netns_pair() -> Option<NetnsPair> {
+    NetnsPair::new()
+        .map_err(|e| println!("skipped: network namespaces are not available here ({e:#})"))
+        .ok()
+}
+
+/// The lines of `label`'s log that say ERROR or any of `also`.
+fn error_lines(cluster: &Cluster, label: &str, also: &[&str]) -> Vec<String> {
+    let log = std::fs::read_to_string(cluster.dir.join(format!("{label}.log"))).unwrap();
+    log.lines()
+        .filter(|l| l.contains("ERROR") || also.iter().any(|a| l.contains(a)))
+        .map(str::to_string)
+        .collect()
+}
+
 #[test]
 fn actors_in_another_network_namespace_join_over_tls() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let pair = match NetnsPair::new() {
-        Ok(pair) => pair,
-        Err(e) => {
-            println!("skipped: network namespaces are not available here ({e:#})");
-            return;
-        }
-    };
+    let Some(pair) = netns_pair() else { return };
     let tmp = cabc_tests::test_dir();
     make_certs(
         &tmp.path().join("certs"),
@@ -427,13 +437,7 @@ fn actors_in_another_network_namespace_join_over_tls() {
     // An honest run: the access control dropped nothing (no false alarm in the counts).
     assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
     // Issue 21: the learner does not dial itself through <host-A> (zenoh logged CONNECTION_TO_SELF errors).
-    let log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
-    let errors: Vec<&str> = log
-        .lines()
-        .filter(|l| {
-            l.contains("ERROR") || l.contains("CONNECTION_TO_SELF") || l.contains("to itself")
-        })
-        .collect();
+    let errors = error_lines(&cluster, "learner", &["CONNECTION_TO_SELF", "to itself"]);
     assert!(errors.is_empty(), "the learner's log: {errors:#?}");
     drop(cluster);
     drop(pair);
@@ -470,13 +474,7 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
             return;
         }
     };
-    let pair = match NetnsPair::new() {
-        Ok(pair) => pair,
-        Err(e) => {
-            println!("skipped: network namespaces are not available here ({e:#})");
-            return;
-        }
-    };
+    let Some(pair) = netns_pair() else { return };
     let tmp = cabc_tests::test_dir();
     let certs = tmp.path().join("certs");
     make_certs(&certs, &["--host", SERVER_IP, "--actors", "2", "--zenohd"]).unwrap();
@@ -539,11 +537,7 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
     );
     // The learner, a client now, sees no drops of its own; zenohd logged the rogue's.
     assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
-    let learner_log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
-    let errors: Vec<&str> = learner_log
-        .lines()
-        .filter(|l| l.contains("ERROR"))
-        .collect();
+    let errors = error_lines(&cluster, "learner", &[]);
     assert!(errors.is_empty(), "the learner's log: {errors:#?}");
     let _ = cluster.kill("rogue");
     let _ = cluster.kill("zenohd");
@@ -565,7 +559,7 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
         .filter(|k| !(k.starts_with("actor/actor-0: ") && k.contains("actor-1")))
         .collect();
     assert!(honest.is_empty(), "honest messages dropped: {honest:?}");
-    let errors: Vec<&str> = log.lines().filter(|l| l.contains("ERROR")).collect();
+    let errors = error_lines(&cluster, "zenohd", &[]);
     assert!(errors.is_empty(), "zenohd's log: {errors:#?}");
     drop(cluster);
     drop(pair);
