@@ -79,15 +79,17 @@ pub const MAX_MESSAGE: usize = codec::HEADER_LEN + codec::MAX_BODY;
 /// this one, `tls/<host-A>:7447`, while the listener is `tls/0.0.0.0:7447`). A standalone router on another machine
 /// must therefore listen on another port than the learner (deploy/SCALE-OUT.md, §2).
 pub fn dials_itself(endpoint: &str, listen: &[String]) -> bool {
-    let proto_port = |e: &str| -> Option<(String, String)> {
-        let (proto, rest) = e.split_once('/')?;
-        let address = rest.split(['?', '#']).next()?;
-        let (_, port) = address.rsplit_once(':')?;
-        Some((proto.to_string(), port.to_string()))
-    };
     listen.iter().any(|l| {
         l == endpoint || (proto_port(l).is_some() && proto_port(l) == proto_port(endpoint))
     })
+}
+
+/// An endpoint's protocol and port: `tls/host-a:7447?x` -> (`tls`, `7447`).
+pub(crate) fn proto_port(endpoint: &str) -> Option<(&str, &str)> {
+    let (proto, rest) = endpoint.split_once('/')?;
+    let address = rest.split(['?', '#']).next()?;
+    let (_, port) = address.rsplit_once(':')?;
+    Some((proto, port))
 }
 
 /// Builds the zenoh configuration of the process `component` (`learner`, `actor/<id>`, ...): endpoints from the

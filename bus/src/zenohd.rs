@@ -16,14 +16,7 @@ pub const COMPONENT: &str = "zenohd";
 /// (`tls/host-r:7447` -> `tls/0.0.0.0:7447`), without duplicates.
 pub fn default_listen(connect: &[String]) -> Vec<String> {
     let mut listen: Vec<String> = Vec::new();
-    for endpoint in connect {
-        let Some((proto, rest)) = endpoint.split_once('/') else {
-            continue;
-        };
-        let address = rest.split(['?', '#']).next().unwrap_or(rest);
-        let Some((_, port)) = address.rsplit_once(':') else {
-            continue;
-        };
+    for (proto, port) in connect.iter().filter_map(|e| crate::proto_port(e)) {
         let e = format!("{proto}/0.0.0.0:{port}");
         if !listen.contains(&e) {
             listen.push(e);
