@@ -5,18 +5,14 @@
 #   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable;
 #   * openssl (deploy/make-certs.sh), when missing and apt is usable.
 #   * the Python package's tools (maturin, numpy, gymnasium, pyarrow, pytest) in a virtual environment, .deps/venv.
-#   * with --zenohd (or CABC_ZENOHD_BUILD=1): the standalone router of deploy/SCALE-OUT.md §2, zenohd 1.10.2 from
-#     crates.io built with cabc's zenoh-link-tls patch (third_party/), into .deps/zenohd/bin (its own target folder,
-#     target/zenohd); the §2 test (tests/tests/security.rs) uses it and skips, saying so, without it.
+# (The standalone router of deploy/SCALE-OUT.md §2, zenohd, is a member of the workspace, third_party/zenohd: the
+# release build makes it, target/release/zenohd.)
 # Prints what it does; fails with a message that names what is missing.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-build_zenohd=${CABC_ZENOHD_BUILD:-0}
 for arg in "$@"; do
-  case "$arg" in
-    --zenohd) build_zenohd=1 ;;
-    *) echo "[setup] unknown option $arg (known: --zenohd)" >&2; exit 2 ;;
-  esac
+  echo "[setup] unknown option $arg (it takes none; zenohd is built with the workspace now: target/release/zenohd)" >&2
+  exit 2
 done
 TORCH_VERSION=${CABC_TORCH_VERSION:-2.11.0}
 deps="$root/.deps"
@@ -59,17 +55,6 @@ if ! command -v openssl >/dev/null; then
   else
     die "openssl is missing: install it (deploy/make-certs.sh makes the bus's certificates with it)"
   fi
-fi
-ZENOHD_VERSION=1.10.2
-zenohd_marker="$deps/zenohd/.cabc-installed-$ZENOHD_VERSION"
-if [ "$build_zenohd" = 1 ] && [ ! -f "$zenohd_marker" ]; then
-  say "building zenohd $ZENOHD_VERSION with cabc's TLS patch into $deps/zenohd (cargo install; several minutes)"
-  start=$(date +%s)
-  cargo install zenohd --version "=$ZENOHD_VERSION" --root "$deps/zenohd" --target-dir "$root/target/zenohd" \
-    --config "patch.crates-io.zenoh-link-tls.path=\"$root/third_party/zenoh-link-tls\"" \
-    || die "cargo install zenohd $ZENOHD_VERSION failed (is crates.io reachable?)"
-  touch "$zenohd_marker"
-  say "zenohd built in $(( $(date +%s) - start )) s"
 fi
 # The Python package's tools (python/, issue 20): maturin, numpy, gymnasium, pyarrow and pytest at the versions of
 # python/requirements-dev.txt, in the virtual environment .deps/venv (deploy/test.sh builds the wheel and runs the Python
