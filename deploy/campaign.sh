@@ -60,12 +60,14 @@ for k in 1 2 3; do
     "--seeds $k-$k --epochs $E --tag rerun v-b"
   )
 done
+# Then V-A and V-C (minutes a run, where a V-B run takes tens), so that every claim has a verdict over three seeds
+# before V-B's seeds 45 and 46 add to its own.
 slices+=(
-  "--seeds 4-5 --epochs $E v-b-ref"
-  "--seeds 4-5 --epochs $E --tag rerun v-b"
   "--seeds 3 v-a-ref"
   "--seeds 3 v-c-ref"
   "--seeds 3 --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"
+  "--seeds 4-5 --epochs $E v-b-ref"
+  "--seeds 4-5 --epochs $E --tag rerun v-b"
 )
 
 if [ "$snapshot" = 1 ]; then
