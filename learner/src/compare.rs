@@ -339,152 +339,152 @@ fn label(r: &RunRecord) -> String {
 }
 
 fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let max_v = max_version(runs);
-    let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Completed laps at evaluation, per policy version",
-            ("sans-serif", 22),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
-    chart
-        .configure_mesh()
-        .x_desc("policy version (epoch)")
-        .y_desc("laps")
-        .draw()?;
-    // Baselines last, on top: at 0 laps they would hide under the proposed runs' early versions.
-    let order = (0..runs.len()).filter(|&i| !runs[i].is_baseline());
-    for i in order.chain((0..runs.len()).filter(|&i| runs[i].is_baseline())) {
-        let (r, c) = (&runs[i], colour(runs, i));
-        let style = series_style(r, c);
+    crate::plots::png(path, SIZE, |root| {
+        root.fill(&WHITE)?;
+        let max_v = max_version(runs);
+        let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "Completed laps at evaluation, per policy version",
+                ("sans-serif", 22),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
         chart
-            .draw_series(LineSeries::new(
-                r.evals.iter().map(|e| (e.version, e.laps)),
-                style,
-            ))?
-            .label(label(r))
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
-        if r.is_baseline() {
-            chart.draw_series(
-                r.evals
-                    .iter()
-                    .filter(|e| e.version % 5 == 0)
-                    .map(|e| Circle::new((e.version, e.laps), 3, c.filled())),
-            )?;
+            .configure_mesh()
+            .x_desc("policy version (epoch)")
+            .y_desc("laps")
+            .draw()?;
+        // Baselines last, on top: at 0 laps they would hide under the proposed runs' early versions.
+        let order = (0..runs.len()).filter(|&i| !runs[i].is_baseline());
+        for i in order.chain((0..runs.len()).filter(|&i| runs[i].is_baseline())) {
+            let (r, c) = (&runs[i], colour(runs, i));
+            let style = series_style(r, c);
+            chart
+                .draw_series(LineSeries::new(
+                    r.evals.iter().map(|e| (e.version, e.laps)),
+                    style,
+                ))?
+                .label(label(r))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+            if r.is_baseline() {
+                chart.draw_series(
+                    r.evals
+                        .iter()
+                        .filter(|e| e.version % 5 == 0)
+                        .map(|e| Circle::new((e.version, e.laps), 3, c.filled())),
+                )?;
+            }
         }
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
-    Ok(())
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    })
 }
 
 fn imitation(path: &Path, runs: &[RunRecord]) -> Drawn {
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let values = runs.iter().flat_map(|r| r.imitation.iter().map(|p| p.1));
-    let (lo, hi) = values.fold((f64::INFINITY, 0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
-    let (lo, hi) = if hi > 0.0 {
-        (lo * 0.5, hi * 2.0)
-    } else {
-        (1e-4, 1.0)
-    };
-    let max_e = runs.iter().map(|r| r.epochs).max().unwrap_or(1).max(1);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Imitation loss per epoch (o: early stop)",
-            ("sans-serif", 22),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0u64..max_e, (lo..hi).log_scale())?;
-    chart
-        .configure_mesh()
-        .x_desc("epoch")
-        .y_desc("L_clone")
-        .y_label_formatter(&|v| format!("{v:.1e}"))
-        .draw()?;
-    for (i, r) in runs.iter().enumerate() {
-        let c = colour(runs, i);
+    crate::plots::png(path, SIZE, |root| {
+        root.fill(&WHITE)?;
+        let values = runs.iter().flat_map(|r| r.imitation.iter().map(|p| p.1));
+        let (lo, hi) = values.fold((f64::INFINITY, 0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        let (lo, hi) = if hi > 0.0 {
+            (lo * 0.5, hi * 2.0)
+        } else {
+            (1e-4, 1.0)
+        };
+        let max_e = runs.iter().map(|r| r.epochs).max().unwrap_or(1).max(1);
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "Imitation loss per epoch (o: early stop)",
+                ("sans-serif", 22),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0u64..max_e, (lo..hi).log_scale())?;
         chart
-            .draw_series(LineSeries::new(
-                r.imitation.iter().copied(),
-                c.stroke_width(2),
-            ))?
-            .label(label(r))
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
-        let stop = r
-            .early_stop
-            .and_then(|v| r.imitation.iter().find(|p| p.0 == v));
-        chart.draw_series(stop.map(|&(e, v)| Circle::new((e, v), 7, c.stroke_width(3))))?;
-    }
-    chart.configure_series_labels().border_style(BLACK).draw()?;
-    root.present()?;
-    Ok(())
+            .configure_mesh()
+            .x_desc("epoch")
+            .y_desc("L_clone")
+            .y_label_formatter(&|v| format!("{v:.1e}"))
+            .draw()?;
+        for (i, r) in runs.iter().enumerate() {
+            let c = colour(runs, i);
+            chart
+                .draw_series(LineSeries::new(
+                    r.imitation.iter().copied(),
+                    c.stroke_width(2),
+                ))?
+                .label(label(r))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+            let stop = r
+                .early_stop
+                .and_then(|v| r.imitation.iter().find(|p| p.0 == v));
+            chart.draw_series(stop.map(|&(e, v)| Circle::new((e, v), 7, c.stroke_width(3))))?;
+        }
+        chart.configure_series_labels().border_style(BLACK).draw()?;
+        Ok(())
+    })
 }
 
 fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let max_v = max_version(runs);
-    let hi = runs
-        .iter()
-        .flat_map(|r| {
-            r.full()
-                .filter_map(|e| Some(e.lap_mean? + e.lap_std.unwrap_or(0.0)))
-        })
-        .chain(
-            runs.iter()
-                .filter_map(|r| r.expert_lap_time.map(|(m, s)| m + s)),
-        )
-        .fold(1.0, f64::max);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Lap time of the full evaluations: mean ± std",
-            ("sans-serif", 22),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
-    chart
-        .configure_mesh()
-        .x_desc("policy version (epoch)")
-        .y_desc("lap time (s)")
-        .draw()?;
-    for (i, r) in runs.iter().enumerate() {
-        let c = colour(runs, i);
+    crate::plots::png(path, SIZE, |root| {
+        root.fill(&WHITE)?;
+        let max_v = max_version(runs);
+        let hi = runs
+            .iter()
+            .flat_map(|r| {
+                r.full()
+                    .filter_map(|e| Some(e.lap_mean? + e.lap_std.unwrap_or(0.0)))
+            })
+            .chain(
+                runs.iter()
+                    .filter_map(|r| r.expert_lap_time.map(|(m, s)| m + s)),
+            )
+            .fold(1.0, f64::max);
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "Lap time of the full evaluations: mean ± std",
+                ("sans-serif", 22),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
         chart
-            .draw_series(r.full().filter_map(|e| {
-                let (m, s) = (e.lap_mean?, e.lap_std.unwrap_or(0.0));
-                Some(ErrorBar::new_vertical(
-                    e.version as f64,
-                    m - s,
-                    m,
-                    m + s,
-                    c.filled(),
-                    6,
-                ))
-            }))?
-            .label(label(r))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 4, c.filled()));
-    }
-    if let Some((m, s)) = runs.iter().find_map(|r| r.expert_lap_time) {
-        let label = format!("expert {m:.2} ± {s:.2} s");
-        crate::plots::expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
-    }
-    chart.configure_series_labels().border_style(BLACK).draw()?;
-    root.present()?;
-    Ok(())
+            .configure_mesh()
+            .x_desc("policy version (epoch)")
+            .y_desc("lap time (s)")
+            .draw()?;
+        for (i, r) in runs.iter().enumerate() {
+            let c = colour(runs, i);
+            chart
+                .draw_series(r.full().filter_map(|e| {
+                    let (m, s) = (e.lap_mean?, e.lap_std.unwrap_or(0.0));
+                    Some(ErrorBar::new_vertical(
+                        e.version as f64,
+                        m - s,
+                        m,
+                        m + s,
+                        c.filled(),
+                        6,
+                    ))
+                }))?
+                .label(label(r))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, c.filled()));
+        }
+        if let Some((m, s)) = runs.iter().find_map(|r| r.expert_lap_time) {
+            let label = format!("expert {m:.2} ± {s:.2} s");
+            crate::plots::expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
+        }
+        chart.configure_series_labels().border_style(BLACK).draw()?;
+        Ok(())
+    })
 }
 
 #[cfg(test)]

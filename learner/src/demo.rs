@@ -228,64 +228,65 @@ fn draw(
     drawn: &Panels,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let n = panels.len().max(1) as u32;
-    let root = BitMapBackend::new(out, (PANEL_PX * n, PANEL_PX + 40)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let areas = root.split_evenly((1, n as usize));
-    for ((area, panel), (removed, p_grid)) in areas.iter().zip(panels).zip(drawn) {
-        let caption = format!(
-            "rho = {}: {} wrongly removed, grid acc {:.3}",
-            panel.rho, panel.removed_wrongly, panel.accuracy
-        );
-        let mut chart = ChartBuilder::on(area)
-            .caption(caption, ("sans-serif", 18))
-            .margin(10)
-            .x_label_area_size(30)
-            .y_label_area_size(30)
-            .build_cartesian_2d(-1.0f64..1.0, -1.0f64..1.0)?;
-        chart.configure_mesh().disable_mesh().draw()?;
-        let pts =
-            |v: &[f64]| -> Vec<(f64, f64)> { v.chunks_exact(2).map(|p| (p[0], p[1])).collect() };
-        let grey = RGBColor(150, 150, 150);
-        let orange = RGBColor(240, 150, 30);
-        chart.draw_series(
-            pts(plus)
-                .into_iter()
-                .map(|p| Circle::new(p, 1, grey.filled())),
-        )?;
-        let q = pts(uncertain);
-        chart.draw_series(
-            q.iter()
-                .zip(removed)
-                .filter(|(_, &r)| !r)
-                .map(|(&p, _)| Circle::new(p, 2, orange.filled())),
-        )?;
-        chart.draw_series(
-            q.iter()
-                .zip(removed)
-                .zip(truth)
-                .filter(|((_, &r), &t)| r && !t)
-                .map(|((&p, _), _)| Circle::new(p, 3, RED.filled())),
-        )?;
-        // True boundary, dotted.
-        let mut dots = Vec::new();
-        for i in 0..TRUE_SET.len() {
-            let (a, b) = (TRUE_SET[i], TRUE_SET[(i + 1) % TRUE_SET.len()]);
-            let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
-            let steps = (len / 0.025) as usize;
-            for s in 0..steps {
-                let t = s as f64 / steps as f64;
-                dots.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+    crate::plots::png(out, (PANEL_PX * n, PANEL_PX + 40), |root| {
+        root.fill(&WHITE)?;
+        let areas = root.split_evenly((1, n as usize));
+        for ((area, panel), (removed, p_grid)) in areas.iter().zip(panels).zip(drawn) {
+            let caption = format!(
+                "rho = {}: {} wrongly removed, grid acc {:.3}",
+                panel.rho, panel.removed_wrongly, panel.accuracy
+            );
+            let mut chart = ChartBuilder::on(area)
+                .caption(caption, ("sans-serif", 18))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(30)
+                .build_cartesian_2d(-1.0f64..1.0, -1.0f64..1.0)?;
+            chart.configure_mesh().disable_mesh().draw()?;
+            let pts = |v: &[f64]| -> Vec<(f64, f64)> {
+                v.chunks_exact(2).map(|p| (p[0], p[1])).collect()
+            };
+            let grey = RGBColor(150, 150, 150);
+            let orange = RGBColor(240, 150, 30);
+            chart.draw_series(
+                pts(plus)
+                    .into_iter()
+                    .map(|p| Circle::new(p, 1, grey.filled())),
+            )?;
+            let q = pts(uncertain);
+            chart.draw_series(
+                q.iter()
+                    .zip(removed)
+                    .filter(|(_, &r)| !r)
+                    .map(|(&p, _)| Circle::new(p, 2, orange.filled())),
+            )?;
+            chart.draw_series(
+                q.iter()
+                    .zip(removed)
+                    .zip(truth)
+                    .filter(|((_, &r), &t)| r && !t)
+                    .map(|((&p, _), _)| Circle::new(p, 3, RED.filled())),
+            )?;
+            // True boundary, dotted.
+            let mut dots = Vec::new();
+            for i in 0..TRUE_SET.len() {
+                let (a, b) = (TRUE_SET[i], TRUE_SET[(i + 1) % TRUE_SET.len()]);
+                let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
+                let steps = (len / 0.025) as usize;
+                for s in 0..steps {
+                    let t = s as f64 / steps as f64;
+                    dots.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+                }
+            }
+            chart.draw_series(dots.into_iter().map(|p| Circle::new(p, 1, BLACK.filled())))?;
+            for (level, colour) in LEVELS {
+                for seg in contour(p_grid, level as f32) {
+                    chart.draw_series(LineSeries::new(seg, colour.stroke_width(2)))?;
+                }
             }
         }
-        chart.draw_series(dots.into_iter().map(|p| Circle::new(p, 1, BLACK.filled())))?;
-        for (level, colour) in LEVELS {
-            for seg in contour(p_grid, level as f32) {
-                chart.draw_series(LineSeries::new(seg, colour.stroke_width(2)))?;
-            }
-        }
-    }
-    root.present()?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Marching squares on the GRID x GRID values (x fastest): line segments of the level set.
