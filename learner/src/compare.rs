@@ -343,15 +343,9 @@ fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
         root.fill(&WHITE)?;
         let max_v = max_version(runs);
         let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                "Completed laps at evaluation, per policy version",
-                ("sans-serif", 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
+        let mut chart =
+            crate::plots::chart(root, "Completed laps at evaluation, per policy version", 50)
+                .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
         chart
             .configure_mesh()
             .x_desc("policy version (epoch)")
@@ -398,14 +392,7 @@ fn imitation(path: &Path, runs: &[RunRecord]) -> Drawn {
             (1e-4, 1.0)
         };
         let max_e = runs.iter().map(|r| r.epochs).max().unwrap_or(1).max(1);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                "Imitation loss per epoch (o: early stop)",
-                ("sans-serif", 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
+        let mut chart = crate::plots::chart(root, "Imitation loss per epoch (o: early stop)", 60)
             .build_cartesian_2d(0u64..max_e, (lo..hi).log_scale())?;
         chart
             .configure_mesh()
@@ -447,15 +434,9 @@ fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
                     .filter_map(|r| r.expert_lap_time.map(|(m, s)| m + s)),
             )
             .fold(1.0, f64::max);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                "Lap time of the full evaluations: mean ± std",
-                ("sans-serif", 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
+        let mut chart =
+            crate::plots::chart(root, "Lap time of the full evaluations: mean ± std", 50)
+                .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
         chart
             .configure_mesh()
             .x_desc("policy version (epoch)")

@@ -12,6 +12,22 @@ use std::path::Path;
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
+/// A chart on `root` in the figures' one style: `caption` at 22 px, a 12 px margin, 40 px for the x labels and
+/// `y_label_px` for the y labels.
+pub(crate) fn chart<'a, 'b>(
+    root: &'a DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    caption: &str,
+    y_label_px: u32,
+) -> ChartBuilder<'a, 'static, BitMapBackend<'b>> {
+    let mut builder = ChartBuilder::on(root);
+    builder
+        .caption(caption, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(y_label_px);
+    builder
+}
+
 /// A chart drawn into memory by `draw`, then written to `path` as an RGB PNG with the `png` crate: the one place that
 /// writes the run's figures (plotters' own file encoder would pull in the `image` crate, ~11 s of a cold build).
 pub(crate) fn png(
@@ -62,15 +78,12 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
     crate::plots::png(path, SIZE, |root| {
         root.fill(&WHITE)?;
         let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                "Completed laps at evaluation (fixed spawn, policy alone)",
-                ("sans-serif", 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
+        let mut chart = chart(
+            root,
+            "Completed laps at evaluation (fixed spawn, policy alone)",
+            50,
+        )
+        .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
         chart
             .configure_mesh()
             .x_desc("policy version (epoch)")
@@ -124,11 +137,7 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
             .fold(f64::INFINITY, f64::min)
             .min(1e-3);
         let hi = values.iter().copied().fold(0.0, f64::max).max(1e-2);
-        let mut chart = ChartBuilder::on(root)
-            .caption("Training losses per epoch", ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
+        let mut chart = chart(root, "Training losses per epoch", 60)
             .build_cartesian_2d(0u64..max_e + 1, (lo * 0.5..hi * 2.0).log_scale())?;
         chart
             .configure_mesh()
@@ -161,14 +170,7 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
             .filter_map(|e| e.lap_max)
             .chain(expert_ms.map(|m| m.0 + m.1))
             .fold(1.0, f64::max);
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                "Lap time at evaluation: mean ± std, min–max",
-                ("sans-serif", 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
+        let mut chart = chart(root, "Lap time at evaluation: mean ± std, min–max", 50)
             .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
         chart
             .configure_mesh()
