@@ -3,7 +3,7 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N] [--snapshot]
+#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N] [--snapshot] [--tables]
 #
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
@@ -13,7 +13,9 @@
 # slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
 # numbers do not depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
 # runs still in progress to docs/reproduction/in-progress/ (a session ending mid-run commits them) and prints their
-# `learner compare` table.
+# `learner compare` table. --tables redraws every group's figures and tables in docs/reproduction/ (the folders
+# <group>-s<k>[-baseline]) with this checkout's learner (target/release, built if missing), where the pinned
+# binaries' `learner compare` predates a column or a figure (the runs' numbers are the pinned binaries').
 # Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -25,6 +27,7 @@ list=0
 only=""
 lane="0/1"
 snapshot=0
+tables=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --pin) pin=1; if [ $# -ge 2 ] && [[ "$2" != --* ]]; then pin_rev=$2; shift; fi ;;
@@ -32,7 +35,8 @@ while [ $# -gt 0 ]; do
     --only) only=$2; shift ;;
     --lane) lane=$2; shift ;;
     --snapshot) snapshot=1 ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    --tables) tables=1 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -88,6 +92,22 @@ if [ "$snapshot" = 1 ]; then
   [ ${#folders[@]} -gt 0 ] || { echo "[campaign] no run in progress" >&2; exit 0; }
   bin=$(readlink -f "$root/.deps/campaign-bin/current" 2>/dev/null || echo "$root/target/release")
   "$bin/learner" compare --out "$out/campaign" "${folders[@]}" | tee "$out/campaign-table.md"
+  exit 0
+fi
+
+if [ "$tables" = 1 ]; then
+  [ -x target/release/learner ] || cargo build --release --quiet -p cabc-learner --bin learner
+  out=docs/reproduction
+  groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done)
+  for group in $groups; do
+    folders=()
+    for d in "$out/$group"-s*; do
+      [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
+    done
+    [ ${#folders[@]} -gt 0 ] || continue
+    echo "[campaign] $group: ${#folders[@]} runs" >&2
+    target/release/learner compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"
+  done
   exit 0
 fi
 

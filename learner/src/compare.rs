@@ -4,8 +4,11 @@
 //! * `<out>-imitation.png`: the imitation loss per epoch, each run's early stop marked;
 //! * `<out>-lap-times.png`: lap-time mean and spread of the evaluations that completed `eval_laps` laps, against
 //!   the expert's;
+//! * `<out>-steps.png`: how long each evaluation stayed on the track (its steps, a running median), which tells
+//!   runs apart that never complete a lap;
 //! * a Markdown table on stdout: per run, the versions of the first and second full evaluation, the early stop,
-//!   lap times, the incomplete share and the wall clock; then per method, the median and range over its runs
+//!   lap times, the laps completed over all evaluations, the late evaluations' steps ([`RunRecord::late_steps`]),
+//!   the incomplete share and the wall clock; then per method, the median and range over its runs
 //!   ([`crate::seeds`]).
 //!
 //! A run folder is read from its `config.toml`, `metrics.csv`, `evals.csv` and (when the run ended) `summary.json`;
@@ -32,7 +35,12 @@ pub struct Eval {
     pub laps: u32,
     pub lap_mean: Option<f64>,
     pub lap_std: Option<f64>,
+    /// The steps the evaluation lasted (until its laps, a failure or its step cap).
+    pub steps: Option<u64>,
 }
+
+/// The late evaluations of [`RunRecord::late_steps`]: those of a run's last `LATE_VERSIONS` versions.
+pub const LATE_VERSIONS: u64 = 50;
 
 /// What the comparison needs of one run.
 #[derive(Clone, Debug)]
@@ -152,17 +160,24 @@ impl RunRecord {
                 .column(name)
                 .map_err(|e| fail(format!("evals.csv: {e}")))
         };
-        let mut evals: Vec<Eval> = evals_column("version")?
+        let versions = evals_column("version")?;
+        // Older folders may lack the steps.
+        let steps = evals_table
+            .column("steps")
+            .unwrap_or_else(|_| vec![""; versions.len()]);
+        let mut evals: Vec<Eval> = versions
             .iter()
             .zip(evals_column("laps")?)
             .zip(evals_column("lap_mean")?)
             .zip(evals_column("lap_std")?)
-            .filter_map(|(((v, l), m), s)| {
+            .zip(steps)
+            .filter_map(|((((v, l), m), s), steps)| {
                 Some(Eval {
                     version: number(v)?,
                     laps: number(l)?,
                     lap_mean: number(m),
                     lap_std: number(s),
+                    steps: number(steps),
                 })
             })
             .collect();
@@ -200,6 +215,24 @@ impl RunRecord {
         self.evals.iter().filter(|e| e.laps >= self.eval_laps)
     }
 
+    /// The laps completed over all its evaluations: a run that never reaches `eval_laps` may still complete some.
+    pub fn laps_completed(&self) -> u64 {
+        self.evals.iter().map(|e| u64::from(e.laps)).sum()
+    }
+
+    /// The median steps of the evaluations of the run's last [`LATE_VERSIONS`] versions: how long its late policies
+    /// stay on the track, a figure that tells apart runs that never complete a lap. None without evaluations.
+    pub fn late_steps(&self) -> Option<f64> {
+        let last = self.evals.last()?.version;
+        let late: Vec<f64> = self
+            .evals
+            .iter()
+            .filter(|e| e.version + LATE_VERSIONS > last)
+            .filter_map(|e| e.steps.map(|s| s as f64))
+            .collect();
+        crate::seeds::median(&late)
+    }
+
     /// A baseline run: named so by `--baseline` (its name ends in `-baseline`, whatever lambda it has: the Fig. 6
     /// caption's V-C baseline keeps lambda = 1), or trained with lambda = 0.
     pub fn is_baseline(&self) -> bool {
@@ -213,7 +246,7 @@ pub struct CompareOptions {
     /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
-    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png.
+    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png.
     #[arg(long, default_value = "compare")]
     pub out: PathBuf,
 }
@@ -235,7 +268,8 @@ pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
     ))
 }
 
-/// Draws the three figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`; returns their paths.
+/// Draws the four figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`, `<out>-steps.png`;
+/// returns their paths.
 pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError> {
     let path = |suffix: &str| {
         let name = out
@@ -244,11 +278,17 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError
             .unwrap_or_default();
         out.with_file_name(format!("{name}-{suffix}.png"))
     };
-    let figures = [path("laps"), path("imitation"), path("lap-times")];
+    let figures = [
+        path("laps"),
+        path("imitation"),
+        path("lap-times"),
+        path("steps"),
+    ];
     let drawn = [
         laps(&figures[0], runs),
         imitation(&figures[1], runs),
         lap_times(&figures[2], runs),
+        steps(&figures[3], runs),
     ];
     for (result, path) in drawn.into_iter().zip(&figures) {
         result.map_err(|e| CompareError::Draw {
@@ -261,9 +301,9 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError
 
 /// The Markdown table of the runs.
 pub fn table(runs: &[RunRecord]) -> String {
-    let mut out = String::from(
-        "| run | lambda | seed | epochs | 1st full eval | 2nd full eval | early stop | best lap time (s) | expert (s) | incomplete | wall clock (min) | learner peak (MB) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    let mut out = format!(
+        "| run | lambda | seed | epochs | 1st full eval | 2nd full eval | early stop | best lap time (s) | expert (s) | laps, all evals | eval steps, last {LATE_VERSIONS} | incomplete | wall clock (min) | learner peak (MB) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let opt = |v: Option<u64>| v.map_or("none".to_string(), |v| v.to_string());
     for r in runs {
@@ -273,7 +313,7 @@ pub fn table(runs: &[RunRecord]) -> String {
             .filter_map(|e| Some((e.lap_mean?, e.lap_std.unwrap_or(0.0))))
             .min_by(|a, b| a.0.total_cmp(&b.0));
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
             r.name,
             r.lambda,
             r.seed.map_or("?".into(), |s| s.to_string()),
@@ -285,6 +325,8 @@ pub fn table(runs: &[RunRecord]) -> String {
             best.map_or("-".into(), |(m, s)| format!("{m:.2} ± {s:.2}")),
             r.expert_lap_time
                 .map_or("-".into(), |(m, s)| format!("{m:.2} ± {s:.2}")),
+            r.laps_completed(),
+            r.late_steps().map_or("-".into(), |s| format!("{s:.0}")),
             r.incomplete_share
                 .map_or("-".into(), |s| format!("{:.1} %", 100.0 * s)),
             r.wall_s / 60.0,
@@ -468,6 +510,56 @@ fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
     })
 }
 
+/// The running median of each run's evaluation steps over `STEPS_WINDOW` versions, on a log axis: policies that
+/// never complete a lap still differ in how long they stay on the track.
+fn steps(path: &Path, runs: &[RunRecord]) -> Drawn {
+    const STEPS_WINDOW: usize = 9;
+    crate::plots::png(path, SIZE, |root| {
+        root.fill(&WHITE)?;
+        let max_v = max_version(runs);
+        let series: Vec<Vec<(u64, f64)>> = runs
+            .iter()
+            .map(|r| {
+                let points: Vec<(u64, f64)> = r
+                    .evals
+                    .iter()
+                    .filter_map(|e| Some((e.version, e.steps? as f64)))
+                    .collect();
+                (0..points.len())
+                    .filter_map(|i| {
+                        let window = &points[i.saturating_sub(STEPS_WINDOW - 1)..=i];
+                        let values: Vec<f64> = window.iter().map(|p| p.1.max(1.0)).collect();
+                        Some((points[i].0, crate::seeds::median(&values)?))
+                    })
+                    .collect()
+            })
+            .collect();
+        let hi = series.iter().flatten().map(|p| p.1).fold(10.0, f64::max);
+        let caption = format!("Evaluation steps on the track (median of {STEPS_WINDOW} versions)");
+        let mut chart = crate::plots::chart(root, &caption, 60)
+            .build_cartesian_2d(0u64..max_v + 1, (1.0..hi * 1.5).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("policy version (epoch)")
+            .y_desc("steps")
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .draw()?;
+        for (i, (r, points)) in runs.iter().zip(&series).enumerate() {
+            let style = series_style(r, colour(runs, i));
+            chart
+                .draw_series(LineSeries::new(points.iter().copied(), style))?
+                .label(label(r))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -494,7 +586,8 @@ mod tests {
             } else {
                 (String::new(), String::new())
             };
-            text.push_str(&format!("{v},{laps},{m},{s},,,max-laps,100\n"));
+            let steps = 10 + 30 * laps;
+            text.push_str(&format!("{v},{laps},{m},{s},,,max-laps,{steps}\n"));
         }
         std::fs::write(folder.join("evals.csv"), text).unwrap();
         folder
@@ -521,14 +614,31 @@ mod tests {
         assert!(runs[1].is_baseline());
         let table = table(&runs);
         assert!(
-            table.contains("| p | 10 | 7 | 4 | 1 | 3 | none | 5.00 ± 0.10 | - | 2.0 % | 2.0 | - |"),
+            table.contains(
+                "| p | 10 | 7 | 4 | 1 | 3 | none | 5.00 ± 0.10 | - | 7 | 70 | 2.0 % | 2.0 | - |"
+            ),
             "{table}"
         );
         assert!(
             table.contains("| b | 0 | 7 | 2 | none by 2 | none |"),
             "{table}"
         );
+        // The late steps are those of the last LATE_VERSIONS versions only.
+        let long = run(
+            tmp.path(),
+            "long",
+            10.0,
+            &(0..100)
+                .map(|v| (v, (v / 10) as u32, 5.0))
+                .collect::<Vec<_>>(),
+        );
+        let long = RunRecord::read(&long).unwrap();
+        assert_eq!(long.laps_completed(), 450);
+        // Versions 50-99: laps 5-9, steps 160-280, 10 versions each: the median is the middle group's 220 (all
+        // 100 versions would give 145).
+        assert_eq!(long.late_steps(), Some(220.0));
         let figures = draw(&runs, &tmp.path().join("cmp")).unwrap();
+        assert_eq!(figures.len(), 4);
         for f in figures {
             assert!(
                 std::fs::metadata(&f).unwrap().len() > 1000,

@@ -1,23 +1,31 @@
 //! The reproduction report's figures over seeds: per method (proposed, lambda > 0; baseline, lambda = 0), how many
 //! runs reached `eval_laps` laps and the median and range of the versions of their first and second full
-//! evaluations, of the best full evaluation's mean lap time, of the imitation loss at the end (the early stop or the
-//! epoch cap) and of the wall clock (`learner compare` prints it under the per-run table).
+//! evaluations, of the best full evaluation's mean lap time, of the laps completed over all evaluations, of the late
+//! evaluations' steps ([`RunRecord::late_steps`]), of the imitation loss at the end (the early stop or the epoch cap)
+//! and of the wall clock (`learner compare` prints it under the per-run table).
 
-use crate::compare::RunRecord;
+use crate::compare::{RunRecord, LATE_VERSIONS};
 
-/// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
-fn median_range(values: &[f64], digits: usize) -> String {
-    if values.is_empty() {
-        return "-".into();
-    }
+/// The median of `values` (the mean of the middle two for an even count); None when empty.
+pub fn median(values: &[f64]) -> Option<f64> {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    let median = if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some((v[n / 2 - 1] + v[n / 2]) / 2.0),
+    }
+}
+
+/// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
+fn median_range(values: &[f64], digits: usize) -> String {
+    let Some(median) = median(values) else {
+        return "-".into();
     };
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
     if n == 1 {
         format!("{median:.digits$}")
     } else {
@@ -31,9 +39,9 @@ fn median_range(values: &[f64], digits: usize) -> String {
 
 /// The Markdown table of the methods over their runs (seeds).
 pub fn methods_table(runs: &[RunRecord]) -> String {
-    let mut out = String::from(
-        "| method | runs | reached the laps | 1st full eval | 2nd full eval | best lap time (s) | imitation loss at the end | wall clock (min) |\n\
-         |---|---|---|---|---|---|---|---|\n",
+    let mut out = format!(
+        "| method | runs | reached the laps | 1st full eval | 2nd full eval | best lap time (s) | laps, all evals | eval steps, last {LATE_VERSIONS} | imitation loss at the end | wall clock (min) |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (method, baseline) in [("proposed", false), ("baseline", true)] {
         let of: Vec<&RunRecord> = runs
@@ -68,13 +76,17 @@ pub fn methods_table(runs: &[RunRecord]) -> String {
             .filter_map(|r| r.imitation.last().map(|&(_, l)| l))
             .collect();
         let wall: Vec<f64> = of.iter().map(|r| r.wall_s / 60.0).collect();
+        let laps: Vec<f64> = of.iter().map(|r| r.laps_completed() as f64).collect();
+        let late: Vec<f64> = of.iter().filter_map(|r| r.late_steps()).collect();
         out.push_str(&format!(
-            "| {method} | {} | {reached} of {} | {} | {} | {} | {} | {} |\n",
+            "| {method} | {} | {reached} of {} | {} | {} | {} | {} | {} | {} | {} |\n",
             of.len(),
             of.len(),
             versions(0),
             versions(1),
             median_range(&best, 2),
+            median_range(&laps, 0),
+            median_range(&late, 0),
             median_range(&imitation, 3),
             median_range(&wall, 1),
         ));
@@ -100,6 +112,7 @@ mod tests {
                     laps: 50,
                     lap_mean: Some(5.0 + version as f64 / 100.0),
                     lap_std: Some(0.1),
+                    steps: Some(2600),
                 })
                 .collect(),
             imitation: vec![(0, 1.0), (9, imitation)],
@@ -128,13 +141,13 @@ mod tests {
         let table = methods_table(&runs);
         assert!(
             table.contains(
-                "| proposed | 3 | 2 of 3 | 125 [100–150] (of 2) | 110 (of 1) | 6.25 [6.00–6.50] | 0.250 [0.200–0.300] | 11.0 [10.0–12.0] |"
+                "| proposed | 3 | 2 of 3 | 125 [100–150] (of 2) | 110 (of 1) | 6.25 [6.00–6.50] | 50 [0–100] | 2600 [2600–2600] | 0.250 [0.200–0.300] | 11.0 [10.0–12.0] |"
             ),
             "{table}"
         );
         assert!(
             table.contains(
-                "| baseline | 1 | 0 of 1 | none by 200 | none by 200 | - | 0.100 | 11.7 |"
+                "| baseline | 1 | 0 of 1 | none by 200 | none by 200 | - | 0 | - | 0.100 | 11.7 |"
             ),
             "{table}"
         );
