@@ -534,10 +534,13 @@ fn steps(path: &Path, runs: &[RunRecord]) -> Drawn {
                     .collect()
             })
             .collect();
-        let hi = series.iter().flatten().map(|p| p.1).fold(10.0, f64::max);
+        let values = series.iter().flatten().map(|p| p.1);
+        let (lo, hi) = values.fold((f64::INFINITY, 1f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        // Room above the lines for the legend.
+        let (lo, hi) = (lo.min(hi) / 1.3, hi * 4.0);
         let caption = format!("Evaluation steps on the track (median of {STEPS_WINDOW} versions)");
         let mut chart = crate::plots::chart(root, &caption, 60)
-            .build_cartesian_2d(0u64..max_v + 1, (1.0..hi * 1.5).log_scale())?;
+            .build_cartesian_2d(0u64..max_v + 1, (lo..hi).log_scale())?;
         chart
             .configure_mesh()
             .x_desc("policy version (epoch)")
