@@ -3,13 +3,14 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin [REV]] [--list] [--only N] [--lane I/N] [--snapshot] [--tables]
+#   deploy/campaign.sh [--pin [REV]] [--list] [--status] [--only N] [--lane I/N] [--snapshot] [--tables]
 #
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
 # campaign's runs come from one code whatever is built meanwhile: a later session on a fresh machine re-pins the
 # campaign's commit with --pin f1047ba (the folder used is printed, and named in
-# docs/REPRODUCTION.md by the report). --list prints the slices; --only N runs slice N alone. --lane I/N runs the
+# docs/REPRODUCTION.md by the report). --list prints the slices; --status prints each slice's runs as ended
+# (and how), in progress (at which epoch) or not started; --only N runs slice N alone. --lane I/N runs the
 # slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
 # numbers do not depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
 # runs still in progress to docs/reproduction/in-progress/ (a session ending mid-run commits them) and prints their
@@ -28,15 +29,17 @@ only=""
 lane="0/1"
 snapshot=0
 tables=0
+status=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --pin) pin=1; if [ $# -ge 2 ] && [[ "$2" != --* ]]; then pin_rev=$2; shift; fi ;;
     --list) list=1 ;;
+    --status) status=1 ;;
     --only) only=$2; shift ;;
     --lane) lane=$2; shift ;;
     --snapshot) snapshot=1 ;;
     --tables) tables=1 ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -107,6 +110,23 @@ if [ "$tables" = 1 ]; then
     [ ${#folders[@]} -gt 0 ] || continue
     echo "[campaign] $group: ${#folders[@]} runs" >&2
     target/release/learner compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"
+  done
+  exit 0
+fi
+
+if [ "$status" = 1 ]; then
+  bin=$(readlink -f "$root/.deps/campaign-bin/current" 2>/dev/null || echo "$root/target/release")
+  for i in "${!slices[@]}"; do
+    echo "slice $i: ${slices[$i]}"
+    # shellcheck disable=SC2086 # the slice is a word list by design
+    eval "CABC_BIN=\"$bin\" \"$root/deploy/reproduce.sh\" --dry-run ${slices[$i]}" 2>&1 \
+      | sed -nE 's/^\[reproduce\] ([^:]+): (.*)$/\1 \2/p' | while read -r name what; do
+        case "$what" in
+          done*) what=${what#*\"ended\": \"}; echo "  $name: ended, ${what%\")}" ;;
+          *--resume*) echo "  $name: in progress, $(($(wc -l < "runs/$name/metrics.csv") - 1)) epochs" ;;
+          *) echo "  $name: not started" ;;
+        esac
+      done
   done
   exit 0
 fi
