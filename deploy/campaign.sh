@@ -16,7 +16,8 @@
 # runs still in progress to docs/reproduction/in-progress/ (a session ending mid-run commits them) and prints their
 # `learner compare` table. --tables redraws every group's figures and tables in docs/reproduction/ (the folders
 # <group>-s<k>[-baseline]) with this checkout's learner (target/release, built if missing), where the pinned
-# binaries' `learner compare` predates a column or a figure (the runs' numbers are the pinned binaries').
+# binaries' `learner compare` predates a column or a figure (the runs' numbers are the pinned binaries'), and the
+# V-B ablation view (`learner compare --by-group`: docs/reproduction/v-b-ablation-{groups.png,table.md}).
 # Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -111,6 +112,14 @@ if [ "$tables" = 1 ]; then
     echo "[campaign] $group: ${#folders[@]} runs" >&2
     target/release/learner compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"
   done
+  # The ablation view: every V-B group of the campaign, a row per group and method, a column per seed.
+  folders=()
+  for group in v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-uncertain v-b-rerun; do
+    for d in "$out/$group"-s*; do
+      [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
+    done
+  done
+  target/release/learner compare --by-group --out "$out/v-b-ablation" "${folders[@]}" > "$out/v-b-ablation-table.md"
   exit 0
 fi
 

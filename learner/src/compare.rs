@@ -246,9 +246,14 @@ pub struct CompareOptions {
     /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
-    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png.
+    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png (with --by-group:
+    /// <OUT>-groups.png).
     #[arg(long, default_value = "compare")]
     pub out: PathBuf,
+    /// The ablation view: the runs grouped by name less `-s<k>`, a row per group and a column per seed
+    /// ([`crate::groups`]), and the late evaluations' steps per group in <OUT>-groups.png.
+    #[arg(long)]
+    pub by_group: bool,
 }
 
 /// Reads the runs, draws the figures (logging their paths) and returns the Markdown table.
@@ -258,6 +263,15 @@ pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
         .iter()
         .map(|dir| RunRecord::read(dir))
         .collect::<Result<Vec<_>, _>>()?;
+    if options.by_group {
+        let figure =
+            crate::groups::draw(&records, &options.out).map_err(|e| CompareError::Draw {
+                path: options.out.clone(),
+                why: e.to_string(),
+            })?;
+        tracing::info!("wrote {}", figure.display());
+        return Ok(crate::groups::table(&records));
+    }
     for figure in draw(&records, &options.out)? {
         tracing::info!("wrote {}", figure.display());
     }

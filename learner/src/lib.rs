@@ -29,6 +29,7 @@ pub mod demo;
 pub mod evaluations;
 pub mod export;
 pub mod fault;
+pub mod groups;
 pub mod hull;
 pub mod kdtree;
 pub mod learner;

@@ -19,7 +19,7 @@ pub fn median(values: &[f64]) -> Option<f64> {
 }
 
 /// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
-fn median_range(values: &[f64], digits: usize) -> String {
+pub(crate) fn median_range(values: &[f64], digits: usize) -> String {
     let Some(median) = median(values) else {
         return "-".into();
     };
