@@ -27,8 +27,8 @@ use std::time::Duration;
     about = "The cabc actor: collects segments under the expert/policy mixture"
 )]
 struct Cli {
-    /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
-    #[arg(long, short, default_value = "v-b")]
+    /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
+    #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
     config: String,
     /// This actor's name (a key chunk: letters, digits, '-', '_', '.').
     #[arg(long, default_value = "actor-0")]

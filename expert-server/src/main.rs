@@ -21,8 +21,8 @@ use std::sync::Arc;
     about = "The cabc expert: MPCC-conv on Clarabel or the PID lane follower"
 )]
 struct Cli {
-    /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
-    #[arg(long, short, global = true, default_value = "v-b")]
+    /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
+    #[arg(long, short, global = true, default_value = cabc_proto::config::DEFAULT_PRESET)]
     config: String,
     #[command(subcommand)]
     command: Option<Command>,

@@ -21,8 +21,8 @@ pub struct Cli {
 pub enum Command {
     /// Train: the learner of a distributed run (Algorithm 1 over zenoh), writing into the run folder.
     Run {
-        /// Run configuration: a preset (v-a, v-b, v-c, smoke) or a TOML file.
-        #[arg(long, short, default_value = "v-b")]
+        /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
+        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
         config: String,
         /// The run folder (default: <runs_dir>/<run name>).
         #[arg(long)]
@@ -50,7 +50,7 @@ pub enum Command {
     },
     /// Resolve a configuration, create its run folder with config.toml inside, and print the folder.
     Prepare {
-        #[arg(long, short, default_value = "v-b")]
+        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
         config: String,
         #[arg(long)]
         baseline: bool,
@@ -61,7 +61,7 @@ pub enum Command {
     /// Print one value of a configuration (dotted key, e.g. actors.count); or, with --gif, write a video of a run's
     /// policy: `learner show RUN --gif [VERSION]`.
     Show {
-        #[arg(long, short, default_value = "v-b")]
+        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
         config: String,
         /// The configuration's key; with --gif, the run folder.
         key: String,
@@ -88,7 +88,7 @@ pub enum Command {
     /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
     /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
     ZenohdConfig {
-        #[arg(long, short, default_value = "v-b")]
+        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
         config: String,
         /// Endpoints zenohd listens on (default: the protocol and port of every bus.connect endpoint, on every
         /// address); repeatable.

@@ -432,6 +432,10 @@ pub enum ConfigError {
     Override { setting: String, why: String },
 }
 
+/// The preset the binaries and `deploy/run-local.sh` use when none is named: V-B under the reference's protocol,
+/// under which the paper's claims hold best here (docs/REPRODUCTION.md, issue 18).
+pub const DEFAULT_PRESET: &str = "v-b-ref";
+
 /// The presets of deploy/configs/, embedded.
 pub const PRESETS: &[(&str, &str)] = &[
     ("v-a", include_str!("../../deploy/configs/v-a.toml")),

@@ -242,6 +242,10 @@ fn reference_presets_follow_the_reference_protocol() {
         );
     }
     assert_eq!(RunConfig::load("v-a-ref").unwrap().run.max_epochs, 50);
+    // The binaries' default is V-B under the reference protocol (docs/REPRODUCTION.md's recommendation).
+    let default = RunConfig::load(DEFAULT_PRESET).unwrap();
+    assert_eq!(default.run.experiment, r.run.experiment);
+    assert_eq!(default.to_toml(), r.to_toml());
 }
 
 /// Issue 18 item 8: --baseline is lambda = 0 unless the run names another baseline; v-c-ref's is the Fig. 6
