@@ -53,6 +53,10 @@ E=200
 ABL_SCHEDULE=(--set 'training.schedule="paper"' --set training.aux_max_batches=2000 --set training.critic_min_uncertain=16)
 ABL_CLIP=(--set 'training.clip_scope="policy"')
 ABL_COLLECTION=(--set 'collection.episodes="carry"' --set actors.count=2 --set actors.envs_per_actor=4)
+# Item 3 split in two, to tell which half of our collection matters: 2 actors x 4 environments with the reference's
+# reset episodes, and the reference's one environment with our carried episodes.
+ABL_ENVS=(--set actors.count=2 --set actors.envs_per_actor=4)
+ABL_CARRY=(--set 'collection.episodes="carry"')
 ABL_UNCERTAIN=(--set 'collection.flush="with-step"' --set 'collection.expert_failure_staged="uncertain"' --set replay.dynamics_only=true)
 
 # Seed-major: every protocol and ablation at seed 1, then at seed 2, ..., so that each slice of a session adds a
@@ -76,6 +80,8 @@ slices+=(
   "--seeds 3 --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"
   "--seeds 4-5 --epochs $E v-b-ref"
   "--seeds 4-5 --epochs $E --tag rerun v-b"
+  "--seeds 3 --epochs $E --methods proposed --tag abl-envs ${ABL_ENVS[*]} v-b-ref"
+  "--seeds 3 --epochs $E --methods proposed --tag abl-carry ${ABL_CARRY[*]} v-b-ref"
 )
 
 if [ "$snapshot" = 1 ]; then
@@ -114,7 +120,8 @@ if [ "$tables" = 1 ]; then
   done
   # The ablation view: every V-B group of the campaign, a row per group and method, a column per seed.
   folders=()
-  for group in v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-uncertain v-b-rerun; do
+  for group in v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs \
+    v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun; do
     for d in "$out/$group"-s*; do
       [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
     done
