@@ -127,6 +127,12 @@ if [ "$tables" = 1 ]; then
     done
   done
   target/release/learner compare --by-group --out "$out/v-b-ablation" "${folders[@]}" > "$out/v-b-ablation-table.md"
+  # ...and its table into docs/REPRODUCTION.md, between the markers.
+  awk -v table="$out/v-b-ablation-table.md" '
+    /^<!-- end v-b-ablation-table -->/ { skip = 0 }
+    !skip { print }
+    /^<!-- v-b-ablation-table/ { while ((getline line < table) > 0) if (line ~ /^\|/) print line; skip = 1 }
+  ' docs/REPRODUCTION.md > docs/REPRODUCTION.md.new && mv docs/REPRODUCTION.md.new docs/REPRODUCTION.md
   exit 0
 fi
 

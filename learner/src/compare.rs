@@ -428,11 +428,7 @@ fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
                 )?;
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .border_style(BLACK)
-            .draw()?;
+        crate::plots::legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         Ok(())
     })
 }
@@ -470,7 +466,7 @@ fn imitation(path: &Path, runs: &[RunRecord]) -> Drawn {
                 .and_then(|v| r.imitation.iter().find(|p| p.0 == v));
             chart.draw_series(stop.map(|&(e, v)| Circle::new((e, v), 7, c.stroke_width(3))))?;
         }
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        crate::plots::legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
@@ -519,7 +515,7 @@ fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
             let label = format!("expert {m:.2} ± {s:.2} s");
             crate::plots::expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
         }
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        crate::plots::legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
@@ -568,11 +564,7 @@ fn steps(path: &Path, runs: &[RunRecord]) -> Drawn {
                 .label(label(r))
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .border_style(BLACK)
-            .draw()?;
+        crate::plots::legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         Ok(())
     })
 }

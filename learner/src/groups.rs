@@ -188,12 +188,7 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::erro
             .draw_series(medians)?
             .label("median")
             .legend(|(x, y)| Rectangle::new([(x + 9, y - 6), (x + 11, y + 6)], BLACK.filled()));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.filled())
-            .border_style(BLACK)
-            .draw()?;
+        crate::plots::legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         Ok(())
     })?;
     Ok(path)

@@ -28,6 +28,20 @@ pub(crate) fn chart<'a, 'b>(
     builder
 }
 
+/// The series' legend of a chart in the figures' one style (a black border, white behind), at `position`.
+pub(crate) fn legend<'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, CT>,
+    position: SeriesLabelPosition,
+) -> PlotResult {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.filled())
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}
+
 /// A chart drawn into memory by `draw`, then written to `path` as an RGB PNG with the `png` crate: the one place that
 /// writes the run's figures (plotters' own file encoder would pull in the `image` crate, ~11 s of a cold build).
 pub(crate) fn png(
@@ -103,7 +117,7 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
             ))?
             .label(format!("{eval_laps} laps (early stop)"))
             .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED));
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
@@ -154,7 +168,7 @@ fn losses(path: &Path, state: &LearnerState) -> PlotResult {
                 .label(label)
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour));
         }
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
@@ -200,7 +214,7 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
             let label = format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len());
             expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
         }
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
@@ -271,7 +285,7 @@ fn line(path: &Path, report: &EvalReport) -> PlotResult {
             ))?
             .label("driven line")
             .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED));
-        chart.configure_series_labels().border_style(BLACK).draw()?;
+        legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
     })
 }
