@@ -10,12 +10,13 @@
 # campaign's runs come from one code whatever is built meanwhile: a later session on a fresh machine re-pins the
 # campaign's commit with --pin f1047ba (the folder used is printed, and named in
 # docs/REPRODUCTION.md by the report). --list prints the slices; --status prints each slice's runs as ended
-# (and how), in progress (at which epoch) or not started; --only N runs slice N alone. --lane I/N runs the
-# slices k with k mod N = I, on its own loopback port (7447 + I), so that N lanes share the machine's cores (a run's
-# numbers do not depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
+# (and how), in progress (at which epoch) or not started; --only N runs slice N alone. --lane I/N is one of N lanes
+# that share the machine's cores, on its own loopback port (7447 + I): each lane takes the next slice no other lane
+# has claimed (runs/campaign-claims/), so that the lanes stay busy until the last slice (a run's numbers do not
+# depend on its port or its neighbours; only its wall clock does). --snapshot copies the tables of the
 # runs still in progress to docs/reproduction/in-progress/ (a session ending mid-run commits them) and prints their
-# `learner compare` table. --tables redraws every group's figures and tables in docs/reproduction/ (the folders
-# <group>-s<k>[-baseline]) with this checkout's learner (target/release, built if missing), where the pinned
+# `learner compare` table. --tables redraws every group's figures and table in docs/reproduction/ (the groups with
+# a <group>-table.md) with this checkout's learner (target/release, built if missing), where the pinned
 # binaries' `learner compare` predates a column or a figure (the runs' numbers are the pinned binaries'), and the
 # V-B ablation view (`learner compare --by-group`: docs/reproduction/v-b-ablation-{groups.png,table.md}).
 # Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
@@ -40,7 +41,7 @@ while [ $# -gt 0 ]; do
     --lane) lane=$2; shift ;;
     --snapshot) snapshot=1 ;;
     --tables) tables=1 ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -72,17 +73,18 @@ for k in 1 2 3; do
     "--seeds $k-$k --epochs $E --tag rerun v-b"
   )
 done
-# Then V-A and V-C (minutes a run, where a V-B run takes tens), so that every claim has a verdict over three seeds
-# before V-B's seeds 45 and 46 add to its own.
-slices+=(
-  "--seeds 3 v-a-ref"
-  "--seeds 3 v-c-ref"
-  "--seeds 3 --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"
-  "--seeds 4-5 --epochs $E v-b-ref"
-  "--seeds 4-5 --epochs $E --tag rerun v-b"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-envs ${ABL_ENVS[*]} v-b-ref"
-  "--seeds 3 --epochs $E --methods proposed --tag abl-carry ${ABL_CARRY[*]} v-b-ref"
-)
+# Then V-A and V-C, so that every claim has a verdict over three seeds before V-B's seeds 45 and 46 add to its own;
+# then the split of item 3. A slice per seed, so that lanes share the work evenly.
+for k in 1 2 3; do slices+=("--seeds $k-$k v-a-ref"); done
+for k in 1 2 3; do slices+=("--seeds $k-$k v-c-ref"); done
+for k in 1 2 3; do slices+=("--seeds $k-$k --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"); done
+for k in 4 5; do slices+=("--seeds $k-$k --epochs $E v-b-ref" "--seeds $k-$k --epochs $E --tag rerun v-b"); done
+for k in 1 2 3; do
+  slices+=(
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-envs ${ABL_ENVS[*]} v-b-ref"
+    "--seeds $k-$k --epochs $E --methods proposed --tag abl-carry ${ABL_CARRY[*]} v-b-ref"
+  )
+done
 
 if [ "$snapshot" = 1 ]; then
   out=docs/reproduction/in-progress
@@ -190,12 +192,22 @@ log=runs/campaign.log
 [ "$lanes" = 1 ] || log=runs/campaign-lane$lane_i.log
 mkdir -p runs
 echo "[campaign] $(date -u +%FT%TZ) binaries $(readlink -f "$pinned"), lane $lane, port $port" >> "$log"
+# Lanes share the slices by claiming them, in order (deploy/claim.sh).
+claims=runs/campaign-claims
+# shellcheck source=deploy/claim.sh
+source "$root/deploy/claim.sh"
 for i in "${!slices[@]}"; do
-  [ -z "$only" ] || [ "$only" = "$i" ] || continue
-  [ $((i % lanes)) = "$lane_i" ] || continue
+  if [ -n "$only" ]; then
+    [ "$only" = "$i" ] || continue
+  elif [ "$lanes" -gt 1 ]; then
+    claim "${slices[$i]}" || continue
+  fi
   echo "[campaign] $(date -u +%FT%TZ) slice $i: ${slices[$i]}" | tee -a "$log" >&2
   # shellcheck disable=SC2086 # the slice is a word list by design
-  eval "\"$root/deploy/reproduce.sh\" \"\${bus[@]}\" ${slices[$i]}" >> "$log" 2>&1 \
-    || echo "[campaign] slice $i failed (see $log)" | tee -a "$log" >&2
+  if eval "\"$root/deploy/reproduce.sh\" \"\${bus[@]}\" ${slices[$i]}" >> "$log" 2>&1; then
+    [ "$lanes" = 1 ] || touch "$(lock_of "${slices[$i]}")/done"
+  else
+    echo "[campaign] slice $i failed (see $log)" | tee -a "$log" >&2
+  fi
 done
 echo "[campaign] $(date -u +%FT%TZ) done" | tee -a "$log" >&2
