@@ -18,7 +18,7 @@
 # `learner compare` table. --tables redraws every group's figures and table in docs/reproduction/ (the groups with
 # a <group>-table.md) with this checkout's learner (target/release, built if missing), where the pinned
 # binaries' `learner compare` predates a column or a figure (the runs' numbers are the pinned binaries'), and the
-# V-B ablation view (`learner compare --by-group`: docs/reproduction/v-b-ablation-{groups.png,table.md}).
+# views over groups (`learner compare --by-group`: docs/reproduction/v-b-ablation-*, v-c-protocols-*, v-a-protocols-*).
 # Logs: runs/<run>/logs/, and the campaign's own in runs/campaign[-laneI].log.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -110,7 +110,7 @@ fi
 if [ "$tables" = 1 ]; then
   [ -x target/release/learner ] || cargo build --release --quiet -p cabc-learner --bin learner
   out=docs/reproduction
-  groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done)
+  groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done | grep -vE -- '-(ablation|protocols)$')
   for group in $groups; do
     folders=()
     for d in "$out/$group"-s*; do
@@ -120,21 +120,30 @@ if [ "$tables" = 1 ]; then
     echo "[campaign] $group: ${#folders[@]} runs" >&2
     target/release/learner compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"
   done
-  # The ablation view: every V-B group of the campaign, a row per group and method, a column per seed.
-  folders=()
-  for group in v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs \
-    v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun; do
-    for d in "$out/$group"-s*; do
-      [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
+  # The views over groups (`learner compare --by-group`: a row per group and method, a column per seed): V-B's
+  # ablation, and each camera experiment under both protocols. Each view's table also goes into
+  # docs/REPRODUCTION.md, between its markers (<!-- NAME-table ... --> and <!-- end NAME-table -->), where it has them.
+  views=(
+    "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
+    "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
+    "v-a-protocols v-a-ref v-a-cpu"
+  )
+  for view in "${views[@]}"; do
+    read -r name groups <<< "$view"
+    folders=()
+    for group in $groups; do
+      for d in "$out/$group"-s*; do
+        [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
+      done
     done
+    [ ${#folders[@]} -gt 0 ] || continue
+    target/release/learner compare --by-group --out "$out/$name" "${folders[@]}" > "$out/$name-table.md"
+    awk -v table="$out/$name-table.md" -v start="^<!-- $name-table" -v end="^<!-- end $name-table -->" '
+      $0 ~ end { skip = 0 }
+      !skip { print }
+      $0 ~ start { while ((getline line < table) > 0) if (line ~ /^\|/) print line; skip = 1 }
+    ' docs/REPRODUCTION.md > docs/REPRODUCTION.md.new && mv docs/REPRODUCTION.md.new docs/REPRODUCTION.md
   done
-  target/release/learner compare --by-group --out "$out/v-b-ablation" "${folders[@]}" > "$out/v-b-ablation-table.md"
-  # ...and its table into docs/REPRODUCTION.md, between the markers.
-  awk -v table="$out/v-b-ablation-table.md" '
-    /^<!-- end v-b-ablation-table -->/ { skip = 0 }
-    !skip { print }
-    /^<!-- v-b-ablation-table/ { while ((getline line < table) > 0) if (line ~ /^\|/) print line; skip = 1 }
-  ' docs/REPRODUCTION.md > docs/REPRODUCTION.md.new && mv docs/REPRODUCTION.md.new docs/REPRODUCTION.md
   exit 0
 fi
 
