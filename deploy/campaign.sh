@@ -81,6 +81,8 @@ for k in 1 2 3; do slices+=("--seeds $k-$k v-a-ref"); done
 # V-A under the reference protocol completed no lap on its first seeds, its policy's imitation loss rising while its
 # learning rate stays at 1e-3 (item 9): the same with ours, the policy's rate decaying with the others'.
 for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-lr ${ABL_LR[*]} v-a-ref"); done
+# abl-lr changed nothing on seed 42, and its baseline's imitation loss rises too: our collection (item 3) on V-A.
+for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-a-ref"); done
 for k in 1 2 3; do slices+=("--seeds $k-$k v-c-ref"); done
 for k in 1 2 3; do slices+=("--seeds $k-$k --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"); done
 for k in 4 5; do slices+=("--seeds $k-$k --epochs $E v-b-ref" "--seeds $k-$k --epochs $E --tag rerun v-b"); done
@@ -131,7 +133,7 @@ if [ "$tables" = 1 ]; then
   views=(
     "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
     "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
-    "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-cpu"
+    "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-cpu"
   )
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"
