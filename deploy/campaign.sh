@@ -167,7 +167,10 @@ if [ "$status" = 1 ]; then
           *) echo "  $name: not started" ;;
         esac
       done
-  done
+  done | tee "${TMPDIR:-/tmp}/campaign-status.$$"
+  f="${TMPDIR:-/tmp}/campaign-status.$$"
+  echo "runs: $(grep -c ': ended' "$f") ended, $(grep -c ': in progress' "$f") in progress, $(grep -c ': not started' "$f") not started"
+  rm -f "$f"
   exit 0
 fi
 
