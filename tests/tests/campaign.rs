@@ -69,5 +69,8 @@ fn lanes_take_each_slice_once_and_take_over_a_dead_lanes_slice() {
     let died = run_lanes(dir, &[&[("DIE_AT", "s25")]]);
     assert_eq!(died, (20..26).map(|i| format!("s{i}")).collect::<Vec<_>>());
     let resumed = run_lanes(dir, &[&[], &[], &[]]);
-    assert_eq!(resumed, (25..30).map(|i| format!("s{i}")).collect::<Vec<_>>());
+    assert_eq!(
+        resumed,
+        (25..30).map(|i| format!("s{i}")).collect::<Vec<_>>()
+    );
 }
