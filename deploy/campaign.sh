@@ -219,15 +219,17 @@ claims=runs/campaign-claims
 # shellcheck source=deploy/claim.sh
 source "$root/deploy/claim.sh"
 for i in "${!slices[@]}"; do
+  claimed=0
   if [ -n "$only" ]; then
     [ "$only" = "$i" ] || continue
   elif [ "$lanes" -gt 1 ]; then
     claim "${slices[$i]}" || continue
+    claimed=1
   fi
   echo "[campaign] $(date -u +%FT%TZ) slice $i: ${slices[$i]}" | tee -a "$log" >&2
   # shellcheck disable=SC2086 # the slice is a word list by design
   if eval "\"$root/deploy/reproduce.sh\" \"\${bus[@]}\" ${slices[$i]}" >> "$log" 2>&1; then
-    [ "$lanes" = 1 ] || touch "$(lock_of "${slices[$i]}")/done"
+    [ "$claimed" = 0 ] || touch "$(lock_of "${slices[$i]}")/done"
   else
     echo "[campaign] slice $i failed (see $log)" | tee -a "$log" >&2
   fi
