@@ -86,6 +86,8 @@ for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-collecti
 # Nor did our collection on seed 42; the baselines' loss rises too, and under the reference's clip scope the critic's
 # and the dynamics model's last gradients count in the policy's clip even at lambda 0: item 2 on V-A.
 for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-a-ref"); done
+# Nor did the clip on seed 42: item 4 (what enters D+ and D?) on V-A.
+for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-a-ref"); done
 for k in 1 2 3; do slices+=("--seeds $k-$k v-c-ref"); done
 for k in 1 2 3; do slices+=("--seeds $k-$k --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"); done
 for k in 4 5; do slices+=("--seeds $k-$k --epochs $E v-b-ref" "--seeds $k-$k --epochs $E --tag rerun v-b"); done
@@ -136,7 +138,7 @@ if [ "$tables" = 1 ]; then
   views=(
     "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
     "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
-    "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-ref-abl-clip v-a-cpu"
+    "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-ref-abl-clip v-a-ref-abl-uncertain v-a-cpu"
   )
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"
