@@ -486,14 +486,8 @@ fn lap_times(path: &Path, runs: &[RunRecord]) -> Drawn {
                     .filter_map(|r| r.expert_lap_time.map(|(m, s)| m + s)),
             )
             .fold(1.0, f64::max);
-        let mut chart =
-            crate::plots::chart(root, "Lap time of the full evaluations: mean ± std", 50)
-                .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
-        chart
-            .configure_mesh()
-            .x_desc("policy version (epoch)")
-            .y_desc("lap time (s)")
-            .draw()?;
+        let caption = "Lap time of the full evaluations: mean ± std";
+        let mut chart = crate::plots::lap_time_chart(root, caption, max_v, hi)?;
         for (i, r) in runs.iter().enumerate() {
             let c = colour(runs, i);
             chart

@@ -184,13 +184,8 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
             .filter_map(|e| e.lap_max)
             .chain(expert_ms.map(|m| m.0 + m.1))
             .fold(1.0, f64::max);
-        let mut chart = chart(root, "Lap time at evaluation: mean ± std, min–max", 50)
-            .build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
-        chart
-            .configure_mesh()
-            .x_desc("policy version (epoch)")
-            .y_desc("lap time (s)")
-            .draw()?;
+        let caption = "Lap time at evaluation: mean ± std, min–max";
+        let mut chart = lap_time_chart(root, caption, max_v, hi)?;
         chart.draw_series(with_laps.iter().filter_map(|e| {
             let (lo, hi) = (e.lap_min?, e.lap_max?);
             let x = e.version as f64;
@@ -220,6 +215,27 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
 }
 
 /// The expert's lap time on a lap-time chart: its mean as a line over [0, `x1`], mean ± std as a band.
+/// The lap-time charts' frame (the run's and `learner compare`'s): policy versions 0..=`max_v` across, lap times
+/// from 0 to 15 % over `hi` up, the mesh drawn.
+pub(crate) fn lap_time_chart<'b, 'c>(
+    root: &DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    caption: &str,
+    max_v: u64,
+    hi: f64,
+) -> Result<
+    ChartContext<'c, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    Box<dyn std::error::Error>,
+> {
+    let mut chart =
+        chart(root, caption, 50).build_cartesian_2d(0f64..(max_v + 1) as f64, 0f64..hi * 1.15)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("lap time (s)")
+        .draw()?;
+    Ok(chart)
+}
+
 pub(crate) fn expert_band(
     chart: &mut ChartContext<'_, BitMapBackend<'_>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
     (m, s): (f64, f64),
