@@ -6,10 +6,19 @@
 
 use crate::compare::{RunRecord, LATE_VERSIONS};
 
-/// The median of `values` (the mean of the middle two for an even count); None when empty.
+/// The median of `values` (the mean of the middle two for an even count, unlike `cabc_proto::stats::median`'s
+/// nearest rank: a median of versions over two seeds lies between them); None when empty.
 pub fn median(values: &[f64]) -> Option<f64> {
+    median_of_sorted(&sorted(values))
+}
+
+fn sorted(values: &[f64]) -> Vec<f64> {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
+    v
+}
+
+fn median_of_sorted(v: &[f64]) -> Option<f64> {
     let n = v.len();
     match n {
         0 => None,
@@ -20,20 +29,16 @@ pub fn median(values: &[f64]) -> Option<f64> {
 
 /// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
 pub(crate) fn median_range(values: &[f64], digits: usize) -> String {
-    let Some(median) = median(values) else {
+    let v = sorted(values);
+    let Some(median) = median_of_sorted(&v) else {
         return "-".into();
     };
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 1 {
-        format!("{median:.digits$}")
-    } else {
-        format!(
-            "{median:.digits$} [{:.digits$}–{:.digits$}]",
-            v[0],
-            v[n - 1]
-        )
+    match v.as_slice() {
+        [lo, _, ..] => format!(
+            "{median:.digits$} [{lo:.digits$}–{:.digits$}]",
+            v[v.len() - 1]
+        ),
+        _ => format!("{median:.digits$}"),
     }
 }
 
