@@ -120,14 +120,21 @@ if [ "$snapshot" = 1 ]; then
 fi
 
 if [ "$tables" = 1 ]; then
-  [ -x target/release/learner ] || cargo build --release --quiet -p cabc-learner --bin learner
+  # Built every time (a no-op when current): a stale learner would draw last version's tables.
+  cargo build --release --quiet -p cabc-learner --bin learner
   out=docs/reproduction
+  # The run folders of GROUP (<group>-s<k>, <group>-s<k>-baseline), appended to folders.
+  add_group() {
+    local d
+    for d in "$out/$1"-s*; do
+      [[ "$(basename "$d")" =~ ^$1-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
+    done
+    return 0
+  }
   groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done | grep -vE -- '-(ablation|protocols)$')
   for group in $groups; do
     folders=()
-    for d in "$out/$group"-s*; do
-      [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
-    done
+    add_group "$group"
     [ ${#folders[@]} -gt 0 ] || continue
     echo "[campaign] $group: ${#folders[@]} runs" >&2
     target/release/learner compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"
@@ -143,11 +150,7 @@ if [ "$tables" = 1 ]; then
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"
     folders=()
-    for group in $groups; do
-      for d in "$out/$group"-s*; do
-        [[ "$(basename "$d")" =~ ^$group-s[0-9]+(-baseline)?$ ]] && [ -f "$d/metrics.csv" ] && folders+=("$d")
-      done
-    done
+    for group in $groups; do add_group "$group"; done
     [ ${#folders[@]} -gt 0 ] || continue
     target/release/learner compare --by-group --out "$out/$name" "${folders[@]}" > "$out/$name-table.md"
     awk -v table="$out/$name-table.md" -v start="^<!-- $name-table" -v end="^<!-- end $name-table -->" '
@@ -161,7 +164,7 @@ fi
 
 if [ "$status" = 1 ]; then
   bin=$(readlink -f "$root/.deps/campaign-bin/current" 2>/dev/null || echo "$root/target/release")
-  for i in "${!slices[@]}"; do
+  report=$(for i in "${!slices[@]}"; do
     echo "slice $i: ${slices[$i]}"
     # shellcheck disable=SC2086 # the slice is a word list by design
     eval "CABC_BIN=\"$bin\" \"$root/deploy/reproduce.sh\" --dry-run ${slices[$i]}" 2>&1 \
@@ -172,10 +175,10 @@ if [ "$status" = 1 ]; then
           *) echo "  $name: not started" ;;
         esac
       done
-  done | tee "${TMPDIR:-/tmp}/campaign-status.$$"
-  f="${TMPDIR:-/tmp}/campaign-status.$$"
-  echo "runs: $(grep -c ': ended' "$f") ended, $(grep -c ': in progress' "$f") in progress, $(grep -c ': not started' "$f") not started"
-  rm -f "$f"
+  done)
+  echo "$report"
+  count() { grep -c ": $1" <<< "$report" || true; }
+  echo "runs: $(count ended) ended, $(count 'in progress') in progress, $(count 'not started') not started"
   exit 0
 fi
 
