@@ -6,7 +6,7 @@ use crate::learner::LearnerState;
 use crate::record::Record;
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
-use plotters::coord::types::RangedCoordf64;
+use plotters::coord::types::{RangedCoordf64, RangedCoordu32, RangedCoordu64};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -92,17 +92,12 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
     crate::plots::png(path, SIZE, |root| {
         root.fill(&WHITE)?;
         let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
-        let mut chart = chart(
+        let mut chart = laps_chart(
             root,
             "Completed laps at evaluation (fixed spawn, policy alone)",
-            50,
-        )
-        .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
-        chart
-            .configure_mesh()
-            .x_desc("policy version (epoch)")
-            .y_desc("laps")
-            .draw()?;
+            max_v,
+            eval_laps,
+        )?;
         chart.draw_series(evals.iter().map(|e| {
             let colour = if e.laps >= eval_laps { GREEN } else { BLUE };
             Rectangle::new(
@@ -214,7 +209,6 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
     })
 }
 
-/// The expert's lap time on a lap-time chart: its mean as a line over [0, `x1`], mean ± std as a band.
 /// The lap-time charts' frame (the run's and `learner compare`'s): policy versions 0..=`max_v` across, lap times
 /// from 0 to 15 % over `hi` up, the mesh drawn.
 pub(crate) fn lap_time_chart<'b, 'c>(
@@ -236,6 +230,28 @@ pub(crate) fn lap_time_chart<'b, 'c>(
     Ok(chart)
 }
 
+/// The laps charts' frame (the run's and `learner compare`'s): policy versions 0..=`max_v` across, 0 to
+/// `eval_laps` + 2 laps up, the mesh drawn.
+pub(crate) fn laps_chart<'b, 'c>(
+    root: &DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    caption: &str,
+    max_v: u64,
+    eval_laps: u32,
+) -> Result<
+    ChartContext<'c, BitMapBackend<'b>, Cartesian2d<RangedCoordu64, RangedCoordu32>>,
+    Box<dyn std::error::Error>,
+> {
+    let mut chart =
+        chart(root, caption, 50).build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
+    chart
+        .configure_mesh()
+        .x_desc("policy version (epoch)")
+        .y_desc("laps")
+        .draw()?;
+    Ok(chart)
+}
+
+/// The expert's lap time on a lap-time chart: its mean as a line over [0, `x1`], mean ± std as a band.
 pub(crate) fn expert_band(
     chart: &mut ChartContext<'_, BitMapBackend<'_>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
     (m, s): (f64, f64),

@@ -85,14 +85,12 @@ fn laps(path: &Path, runs: &[RunRecord]) -> Drawn {
         root.fill(&WHITE)?;
         let max_v = max_version(runs);
         let eval_laps = runs.iter().map(|r| r.eval_laps).max().unwrap_or(50);
-        let mut chart =
-            crate::plots::chart(root, "Completed laps at evaluation, per policy version", 50)
-                .build_cartesian_2d(0u64..max_v + 1, 0u32..eval_laps + 2)?;
-        chart
-            .configure_mesh()
-            .x_desc("policy version (epoch)")
-            .y_desc("laps")
-            .draw()?;
+        let mut chart = crate::plots::laps_chart(
+            root,
+            "Completed laps at evaluation, per policy version",
+            max_v,
+            eval_laps,
+        )?;
         // Baselines last, on top: at 0 laps they would hide under the proposed runs' early versions.
         let order = (0..runs.len()).filter(|&i| !runs[i].is_baseline());
         for i in order.chain((0..runs.len()).filter(|&i| runs[i].is_baseline())) {
