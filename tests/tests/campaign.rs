@@ -9,7 +9,9 @@ fn claim_sh() -> PathBuf {
 }
 
 /// Writes a lane, a script named campaign.sh as the real lanes are (claim.sh looks for that name), that claims
-/// slices s0..s{n-1} in order, records each one it takes in `taken`, "runs" it and marks it done unless told to die.
+/// slices s0..s{n-1} in order, records each one it takes in `taken`, "runs" it and marks it done, unless told to die
+/// there (`DIE_AT`) or to leave it undone and go on (`ABANDON`, slices between spaces), as a lane killed mid-slice
+/// leaves its claim.
 fn lane(dir: &Path, n: usize) -> PathBuf {
     let script = dir.join("campaign.sh");
     std::fs::write(
@@ -18,7 +20,7 @@ fn lane(dir: &Path, n: usize) -> PathBuf {
             "#!/usr/bin/env bash\nset -euo pipefail\nclaims=claims\nsource {}\n\
              for i in $(seq 0 {}); do\n  claim \"s$i\" || continue\n  echo \"s$i $$\" >> taken\n  \
              sleep 0.0$((RANDOM % 3))\n  [ \"${{DIE_AT:-}}\" = \"s$i\" ] && exit 0\n  \
-             touch \"$(lock_of \"s$i\")/done\"\ndone\n",
+             [[ \" ${{ABANDON:-}} \" == *\" s$i \"* ]] && continue\n  touch \"$(lock_of \"s$i\")/done\"\ndone\n",
             claim_sh().display(),
             n - 1
         ),
@@ -72,5 +74,34 @@ fn lanes_take_each_slice_once_and_take_over_a_dead_lanes_slice() {
     assert_eq!(
         resumed,
         (25..30).map(|i| format!("s{i}")).collect::<Vec<_>>()
+    );
+    // Many stale claims at once, each raced for by four lanes: every one is taken over exactly once (a lane that
+    // saw a claim stale must not move aside the claim that another lane has put in its place since).
+    lane(dir, 60);
+    let abandon: Vec<String> = (30..60).map(|i| format!("s{i}")).collect();
+    let abandon = abandon.join(" ");
+    assert_eq!(run_lanes(dir, &[&[("ABANDON", &abandon)]]).len(), 30);
+    let lanes: &[&[(&str, &str)]] = &[&[], &[], &[], &[]];
+    assert_eq!(
+        run_lanes(dir, lanes),
+        (30..60).map(|i| format!("s{i}")).collect::<Vec<_>>()
+    );
+    // Stale claims in the older format (the pid alone, in `pid`, as lanes before the token wrote them): taken over
+    // exactly once too.
+    let old = Command::new("bash")
+        .arg("-c")
+        .arg(format!(
+            "claims=claims; source {}; for i in $(seq 60 69); do d=$(lock_of s$i); mkdir -p $d; \
+             echo 999999999 > $d/pid; done",
+            claim_sh().display()
+        ))
+        .current_dir(dir)
+        .status()
+        .unwrap();
+    assert!(old.success());
+    lane(dir, 70);
+    assert_eq!(
+        run_lanes(dir, lanes),
+        (60..70).map(|i| format!("s{i}")).collect::<Vec<_>>()
     );
 }
