@@ -1,8 +1,9 @@
 # Sourced by deploy/campaign.sh (and its test, tests/tests/campaign.rs): how lanes share the campaign's slices.
 # A slice is claimed by a lock directory named after its text, in $claims (set by the caller), holding its owner
-# (the lane's pid and a token of the lock's own, in one file), put in place by one atomic rename; `touch "$(lock_of SLICE)/done"` marks it ended well. A
-# lock is taken while its lane's campaign.sh runs, or once it is done; a lock whose lane no longer runs and is not
-# done (an earlier session's, ended mid-run) is taken over by exactly one lane.
+# (the lane's pid and a token of the lock's own, in one file), put in place by one atomic rename;
+# `touch "$(lock_of SLICE)/done"` marks it ended well. A lock is taken while its lane's campaign.sh runs, or once it
+# is done; a lock whose lane no longer runs and is not done (an earlier session's, ended mid-run) is taken over by
+# exactly one lane.
 
 lock_of() { echo "$claims/slice-$(printf '%s' "$1" | md5sum | cut -c1-16)"; }
 
@@ -20,7 +21,7 @@ claim() {
     # Neither file: the lock was being replaced between the two reads; look again.
     [ -n "$pid" ] || continue
     # Its lane still runs, or ended it (done is written before its lane goes on): taken.
-    if { [ -n "$pid" ] && ps -o args= -p "$pid" 2>/dev/null | grep -q campaign.sh; } || [ -e "$lock/done" ]; then
+    if ps -o args= -p "$pid" 2>/dev/null | grep -q campaign.sh || [ -e "$lock/done" ]; then
       rm -rf "$tmp"
       return 1
     fi
