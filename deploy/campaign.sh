@@ -3,8 +3,11 @@
 # that move one protocol item at a time from the reference's to ours, as slices of deploy/reproduce.sh in order of
 # priority. Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--pin [REV]] [--list] [--status] [--only N] [--lane I/N] [--snapshot] [--tables]
+#   deploy/campaign.sh [--plan recipe|issue-18] [--pin [REV]] [--list] [--status] [--only N] [--lane I/N]
+#                      [--snapshot] [--tables]
 #
+# --plan picks the list of slices: `recipe` (the default, issue 30: the V-B recipe over seeds 42-51, its baseline and
+# its keys one at a time) or `issue-18` (the reference's protocol against ours; ended).
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them to .deps/campaign-bin/<commit>/ and uses them for every later call, so that the
 # campaign's runs come from one code whatever is built meanwhile: a later session on a fresh machine re-pins the
@@ -32,6 +35,7 @@ lane="0/1"
 snapshot=0
 tables=0
 status=0
+plan=recipe
 while [ $# -gt 0 ]; do
   case "$1" in
     --pin) pin=1; if [ $# -ge 2 ] && [[ "$2" != --* ]]; then pin_rev=$2; shift; fi ;;
@@ -41,7 +45,8 @@ while [ $# -gt 0 ]; do
     --lane) lane=$2; shift ;;
     --snapshot) snapshot=1 ;;
     --tables) tables=1 ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    --plan) plan=$2; shift ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -62,45 +67,77 @@ ABL_CARRY=(--set 'collection.episodes="carry"')
 ABL_LR=(--set training.policy_lr_gamma=0.9772372209558107)
 ABL_UNCERTAIN=(--set 'collection.flush="with-step"' --set 'collection.expert_failure_staged="uncertain"' --set replay.dynamics_only=true)
 
-# Seed-major: every protocol and ablation at seed 1, then at seed 2, ..., so that each slice of a session adds a
-# whole row of the ablation table.
+# Issue 18's campaign (ended: every run is in docs/reproduction/): the reference's protocol against ours and the
+# ablations of its nine items.
+plan_issue_18() {
+  # Seed-major: every protocol and ablation at seed 1, then at seed 2, ..., so that each slice of a session adds a
+  # whole row of the ablation table.
+  slices=()
+  for k in 1 2 3; do
+    slices+=(
+      "--seeds $k-$k --epochs $E v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-schedule ${ABL_SCHEDULE[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --tag rerun v-b"
+    )
+  done
+  # Then V-A and V-C, so that every claim has a verdict over three seeds before V-B's seeds 45 and 46 add to its own;
+  # then the split of item 3. A slice per seed, so that lanes share the work evenly.
+  for k in 1 2 3; do slices+=("--seeds $k-$k v-a-ref"); done
+  # V-A under the reference protocol completed no lap on its first seeds, its policy's imitation loss rising while its
+  # learning rate stays at 1e-3 (item 9): the same with ours, the policy's rate decaying with the others'.
+  for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-lr ${ABL_LR[*]} v-a-ref"); done
+  # abl-lr changed nothing on seed 42, and its baseline's imitation loss rises too: our collection (item 3) on V-A.
+  for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-a-ref"); done
+  # Nor did our collection on seed 42; the baselines' loss rises too, and under the reference's clip scope the critic's
+  # and the dynamics model's last gradients count in the policy's clip even at lambda 0: item 2 on V-A.
+  for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-a-ref"); done
+  # Nor did the clip on seed 42: item 4 (what enters D+ and D?) on V-A.
+  for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-a-ref"); done
+  for k in 1 2 3; do slices+=("--seeds $k-$k v-c-ref"); done
+  for k in 1 2 3; do slices+=("--seeds $k-$k --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"); done
+  for k in 4 5; do slices+=("--seeds $k-$k --epochs $E v-b-ref" "--seeds $k-$k --epochs $E --tag rerun v-b"); done
+  # V-A under ours completed laps on seed 42 only, on the code before the halves, and the reference-protocol runs'
+  # metrics show the same rising imitation loss in ours up to epoch 30 (0.0027) before its laps came: ours on V-A over
+  # three seeds on the campaign's code, with 80 epochs (the report's V-A command), to tell the protocol from the seed.
+  for k in 1 2 3; do slices+=("--seeds $k-$k --epochs 80 --tag rerun v-a-cpu"); done
+  for k in 1 2 3; do
+    slices+=(
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-envs ${ABL_ENVS[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag abl-carry ${ABL_CARRY[*]} v-b-ref"
+    )
+  done
+}
+
+# Issue 30's campaign: the V-B recipe (`v-b`: `v-b-ref` with the recipe's keys; its runs are the group v-b-recipe,
+# apart from issue 18's runs of our protocol, v-b-s<k>) over seeds 42-51 against its
+# baseline and the reference protocol, and each key of the recipe alone on the reference protocol (issue 30 item 3:
+# one change at a time from the reference, on five seeds). Priority: the recipe on the seeds where the reference
+# fails, then on the rest of 42-46; its baseline; the keys alone; then seeds 47-51.
+RECIPE_STD=(--set training.standardise=true)
+RECIPE_EMA=(--set training.policy_ema=0.75)
+RECIPE_LR=(--set training.lr_min=1e-4)
+plan_recipe() {
+  for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done
+  for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods baseline --tag recipe v-b"); done
+  for k in 2 3 1 4 5; do
+    slices+=(
+      "--seeds $k-$k --epochs $E --methods proposed --tag std ${RECIPE_STD[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag ema ${RECIPE_EMA[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag lrmin ${RECIPE_LR[*]} v-b-ref"
+    )
+  done
+  for k in 6 7 8 9 10; do slices+=("--seeds $k-$k --epochs $E --tag recipe v-b" "--seeds $k-$k --epochs $E v-b-ref"); done
+}
+
 slices=()
-for k in 1 2 3; do
-  slices+=(
-    "--seeds $k-$k --epochs $E v-b-ref"
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-b-ref"
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-schedule ${ABL_SCHEDULE[*]} v-b-ref"
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-b-ref"
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-b-ref"
-    "--seeds $k-$k --epochs $E --tag rerun v-b"
-  )
-done
-# Then V-A and V-C, so that every claim has a verdict over three seeds before V-B's seeds 45 and 46 add to its own;
-# then the split of item 3. A slice per seed, so that lanes share the work evenly.
-for k in 1 2 3; do slices+=("--seeds $k-$k v-a-ref"); done
-# V-A under the reference protocol completed no lap on its first seeds, its policy's imitation loss rising while its
-# learning rate stays at 1e-3 (item 9): the same with ours, the policy's rate decaying with the others'.
-for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-lr ${ABL_LR[*]} v-a-ref"); done
-# abl-lr changed nothing on seed 42, and its baseline's imitation loss rises too: our collection (item 3) on V-A.
-for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-collection ${ABL_COLLECTION[*]} v-a-ref"); done
-# Nor did our collection on seed 42; the baselines' loss rises too, and under the reference's clip scope the critic's
-# and the dynamics model's last gradients count in the policy's clip even at lambda 0: item 2 on V-A.
-for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-clip ${ABL_CLIP[*]} v-a-ref"); done
-# Nor did the clip on seed 42: item 4 (what enters D+ and D?) on V-A.
-for k in 1 2 3; do slices+=("--seeds $k-$k --methods proposed --tag abl-uncertain ${ABL_UNCERTAIN[*]} v-a-ref"); done
-for k in 1 2 3; do slices+=("--seeds $k-$k v-c-ref"); done
-for k in 1 2 3; do slices+=("--seeds $k-$k --methods baseline --tag bc --set algorithm.baseline_lambda=0 v-c-ref"); done
-for k in 4 5; do slices+=("--seeds $k-$k --epochs $E v-b-ref" "--seeds $k-$k --epochs $E --tag rerun v-b"); done
-# V-A under ours completed laps on seed 42 only, on the code before the halves, and the reference-protocol runs'
-# metrics show the same rising imitation loss in ours up to epoch 30 (0.0027) before its laps came: ours on V-A over
-# three seeds on the campaign's code, with 80 epochs (the report's V-A command), to tell the protocol from the seed.
-for k in 1 2 3; do slices+=("--seeds $k-$k --epochs 80 --tag rerun v-a-cpu"); done
-for k in 1 2 3; do
-  slices+=(
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-envs ${ABL_ENVS[*]} v-b-ref"
-    "--seeds $k-$k --epochs $E --methods proposed --tag abl-carry ${ABL_CARRY[*]} v-b-ref"
-  )
-done
+case "$plan" in
+  issue-18) plan_issue_18 ;;
+  recipe) plan_recipe ;;
+  *) echo "--plan: issue-18 or recipe, not $plan" >&2; exit 2 ;;
+esac
 
 if [ "$snapshot" = 1 ]; then
   out=docs/reproduction/in-progress
@@ -135,7 +172,7 @@ if [ "$tables" = 1 ]; then
     done
     return 0
   }
-  groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done | grep -vE -- '-(ablation|protocols)$')
+  groups=$(for t in "$out"/*-table.md; do basename "$t" -table.md; done | grep -vE -- '-(ablation|protocols|view)$')
   for group in $groups; do
     folders=()
     add_group "$group"
@@ -150,6 +187,7 @@ if [ "$tables" = 1 ]; then
     "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
     "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
     "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-ref-abl-clip v-a-ref-abl-uncertain v-a-cpu v-a-cpu-rerun"
+    "v-b-recipe-view v-b-ref v-b-recipe v-b-ref-std v-b-ref-ema v-b-ref-lrmin"
   )
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"

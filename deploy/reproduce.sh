@@ -65,6 +65,11 @@ mkdir -p "$out"
 ended() {
   [ -f "$1/summary.json" ] && ! grep -q '"ended": *"interrupted"' "$1/summary.json"
 }
+# A run ended in an earlier session on another machine (runs/ is not kept across machines) has its results in
+# docs/reproduction/<run>/: it is not run again.
+ended_anywhere() {
+  ended "$runs_dir/$1" || ended "$out/$1"
+}
 
 for exp in "${experiments[@]}"; do
   group="$exp${tag:+-$tag}"
@@ -76,8 +81,10 @@ for exp in "${experiments[@]}"; do
       args+=(--set "run.seed=$((41 + k))" --set "run.name=$name")
       [ -z "$epochs" ] || args+=(--set "run.max_epochs=$epochs")
       dir="$runs_dir/$name"
-      if ended "$dir"; then
-        echo "[reproduce] $name: done ($(grep -o '"ended": *"[^"]*"' "$dir/summary.json"))" >&2
+      if ended_anywhere "$name"; then
+        where=$dir
+        ended "$where" || where="$out/$name"
+        echo "[reproduce] $name: done ($(grep -o '"ended": *"[^"]*"' "$where/summary.json"))" >&2
       else
         if [ -d "$dir/checkpoint" ] || [ -d "$dir/checkpoint.old" ]; then mode=--resume; else mode=--fresh; fi
         echo "[reproduce] $name: run-local.sh $mode ${args[*]} $exp" >&2

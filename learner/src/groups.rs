@@ -94,6 +94,16 @@ pub fn table(runs: &[RunRecord]) -> String {
             crate::seeds::median_range(&late, 0),
         ));
     }
+    out.push_str(&format!(
+        "\nOver seeds, per group: the share that reached the early stop with its Wilson \
+         interval; the interquartile mean of the first 50-lap version (a run that never got there at its budget) \
+         and of the late steps, with stratified-bootstrap 95 % intervals ({} resamples).\n\n{}",
+        crate::intervals::BOOTSTRAP_RESAMPLES,
+        crate::intervals::interval_header("group")
+    ));
+    for (group, of) in grouped(runs) {
+        out.push_str(&crate::intervals::interval_row(&group, &of));
+    }
     out
 }
 

@@ -31,6 +31,7 @@ pub mod export;
 pub mod fault;
 pub mod groups;
 pub mod hull;
+pub mod intervals;
 pub mod kdtree;
 pub mod learner;
 pub mod ledger;

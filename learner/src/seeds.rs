@@ -96,6 +96,17 @@ pub fn methods_table(runs: &[RunRecord]) -> String {
             median_range(&wall, 1),
         ));
     }
+    out.push('\n');
+    out.push_str(&crate::intervals::interval_header("method"));
+    for (method, baseline) in [("proposed", false), ("baseline", true)] {
+        let of: Vec<&RunRecord> = runs
+            .iter()
+            .filter(|r| r.is_baseline() == baseline)
+            .collect();
+        if !of.is_empty() {
+            out.push_str(&crate::intervals::interval_row(method, &of));
+        }
+    }
     out
 }
 
@@ -153,6 +164,13 @@ mod tests {
         assert!(
             table.contains(
                 "| baseline | 1 | 0 of 1 | none by 200 | none by 200 | - | 0 | - | 0.100 | 11.7 |"
+            ),
+            "{table}"
+        );
+        // Over seeds: p1 stopped (two full evaluations); first 50-lap versions 100, 200 (never: its budget), 150.
+        assert!(
+            table.contains(
+                "| proposed | 3 | 1 of 3 [0.06, 0.79] | 150.0 [100.0, 200.0] | 2600.0 [2600.0, 2600.0] |"
             ),
             "{table}"
         );

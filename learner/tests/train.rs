@@ -150,10 +150,18 @@ fn critic_separates_two_blobs() {
     assert!(q.double_value(&[0]) < 0.05);
 }
 
-/// Mean policy action over D+.
-fn mean_action(t: &Trainer, r: &Replay) -> [f64; 2] {
-    let a = t.policy().act_states(&r.plus.states).unwrap();
+/// The published policy's mean action over the D+ states whose x0 lies in `x0`.
+fn mean_action(t: &Trainer, r: &Replay, x0: std::ops::Range<f32>) -> [f64; 2] {
+    let states: Vec<[f32; 6]> = r
+        .plus
+        .states
+        .iter()
+        .filter(|s| x0.contains(&s[0]))
+        .copied()
+        .collect();
+    let a = t.deployed_policy().act_states(&states).unwrap();
     let n = a.len() as f64;
+    assert!(n > 100.0, "{n} states in {x0:?}");
     [
         a.iter().map(|v| v[0] as f64).sum::<f64>() / n,
         a.iter().map(|v| v[1] as f64).sum::<f64>() / n,
@@ -162,8 +170,13 @@ fn mean_action(t: &Trainer, r: &Replay) -> [f64; 2] {
 
 #[test]
 fn safety_term_pushes_the_policy_away_from_unsafe_states() {
-    // D+ has x0 in [-1, 0], D- x0 in [0.3, 1.5]; the expert's u0 = 0.5 moves x0 towards D- (x0' = 0.9 x0 + ... +
-    // 0.5 u0), and u1 barely matters. L_safety must lower u0 (sign) by a clear margin (size), and leave u1 alone.
+    // D+ has x0 in [-1, 0], D- x0 in [0.3, 1.5]; the expert's u0 = 0.5 moves x0 towards D- (x0' = 0.9 x0 + 0.1 x1
+    // + 0.5 u0), and u1 barely matters. L_safety must lower u0 where it matters, on the D+ states whose next state
+    // under the expert's action reaches the critic's boundary (x0 > -0.25: x0' up to 0.35), by a clear margin
+    // (size), and leave u1 alone. Far from D- (x0 < -0.75: x0' below -0.3) the critic is flat and the effect small.
+    // The margin is a third of the effect measured under the oldest and the newest kernels (issue 29: 0.6 to 0.7
+    // near D- under ATEN_CPU_CAPABILITY=default and avx512; the whole of D+'s mean, the old measure, moved by 0.10
+    // to 0.12 and missed a fixed 0.1 on one machine).
     let r = replay(3);
     let train = |lambda: f64| {
         let mut c = config(3);
@@ -174,10 +187,16 @@ fn safety_term_pushes_the_policy_away_from_unsafe_states() {
         for epoch in 0..12 {
             last = Some(t.train_epoch(epoch, &r, &mut Record::default()).unwrap());
         }
-        (mean_action(&t, &r), last.unwrap())
+        (
+            mean_action(&t, &r, -0.25..0.0),
+            mean_action(&t, &r, -1.0..-0.75),
+            last.unwrap(),
+        )
     };
-    let (bc, bc_losses) = train(0.0);
-    let (ca, ca_losses) = train(10.0);
+    let (bc, bc_far, bc_losses) = train(0.0);
+    let (ca, ca_far, ca_losses) = train(10.0);
+    let (near, far) = (bc[0] - ca[0], bc_far[0] - ca_far[0]);
+    eprintln!("L_safety lowers u0 by {near:.3} near D- and by {far:.3} far from it (BC {bc:?}, CA {ca:?})");
     assert!(!bc_losses.safety_active && bc_losses.safety == 0.0);
     assert!(ca_losses.safety_active && ca_losses.safety > 0.0);
     assert!(ca_losses.critic_accuracy.unwrap() > 0.95, "{ca_losses:?}");

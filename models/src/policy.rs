@@ -274,6 +274,37 @@ impl Policy {
             .collect())
     }
 
+    /// Folds a standardisation of the state, x_n = (x - mean) / std, into the first layer of a full-state policy
+    /// trained on x_n: W' = W / std (per input column), b' = b - W' mean, so that the policy then takes raw states
+    /// (the learner's `training.standardise`). Refused for a camera policy.
+    pub fn fold_input_standardisation(
+        &mut self,
+        mean: &[f32; STATE_DIM],
+        std: &[f32; STATE_DIM],
+    ) -> Result<(), ModelError> {
+        if !matches!(self.arch, PolicyArch::State { .. }) {
+            return Err(ModelError::Observation(format!(
+                "{} takes images: no state standardisation to fold",
+                self.arch
+            )));
+        }
+        let vars = self.vs.variables();
+        let (Some(w), Some(b)) = (vars.get("mlp.0.weight"), vars.get("mlp.0.bias")) else {
+            return Err(ModelError::MissingTensor("mlp.0.weight".into()));
+        };
+        let (mut w, mut b) = (w.shallow_clone(), b.shallow_clone());
+        let device = w.device();
+        let inv_std = Tensor::from_slice(std).to_device(device).reciprocal();
+        let mean = Tensor::from_slice(mean).to_device(device);
+        tch::no_grad(|| {
+            let w_folded = &w * inv_std.unsqueeze(0);
+            let b_folded = &b - w_folded.matmul(&mean);
+            w.copy_(&w_folded);
+            b.copy_(&b_folded);
+        });
+        Ok(())
+    }
+
     /// Shorthand for a full-state policy.
     pub fn act_states(
         &self,

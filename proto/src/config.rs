@@ -113,8 +113,14 @@ impl Default for ObservationSection {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AlgorithmSection {
-    /// Weight of the safety term in L_CA (0 = the behaviour-cloning baseline).
+    /// Weight of the safety term in L_CA (0 = the behaviour-cloning baseline); with `lambda_growth`, its cap.
     pub lambda: f64,
+    /// lambda's warm-up: lambda_j = min(lambda, lambda_start * lambda_growth^j) ([`RunConfig::lambda`]). The
+    /// reference's unused `SafeActor.step_schedule` grows it by 1.007 an epoch up to 10 (`models/safeAC.py:40-41`).
+    /// Absent (the default): lambda from epoch 0.
+    pub lambda_start: Option<f64>,
+    /// lambda's growth per epoch with `lambda_start` (1.007 in the reference's `step_schedule`).
+    pub lambda_growth: f64,
     /// Auto-labelling radius rho (eq. (20)).
     pub rho: f64,
     /// Shrink rho as D+ grows (the paper's future work); off by default.
@@ -148,6 +154,8 @@ impl Default for AlgorithmSection {
     fn default() -> Self {
         AlgorithmSection {
             lambda: 10.0,
+            lambda_start: None,
+            lambda_growth: 1.0,
             rho: 1.0,
             adaptive_rho: false,
             scale_states: false,
@@ -280,8 +288,20 @@ pub struct TrainingSection {
     /// The policy's own gamma; absent: `lr_gamma` (ours). The reference's vision trainer keeps the policy's
     /// learning rate at 1e-3 (gamma 1).
     pub policy_lr_gamma: Option<f64>,
+    /// The learning rates' floor: lr = max(lr * gamma^fits, lr_min), for all three networks; 0 (the reference) for
+    /// none, where gamma 0.1^(1/100) per fit leaves 1e-5 by epoch 200 and the policy all but frozen.
+    pub lr_min: f64,
     /// Which gradients the policy's clip measures: `policy` (ours) or `policy-critic-dynamics` (the reference).
     pub clip_scope: ClipScope,
+    /// Standardise the state for the three networks with D+'s mean and standard deviation, taken once, at the first
+    /// policy fit, and checkpointed (robomimic, LeRobot and Diffusion Policy standardise inputs). The reference feeds
+    /// the raw state, where s runs over the whole track and the other dimensions stay near 1. The published policy
+    /// takes raw states: the standardisation is folded into its first layer.
+    pub standardise: bool,
+    /// The published policy (collection and evaluation) is an exponential moving average of the trained weights,
+    /// updated once an epoch after the policy's fit: ema = policy_ema * ema + (1 - policy_ema) * theta (LeRobot and
+    /// Diffusion Policy evaluate such an average). 0 (the reference) publishes the trained weights.
+    pub policy_ema: f64,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
@@ -322,7 +342,10 @@ impl Default for TrainingSection {
             grad_clip: 1.0,
             lr_gamma: 0.1f64.powf(1.0 / 100.0),
             policy_lr_gamma: None,
+            lr_min: 0.0,
             clip_scope: ClipScope::Policy,
+            standardise: false,
+            policy_ema: 0.0,
             batch_size: 64,
             initial_passes: 5,
             passes: 1,
@@ -432,8 +455,8 @@ pub enum ConfigError {
     Override { setting: String, why: String },
 }
 
-/// The preset the binaries and `deploy/run-local.sh` use when none is named: V-B under the reference's protocol,
-/// under which the paper's claims hold best here (docs/REPRODUCTION.md, issue 18).
+/// The preset the binaries and `deploy/run-local.sh` use when none is named: V-B under the reference's protocol
+/// (docs/REPRODUCTION.md, issue 18) until the recipe `v-b` (issue 30) has shown over seeds that it does better.
 pub const DEFAULT_PRESET: &str = "v-b-ref";
 
 /// The presets of deploy/configs/, embedded.
@@ -562,6 +585,19 @@ impl RunConfig {
         self.algorithm
             .beta_decay
             .powi(epoch.min(i32::MAX as u64) as i32)
+    }
+
+    /// lambda_j, the weight of L_safety in epoch j (eq. (14)): `algorithm.lambda`, or its warm-up from
+    /// `lambda_start`, growing by `lambda_growth` an epoch up to `lambda`.
+    pub fn lambda(&self, epoch: u64) -> f64 {
+        let a = &self.algorithm;
+        match a.lambda_start {
+            None => a.lambda,
+            Some(start) => {
+                let j = epoch.min(i32::MAX as u64) as i32;
+                (start * a.lambda_growth.powi(j)).min(a.lambda)
+            }
+        }
     }
 
     /// Environment steps of epoch `epoch`, all actors together.

@@ -37,7 +37,11 @@ pub fn critic_examples(
     negative_label: f64,
     device: Device,
 ) -> (Tensor, Tensor) {
-    examples(&Uploaded::of(replay, device), negatives, negative_label)
+    examples(
+        &Uploaded::of(replay, device, None),
+        negatives,
+        negative_label,
+    )
 }
 
 /// [`critic_examples`] from the epoch's uploaded replay.
@@ -69,7 +73,7 @@ impl Trainer {
     /// `batch_size`; under the every-epoch schedule that also turns L_safety off until the critic trains again
     /// (the reference's `critic.initialized = False`). Marks the critic trained.
     pub fn fit_critic(&mut self, replay: &Replay, passes: usize) -> Option<CriticFit> {
-        self.fit_critic_on(&Uploaded::of(replay, self.device), passes)
+        self.fit_critic_on(&self.upload(replay), passes)
     }
 
     /// [`Trainer::fit_critic`] on the epoch's uploaded replay.

@@ -3,6 +3,7 @@
 //! concatenations on the device, not a new host-side copy of the replay per network.
 
 use super::fit::cat_rows;
+use super::standardise::Standardiser;
 use crate::replay::{Replay, Store};
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
 use tch::{Device, Tensor};
@@ -17,18 +18,23 @@ pub(crate) struct Rows {
 }
 
 impl Rows {
-    fn of(store: &Store, device: Device) -> Self {
+    fn of(store: &Store, device: Device, standardiser: Option<&Standardiser>) -> Self {
+        let states = |rows: &[[f32; STATE_DIM]]| {
+            let x = cat_rows([rows.as_flattened()], STATE_DIM, device);
+            standardiser.map_or(x.shallow_clone(), |s| s.apply(&x))
+        };
         Rows {
-            states: cat_rows([store.states.as_flattened()], STATE_DIM, device),
+            states: states(&store.states),
             expert_actions: cat_rows([store.expert_actions.as_flattened()], ACTION_DIM, device),
             applied_actions: cat_rows([store.applied_actions.as_flattened()], ACTION_DIM, device),
-            next_states: cat_rows([store.next_states.as_flattened()], STATE_DIM, device),
+            next_states: states(&store.next_states),
             len: store.len(),
         }
     }
 }
 
-/// D+, D?, the dynamics-only store and D-, on the device.
+/// D+, D?, the dynamics-only store and D-, on the device; every state (and next state) standardised when the
+/// trainer standardises (`training.standardise`).
 pub(crate) struct Uploaded {
     pub plus: Rows,
     pub uncertain: Rows,
@@ -38,12 +44,13 @@ pub(crate) struct Uploaded {
 }
 
 impl Uploaded {
-    pub fn of(replay: &Replay, device: Device) -> Self {
+    pub fn of(replay: &Replay, device: Device, standardiser: Option<&Standardiser>) -> Self {
+        let minus = cat_rows([replay.minus().as_flattened()], STATE_DIM, device);
         Uploaded {
-            plus: Rows::of(&replay.plus, device),
-            uncertain: Rows::of(&replay.uncertain, device),
-            dynamics_only: Rows::of(&replay.dynamics_only, device),
-            minus: cat_rows([replay.minus().as_flattened()], STATE_DIM, device),
+            plus: Rows::of(&replay.plus, device, standardiser),
+            uncertain: Rows::of(&replay.uncertain, device, standardiser),
+            dynamics_only: Rows::of(&replay.dynamics_only, device, standardiser),
+            minus: standardiser.map_or(minus.shallow_clone(), |s| s.apply(&minus)),
         }
     }
 

@@ -19,7 +19,7 @@ impl Trainer {
     /// One fit call of f_hat, eq. (15), on every stored (x, u_applied, x'): D+, D? and the dynamics-only store.
     /// None (nothing trained, the rng untouched) when they hold fewer than `batch_size` samples.
     pub fn fit_dynamics(&mut self, replay: &Replay, passes: usize) -> Option<Fit> {
-        self.fit_dynamics_on(&Uploaded::of(replay, self.device), passes)
+        self.fit_dynamics_on(&self.upload(replay), passes)
     }
 
     /// [`Trainer::fit_dynamics`] on the epoch's uploaded replay.

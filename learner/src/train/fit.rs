@@ -16,10 +16,11 @@ use super::adam::Adam;
 /// One network's optimiser and learning-rate schedule.
 pub(crate) struct Opt {
     pub adam: Adam,
-    /// Fit calls so far: lr = lr0 * gamma^fits.
+    /// Fit calls so far: lr = max(lr0 * gamma^fits, lr_min).
     pub fits: u64,
     lr0: f64,
     gamma: f64,
+    lr_min: f64,
 }
 
 impl Opt {
@@ -35,12 +36,13 @@ impl Opt {
             fits: 0,
             lr0: t.lr,
             gamma,
+            lr_min: t.lr_min,
         }
     }
 
     /// The learning rate of the next fit call.
     pub fn lr(&self) -> f64 {
-        self.lr0 * self.gamma.powi(self.fits as i32)
+        (self.lr0 * self.gamma.powi(self.fits as i32)).max(self.lr_min)
     }
 }
 

@@ -27,11 +27,13 @@ mod data;
 mod dynamics;
 mod fit;
 mod policy;
+mod standardise;
 mod state;
 
 pub use critic::{critic_examples, CriticFit, CriticTrainer};
 pub use dynamics::Fit;
 pub use policy::{l_clone, l_safety, PolicyFit};
+pub use standardise::{Standardiser, MIN_STD};
 
 use crate::checkpoint::CheckpointError;
 use crate::record::Record;
@@ -105,6 +107,10 @@ pub struct Trainer {
     pub epochs_trained: u64,
     critic_trained: bool,
     rng: ChaCha8Rng,
+    /// The state's standardisation (`training.standardise`), from D+ at the first policy fit.
+    standardiser: Option<Standardiser>,
+    /// The moving average of the policy's weights (`training.policy_ema`), from the first policy fit on.
+    ema: Option<Policy>,
 }
 
 impl Trainer {
@@ -155,6 +161,8 @@ impl Trainer {
             epochs_trained: 0,
             critic_trained: false,
             rng: ChaCha8Rng::seed_from_u64(seed.wrapping_add(3)),
+            standardiser: None,
+            ema: None,
         }
     }
 
@@ -162,8 +170,25 @@ impl Trainer {
         self.device
     }
 
+    /// The policy as it trains: on standardised states when `training.standardise` is on ([`Trainer::standardiser`]).
+    /// What actors drive is [`Trainer::deployed_policy`].
     pub fn policy(&self) -> &Policy {
         &self.policy
+    }
+
+    /// The state's standardisation the networks train under, once taken (`training.standardise`).
+    pub fn standardiser(&self) -> Option<&Standardiser> {
+        self.standardiser.as_ref()
+    }
+
+    /// The moving average of the policy's weights, once the policy has trained (`training.policy_ema` > 0).
+    pub fn policy_ema(&self) -> Option<&Policy> {
+        self.ema.as_ref()
+    }
+
+    /// The replay's arrays on the training device, standardised as the networks train.
+    fn upload(&self, replay: &Replay) -> Uploaded {
+        Uploaded::of(replay, self.device, self.standardiser.as_ref())
     }
 
     pub fn dynamics(&self) -> &Dynamics {
@@ -174,9 +199,30 @@ impl Trainer {
         &self.critic
     }
 
-    /// The policy's weights for a `PolicyUpdate` (safetensors, architecture in the metadata).
+    /// The published policy's weights for a `PolicyUpdate` (safetensors, architecture in the metadata): the moving
+    /// average when `training.policy_ema` > 0, else the trained weights, with the state's standardisation folded
+    /// into the first layer, so that it takes raw states.
     pub fn policy_bytes(&self) -> Vec<u8> {
-        self.policy.to_bytes()
+        let source = self.ema.as_ref().unwrap_or(&self.policy);
+        match (&self.standardiser, source.arch()) {
+            (Some(s), PolicyArch::State { .. }) => {
+                let mut deployed = Policy::new(source.arch(), Device::Cpu, 0);
+                deployed
+                    .var_store_mut()
+                    .copy(source.var_store())
+                    .expect("a policy's copy of the same architecture");
+                deployed
+                    .fold_input_standardisation(&s.mean, &s.std)
+                    .expect("a full-state policy");
+                deployed.to_bytes()
+            }
+            _ => source.to_bytes(),
+        }
+    }
+
+    /// The published policy ([`Trainer::policy_bytes`]) on the CPU: what the actors drive.
+    pub fn deployed_policy(&self) -> Policy {
+        Policy::from_bytes(&self.policy_bytes(), Device::Cpu).expect("the trainer's own weights")
     }
 
     /// `PolicyUpdate.architecture`.
@@ -245,6 +291,33 @@ impl Trainer {
         self.policy_opt.lr()
     }
 
+    /// ema = d * ema + (1 - d) * theta after a policy fit, d = `training.policy_ema`; the first fit starts it at
+    /// theta.
+    fn update_ema(&mut self) {
+        let d = self.config.training.policy_ema;
+        if d == 0.0 {
+            return;
+        }
+        match &mut self.ema {
+            None => {
+                let mut ema = Policy::new(self.policy.arch(), self.device, 0);
+                ema.var_store_mut()
+                    .copy(self.policy.var_store())
+                    .expect("a policy's copy of the same architecture");
+                self.ema = Some(ema);
+            }
+            Some(ema) => {
+                let theta = self.policy.var_store().variables();
+                tch::no_grad(|| {
+                    for (name, mut average) in ema.var_store().variables() {
+                        let next = &average * d + &theta[&name] * (1.0 - d);
+                        average.copy_(&next);
+                    }
+                });
+            }
+        }
+    }
+
     /// One epoch of Algorithm 1's training part, as the run's [`Schedule`] says: f_hat when due (eq. (15)), p_hat
     /// when due (eq. (16), D+ against its negatives), then pi_theta (eq. (14)). The one place the schedule is
     /// applied: the algorithm's loop, the tests and the benchmark all call it. Auto-labelling is the caller's
@@ -258,7 +331,13 @@ impl Trainer {
         let start = Instant::now();
         limit_cpu_threads(self.device);
         let schedule = Schedule::from_config(&self.config);
-        let data = Uploaded::of(replay, self.device);
+        if self.config.training.standardise && self.standardiser.is_none() {
+            self.standardiser = Standardiser::of(&replay.plus.states);
+            if let Some(s) = &self.standardiser {
+                tracing::info!(mean = ?s.mean, std = ?s.std, "the state's standardisation, from D+");
+            }
+        }
+        let data = self.upload(replay);
         let mut losses = EpochLosses {
             epoch,
             n_plus: replay.len_plus(),
@@ -290,7 +369,14 @@ impl Trainer {
         }
         losses.lr_policy = self.lr_policy();
         record.exact("lr_policy", losses.lr_policy);
-        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
+        let lambda = self.config.lambda(epoch);
+        if self.config.algorithm.lambda_start.is_some() {
+            record.real("lambda", lambda, 6);
+        }
+        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch), lambda)?;
+        if fit.samples > 0 {
+            self.update_ema();
+        }
         record.real("imitation_loss", fit.imitation, 6);
         record.real("safety_loss", fit.safety, 6);
         losses.imitation = fit.imitation;

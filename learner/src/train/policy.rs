@@ -7,6 +7,8 @@ use super::{TrainError, Trainer};
 use crate::replay::Replay;
 use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
 use cabc_proto::config::ClipScope;
+#[allow(unused_imports)] // the doc link
+use cabc_proto::config::RunConfig;
 use cabc_proto::messages::velocity_of;
 use tch::{Kind, Reduction, Tensor};
 
@@ -47,11 +49,12 @@ struct Pass {
 }
 
 impl Trainer {
-    /// One fit call of pi_theta on D+, eq. (14). With fewer than `batch_size` steps in D+ nothing trains (the rng and
+    /// One fit call of pi_theta on D+, eq. (14), at lambda_j of the next epoch ([`RunConfig::lambda`]). With fewer than `batch_size` steps in D+ nothing trains (the rng and
     /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images.
     pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
-        let data = Uploaded::of(replay, self.device);
-        self.fit_policy_on(replay, &data, passes)
+        let data = self.upload(replay);
+        let lambda = self.config.lambda(self.epochs_trained);
+        self.fit_policy_on(replay, &data, passes, lambda)
     }
 
     /// [`Trainer::fit_policy`] on the epoch's uploaded replay (D+'s images, when the policy sees them, are batched
@@ -61,12 +64,12 @@ impl Trainer {
         replay: &Replay,
         data: &Uploaded,
         passes: usize,
+        lambda: f64,
     ) -> Result<PolicyFit, TrainError> {
         let plus = &replay.plus;
         if plus.len() < self.config.training.batch_size {
             return Ok(PolicyFit::default());
         }
-        let lambda = self.config.algorithm.lambda;
         let safety_active = lambda > 0.0 && self.critic_trained;
         let images = match (self.policy.arch(), &plus.images) {
             (PolicyArch::Camera { .. }, None) => return Err(TrainError::NoImages),

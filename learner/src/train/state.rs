@@ -5,9 +5,9 @@
 //! kept) still loads, with fresh moments and a warning.
 
 use super::fit::Opt;
-use super::{TrainError, Trainer};
+use super::{Standardiser, TrainError, Trainer};
 use crate::checkpoint::{Checkpoint, CheckpointError};
-use cabc_models::Network;
+use cabc_models::{Network, Policy};
 use cabc_proto::config::RunConfig;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -20,6 +20,8 @@ const STATE: &str = "trainer.json";
 const POLICY_ADAM: &str = "policy.adam.safetensors";
 const DYNAMICS_ADAM: &str = "dynamics.adam.safetensors";
 const CRITIC_ADAM: &str = "critic.adam.safetensors";
+/// The policy's moving average (`training.policy_ema`), once it exists.
+const POLICY_EMA: &str = "policy.ema.safetensors";
 
 /// `trainer.json`.
 #[derive(Serialize, Deserialize)]
@@ -32,6 +34,9 @@ struct TrainerState {
     rng_stream: u64,
     rng_word_pos: u128,
     architectures: [String; 3],
+    /// The state's standardisation (`training.standardise`); absent in checkpoints from before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    standardiser: Option<Standardiser>,
 }
 
 impl Trainer {
@@ -53,8 +58,10 @@ impl Trainer {
                 self.dynamics.architecture(),
                 self.critic.architecture(),
             ],
+            standardiser: self.standardiser.clone(),
         };
-        vec![
+        let ema = self.ema.as_ref().map(|ema| (POLICY_EMA, ema.to_bytes()));
+        let mut files = vec![
             (POLICY, self.policy.to_bytes()),
             (DYNAMICS, self.dynamics.to_bytes()),
             (CRITIC, self.critic.to_bytes()),
@@ -65,7 +72,9 @@ impl Trainer {
                 STATE,
                 serde_json::to_vec_pretty(&state).expect("serialises"),
             ),
-        ]
+        ];
+        files.extend(ema);
+        files
     }
 
     /// Restores what [`Trainer::to_checkpoint`] wrote into this trainer (built from the same configuration; weights
@@ -82,6 +91,20 @@ impl Trainer {
         load_adam(&mut self.policy_opt, checkpoint, POLICY_ADAM)?;
         load_adam(&mut self.dynamics_opt, checkpoint, DYNAMICS_ADAM)?;
         load_adam(&mut self.critic_opt, checkpoint, CRITIC_ADAM)?;
+        self.ema = match checkpoint.read(POLICY_EMA) {
+            Ok(bytes) => {
+                let mut ema = Policy::new(self.policy.arch(), self.device, 0);
+                ema.load_bytes(&bytes)?;
+                Some(ema)
+            }
+            Err(CheckpointError::Io { source, .. })
+                if source.kind() == std::io::ErrorKind::NotFound =>
+            {
+                None
+            }
+            Err(e) => return Err(e.into()),
+        };
+        self.standardiser = state.standardiser;
         self.epochs_trained = state.epochs_trained;
         self.critic_trained = state.critic_trained;
         [

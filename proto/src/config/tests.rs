@@ -193,7 +193,7 @@ fn settings_override_keys_and_are_validated() {
 /// items (and the machine's) alone.
 #[test]
 fn reference_presets_follow_the_reference_protocol() {
-    let ours = RunConfig::load("v-b").unwrap();
+    let ours = RunConfig::default();
     let r = RunConfig::load("v-b-ref").unwrap();
     assert_eq!(r.training.schedule, ScheduleKind::EveryEpoch);
     assert_eq!(r.training.clip_scope, ClipScope::PolicyCriticDynamics);
@@ -242,10 +242,49 @@ fn reference_presets_follow_the_reference_protocol() {
         );
     }
     assert_eq!(RunConfig::load("v-a-ref").unwrap().run.max_epochs, 50);
-    // The binaries' default is V-B under the reference protocol (docs/REPRODUCTION.md's recommendation).
+}
+
+/// Issue 30: the V-B recipe (`v-b`) is the reference protocol (`v-b-ref`) with the recipe's keys alone changed.
+#[test]
+fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
+    let recipe = RunConfig::load("v-b").unwrap();
+    let mut r = RunConfig::load("v-b-ref").unwrap();
+    assert!(!r.training.standardise && r.training.policy_ema == 0.0 && r.training.lr_min == 0.0);
+    assert_eq!(r.algorithm.lambda_start, None);
+    r.run.name = recipe.run.name.clone();
+    let t = &recipe.training;
+    (
+        r.training.standardise,
+        r.training.policy_ema,
+        r.training.lr_min,
+    ) = (t.standardise, t.policy_ema, t.lr_min);
+    let a = &recipe.algorithm;
+    (r.algorithm.lambda_start, r.algorithm.lambda_growth) = (a.lambda_start, a.lambda_growth);
+    assert_eq!(
+        recipe.to_toml(),
+        r.to_toml(),
+        "only the recipe's keys differ"
+    );
+    assert!(t.standardise, "the recipe standardises");
     let default = RunConfig::load(DEFAULT_PRESET).unwrap();
-    assert_eq!(default.run.experiment, r.run.experiment);
-    assert_eq!(default.to_toml(), r.to_toml());
+    assert_eq!(default.run.experiment, recipe.run.experiment);
+}
+
+#[test]
+fn the_recipe_keys_are_checked() {
+    for (bad, says) in [
+        ("training.policy_ema=1", "training.policy_ema"),
+        ("training.policy_ema=-0.1", "training.policy_ema"),
+        ("training.lr_min=-1", "training.lr_min"),
+        ("algorithm.lambda_growth=0.9", "algorithm.lambda_growth"),
+        ("algorithm.lambda_start=-1", "algorithm.lambda_start"),
+    ] {
+        let e = RunConfig::default()
+            .with_overrides(&[bad.to_string()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(says), "{bad}: {e}");
+    }
 }
 
 /// Issue 18 item 8: --baseline is lambda = 0 unless the run names another baseline; v-c-ref's is the Fig. 6

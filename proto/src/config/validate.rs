@@ -34,6 +34,32 @@ impl RunConfig {
                 "must be > 0",
             );
         }
+        if let Some(start) = self.algorithm.lambda_start {
+            if !(start >= 0.0 && start.is_finite()) {
+                return invalid("algorithm.lambda_start", start.to_string(), "must be >= 0");
+            }
+        }
+        if !(self.algorithm.lambda_growth >= 1.0 && self.algorithm.lambda_growth.is_finite()) {
+            return invalid(
+                "algorithm.lambda_growth",
+                self.algorithm.lambda_growth.to_string(),
+                "must be >= 1 (a warm-up grows towards algorithm.lambda)",
+            );
+        }
+        if !(0.0..1.0).contains(&self.training.policy_ema) {
+            return invalid(
+                "training.policy_ema",
+                self.training.policy_ema.to_string(),
+                "must lie in [0, 1): the share of the old average kept each epoch (0: no average)",
+            );
+        }
+        if !(self.training.lr_min >= 0.0 && self.training.lr_min.is_finite()) {
+            return invalid(
+                "training.lr_min",
+                self.training.lr_min.to_string(),
+                "must be >= 0",
+            );
+        }
         if !(0.0..=1.0).contains(&self.algorithm.beta_decay) {
             return invalid(
                 "algorithm.beta_decay",
