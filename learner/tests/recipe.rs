@@ -214,3 +214,44 @@ fn the_recipe_resumes_bit_for_bit() {
         .unwrap();
     assert_eq!(record.f64("lambda"), Some(0.5));
 }
+
+/// `training.clone_uncertain`: L_clone fits D+ and D?'s states with the expert's labels; a step whose expert failed
+/// (labelled [0, 0] by the actor) stays out.
+#[test]
+fn cloning_on_d_uncertain_takes_its_labelled_steps() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut r = Replay::new(10_000, 5);
+    r.add_segment(&Segment::of("t", Outcome::Lap, steps(1024, &mut rng, 0.0)))
+        .unwrap();
+    let mut failed = steps(320, &mut rng, 5.0);
+    for s in failed.iter_mut().take(64) {
+        s.expert_ok = false;
+        s.expert_action = [0.0, 0.0];
+    }
+    r.add_segment(&Segment::of(
+        "t",
+        Outcome::Failure(EndReason::OutOfTrack),
+        failed,
+    ))
+    .unwrap();
+    r.apply_labels(&AutolabelReport::default());
+    assert_eq!(r.len_uncertain(), 320);
+    let samples = |clone_uncertain: bool| {
+        let mut c = config(5);
+        c.training.clone_uncertain = clone_uncertain;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        t.train_epoch(0, &r, &mut Record::default())
+            .unwrap()
+            .policy_samples
+    };
+    let passes = RunConfig::default().training.initial_passes;
+    assert_eq!(samples(false), passes * 1024);
+    assert_eq!(
+        samples(true),
+        passes * (1024 + 256),
+        "D?'s 256 labelled steps"
+    );
+    let mut camera = RunConfig::load("v-c-ref").unwrap();
+    camera.training.clone_uncertain = true;
+    assert!(camera.validate("t").is_err(), "D? keeps no images");
+}

@@ -302,6 +302,11 @@ pub struct TrainingSection {
     /// updated once an epoch after the policy's fit: ema = policy_ema * ema + (1 - policy_ema) * theta (LeRobot and
     /// Diffusion Policy evaluate such an average). 0 (the reference) publishes the trained weights.
     pub policy_ema: f64,
+    /// L_clone also on D?'s states, with the expert's labels (the steps where the expert failed excepted): DAgger's
+    /// aggregate, where the reference and Algorithm 1's diagram clone D+ alone. The states where the policy left the
+    /// track, and the expert's corrections there, are then in the policy's training set; L_safety keeps D+'s and
+    /// D?'s batch. Full-state policies only (D? keeps no images). false (the reference): D+ alone.
+    pub clone_uncertain: bool,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
@@ -346,6 +351,7 @@ impl Default for TrainingSection {
             clip_scope: ClipScope::Policy,
             standardise: false,
             policy_ema: 0.0,
+            clone_uncertain: false,
             batch_size: 64,
             initial_passes: 5,
             passes: 1,

@@ -49,6 +49,31 @@ struct Pass {
 }
 
 impl Trainer {
+    /// The states and expert labels L_clone fits: D+ (Algorithm 1, the reference), then with
+    /// `training.clone_uncertain` D?'s states whose label is the expert's (the actor labels a step where the expert
+    /// failed with [0, 0], `cabc_actor::collect`; an exact zero from MPCC has measure zero), for a full-state policy.
+    fn clone_set(&self, data: &Uploaded, camera: bool) -> (Tensor, Tensor) {
+        let plus = (
+            data.plus.states.shallow_clone(),
+            data.plus.expert_actions.shallow_clone(),
+        );
+        if !self.config.training.clone_uncertain || camera || data.uncertain.len == 0 {
+            return plus;
+        }
+        let u = &data.uncertain;
+        let labelled = u
+            .expert_actions
+            .abs()
+            .sum_dim_intlist(&[1i64][..], false, Kind::Float)
+            .gt(0.0)
+            .nonzero()
+            .squeeze_dim(1);
+        (
+            Tensor::cat(&[&plus.0, &u.states.index_select(0, &labelled)], 0),
+            Tensor::cat(&[&plus.1, &u.expert_actions.index_select(0, &labelled)], 0),
+        )
+    }
+
     /// One fit call of pi_theta on D+, eq. (14), at lambda_j of the next epoch ([`RunConfig::lambda`]). With fewer than `batch_size` steps in D+ nothing trains (the rng and
     /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images.
     pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
@@ -77,7 +102,8 @@ impl Trainer {
             (PolicyArch::State { .. }, _) => None,
         };
         let dev = self.device;
-        let (x_all, label_all) = (&data.plus.states, &data.plus.expert_actions);
+        let (x_all, label_all) = self.clone_set(data, images.is_some());
+        let (x_all, label_all) = (&x_all, &label_all);
         // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
         // L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
         // measures theta's gradient together with theirs.
@@ -99,7 +125,7 @@ impl Trainer {
             &self.config.training,
             dev,
             &mut self.rng,
-            plus.len(),
+            x_all.size()[0] as usize,
             Budget {
                 passes,
                 max_batches: self.config.training.policy_max_batches,
