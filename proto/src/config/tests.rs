@@ -250,6 +250,7 @@ fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
     let recipe = RunConfig::load("v-b").unwrap();
     let mut r = RunConfig::load("v-b-ref").unwrap();
     assert!(!r.training.standardise && r.training.policy_ema == 0.0 && r.training.lr_min == 0.0);
+    assert!(!r.training.clone_uncertain);
     assert_eq!(r.algorithm.lambda_start, None);
     r.run.name = recipe.run.name.clone();
     let t = &recipe.training;
@@ -258,6 +259,7 @@ fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
         r.training.policy_ema,
         r.training.lr_min,
     ) = (t.standardise, t.policy_ema, t.lr_min);
+    r.training.clone_uncertain = t.clone_uncertain;
     let a = &recipe.algorithm;
     (r.algorithm.lambda_start, r.algorithm.lambda_growth) = (a.lambda_start, a.lambda_growth);
     assert_eq!(
