@@ -1,11 +1,12 @@
 //! `learner compare --by-group`: the ablation view of many runs. Runs are grouped by their name less the seed's
 //! suffix (`<group>-s<k>`, `<group>-s<k>-baseline`), proposed and baseline apart, in the order the groups first
 //! appear on the command line; per group and seed one cell says the first 50-lap version (and the early stop), the
-//! laps completed over all evaluations and the late evaluations' steps ([`RunRecord::late_steps`]), and
-//! `<out>-groups.png` draws the late steps per group, a dot per seed, filled where the run reached `eval_laps` laps.
+//! laps completed over all evaluations and the late evaluations' steps ([`RunRecord::late_steps`]), a second table
+//! gives the statistics over seeds ([`crate::intervals`]), and `<out>-groups.png` draws the late steps per group, a
+//! dot per seed, filled where the run reached `eval_laps` laps, with the group's IQM and its bootstrap 95 % interval.
 
 use crate::compare::{RunRecord, LATE_VERSIONS};
-use crate::seeds::median;
+use crate::intervals::{bootstrap_95, iqm};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -122,7 +123,8 @@ const SEED_COLOURS: [RGBColor; 10] = [
 ];
 
 /// Draws `<out>-groups.png`: per group (a row), each seed's late evaluation steps (a dot, filled where the run
-/// reached the laps) and the group's median (a black bar). Returns its path.
+/// reached the laps), the group's interquartile mean (a black bar) and its bootstrap 95 % interval (a line). Returns
+/// its path.
 pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
     let name = out
         .file_name()
@@ -148,7 +150,7 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::erro
     crate::plots::png(&path, (1000, height), |root| {
         root.fill(&WHITE)?;
         let caption = format!(
-            "Evaluation steps over the last {LATE_VERSIONS} versions (median), a dot per seed; filled: 50 laps reached"
+            "Late eval steps (median of the last {LATE_VERSIONS} versions): a dot per seed, filled: 50 laps; bar: IQM, line: its 95 % CI"
         );
         let mut chart = crate::plots::chart(root, &caption, 230)
             .build_cartesian_2d((lo..hi).log_scale(), (0..rows).into_segmented())?;
@@ -187,17 +189,29 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::erro
                 .label(seed_label)
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
         }
-        let medians = groups.iter().enumerate().filter_map(|(i, (_, of))| {
-            let late: Vec<f64> = of.iter().filter_map(|r| r.late_steps()).collect();
+        let late =
+            |of: &[&RunRecord]| -> Vec<f64> { of.iter().filter_map(|r| r.late_steps()).collect() };
+        let iqms = groups.iter().enumerate().filter_map(|(i, (_, of))| {
             Some(
-                EmptyElement::at((median(&late)?, row(i)))
+                EmptyElement::at((iqm(&late(of))?, row(i)))
                     + Rectangle::new([(-1, -16), (1, 16)], BLACK.filled()),
             )
         });
         chart
-            .draw_series(medians)?
-            .label("median")
+            .draw_series(iqms)?
+            .label("IQM")
             .legend(|(x, y)| Rectangle::new([(x + 9, y - 6), (x + 11, y + 6)], BLACK.filled()));
+        let intervals = groups.iter().enumerate().filter_map(|(i, (_, of))| {
+            let (lo, hi) = bootstrap_95(&late(of), iqm)?;
+            Some(PathElement::new(
+                vec![(lo, row(i)), (hi, row(i))],
+                BLACK.stroke_width(2),
+            ))
+        });
+        chart
+            .draw_series(intervals)?
+            .label("IQM's 95 % CI (bootstrap)")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
         crate::plots::legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         Ok(())
     })?;

@@ -50,7 +50,7 @@ struct Pass {
 
 impl Trainer {
     /// The states and expert labels L_clone fits: D+ (Algorithm 1, the reference), then with
-    /// `training.clone_uncertain` D?'s states whose label is the expert's (the actor labels a step where the expert
+    /// `training.clone_uncertain` D?'s states (L_safety stays on the D+ rows) whose label is the expert's (the actor labels a step where the expert
     /// failed with [0, 0], `cabc_actor::collect`; an exact zero from MPCC has measure zero), for a full-state policy.
     fn clone_set(&self, data: &Uploaded, camera: bool) -> (Tensor, Tensor) {
         let plus = (
@@ -104,6 +104,7 @@ impl Trainer {
         let dev = self.device;
         let (x_all, label_all) = self.clone_set(data, images.is_some());
         let (x_all, label_all) = (&x_all, &label_all);
+        let n_plus = plus.len();
         // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
         // L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
         // measures theta's gradient together with theirs.
@@ -150,6 +151,17 @@ impl Trainer {
                 if !safety_active {
                     return Ok(l_clone);
                 }
+                // L_safety on the batch's D+ rows alone (the first `n_plus` of the clone set): at a D? state every
+                // action may lead out of the safe set, and -log p_hat there would outweigh L_clone.
+                let (x, u) = if x_all.size()[0] as usize > n_plus {
+                    let rows = b.idx.lt(n_plus as i64).nonzero().squeeze_dim(1);
+                    if rows.size()[0] == 0 {
+                        return Ok(l_clone);
+                    }
+                    (x.index_select(0, &rows), u.index_select(0, &rows))
+                } else {
+                    (x, u)
+                };
                 let l_safety = l_safety(dynamics, critic, &x, &u, lambda);
                 pass.safety.add(&l_safety);
                 Ok(l_clone + l_safety)
