@@ -119,11 +119,18 @@ plan_issue_18() {
 RECIPE_STD=(--set training.standardise=true)
 RECIPE_EMA=(--set training.policy_ema=0.75)
 RECIPE_LR=(--set training.lr_min=1e-4)
+RECIPE_CLONE=(--set training.clone_uncertain=true)
+RECIPE_WARMUP=(--set algorithm.lambda_start=1 --set algorithm.lambda_growth=1.007)
 plan_recipe() {
+  # lambda's warm-up first (the reference's unused step_schedule): the recipe's first three candidates (v1: the state
+  # standardised, the moving average, the learning-rate floor; v2 and v3: with L_clone on D? too) drove no lap on
+  # seeds 43 and 44, with L_safety 5-60 times L_clone (docs/reproduction/v-b-recipe-v*).
+  for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag warmup ${RECIPE_WARMUP[*]} v-b-ref"); done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods baseline --tag recipe v-b"); done
   for k in 2 3 1 4 5; do
     slices+=(
+      "--seeds $k-$k --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
       "--seeds $k-$k --epochs $E --methods proposed --tag std ${RECIPE_STD[*]} v-b-ref"
       "--seeds $k-$k --epochs $E --methods proposed --tag ema ${RECIPE_EMA[*]} v-b-ref"
       "--seeds $k-$k --epochs $E --methods proposed --tag lrmin ${RECIPE_LR[*]} v-b-ref"
@@ -187,7 +194,7 @@ if [ "$tables" = 1 ]; then
     "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
     "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
     "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-ref-abl-clip v-a-ref-abl-uncertain v-a-cpu v-a-cpu-rerun"
-    "v-b-recipe-view v-b-ref v-b-recipe v-b-ref-std v-b-ref-ema v-b-ref-lrmin"
+    "v-b-recipe-view v-b-ref v-b-recipe v-b-recipe-v1 v-b-recipe-v2 v-b-recipe-v3 v-b-ref-warmup v-b-ref-clone v-b-ref-std v-b-ref-ema v-b-ref-lrmin"
   )
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"
