@@ -121,11 +121,20 @@ RECIPE_EMA=(--set training.policy_ema=0.75)
 RECIPE_LR=(--set training.lr_min=1e-4)
 RECIPE_CLONE=(--set training.clone_uncertain=true)
 RECIPE_WARMUP=(--set algorithm.lambda_start=1 --set algorithm.lambda_growth=1.007)
+RECIPE_DMINUS=(--set 'algorithm.critic_negatives="d-minus"')
 plan_recipe() {
   # lambda's warm-up first (the reference's unused step_schedule): the recipe's first three candidates (v1: the state
   # standardised, the moving average, the learning-rate floor; v2 and v3: with L_clone on D? too) drove no lap on
   # seeds 43 and 44, with L_safety 5-60 times L_clone (docs/reproduction/v-b-recipe-v*).
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag warmup ${RECIPE_WARMUP[*]} v-b-ref"); done
+  # The warm-up alone reached 50 laps on 3 seeds of 5 (early stop on 2), the reference on 1: the recipe with the
+  # warm-up, and with the paper's critic negatives (D-, eq. (16)) besides, on the two seeds where everything failed.
+  for k in 2 3; do
+    slices+=(
+      "--seeds $k-$k --epochs $E --methods proposed --tag warmup ${RECIPE_WARMUP[*]} v-b"
+      "--seeds $k-$k --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b"
+    )
+  done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods baseline --tag recipe v-b"); done
   for k in 2 3 1 4 5; do
