@@ -127,12 +127,15 @@ plan_recipe() {
   # standardised, the moving average, the learning-rate floor; v2 and v3: with L_clone on D? too) drove no lap on
   # seeds 43 and 44, with L_safety 5-60 times L_clone (docs/reproduction/v-b-recipe-v*).
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag warmup ${RECIPE_WARMUP[*]} v-b-ref"); done
-  # The warm-up alone reached 50 laps on 3 seeds of 5 (early stop on 2), the reference on 1: the recipe with the
-  # warm-up, and with the paper's critic negatives (D-, eq. (16)) besides, on the two seeds where everything failed.
+  # The warm-up alone reached 50 laps on 3 seeds of 5 (early stop on 2), the reference on 1. Every candidate with the
+  # state standardised (v1-v3, and v1 with the warm-up: v-b-warmup-s2, v-b-warmup-dminus-s2, stopped at versions 100
+  # and 40) left the track 8-14 steps after the fixed spawn in most early evaluations, where the reference drives
+  # 20-46: DAgger's aggregate (L_clone on D?'s expert labels) alone, and the warm-up with the paper's critic
+  # negatives (D-, eq. (16)), on the two seeds where everything failed.
   for k in 2 3; do
     slices+=(
-      "--seeds $k-$k --epochs $E --methods proposed --tag warmup ${RECIPE_WARMUP[*]} v-b"
-      "--seeds $k-$k --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b"
+      "--seeds $k-$k --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
     )
   done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done

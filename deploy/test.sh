@@ -42,10 +42,9 @@ step workspace cargo test --release --workspace --no-fail-fast "$@"
 
 if [ "${CABC_OLDEST_KERNELS:-1}" != 0 ]; then
   oldest=(env ATEN_CPU_CAPABILITY=default MKL_ENABLE_INSTRUCTIONS=AVX)
-  step learning-oldest-kernels "${oldest[@]}" cargo test --release --no-fail-fast -p cabc-learner \
-    --test train --test recipe --test autolabel --test demo --lib
-  step algorithm-oldest-kernels "${oldest[@]}" cargo test --release --no-fail-fast -p cabc-tests \
-    --test algorithm --test local
+  # --workspace, as the step above: `-p` would resolve the dependencies' features anew and rebuild them (minutes).
+  step learning-oldest-kernels "${oldest[@]}" cargo test --release --no-fail-fast --workspace \
+    --test train --test recipe --test autolabel --test demo --test algorithm --test local
 fi
 
 # The Python package (python/, a member of the workspace whose lib has no Rust tests; issue 20): the wheel (maturin,
