@@ -95,6 +95,8 @@ fn dynamics_learns_a_linear_system() {
             .dynamics
             .unwrap();
     }
+    // Issue 29: 4.09e-4 on the training data and 4.78e-4 / 4.79e-4 held out, under this machine's AVX2 kernels and
+    // the oldest; the bounds are 5 and 10 times that.
     eprintln!("dynamics MSE {last:.2e}");
     assert!(last < 2e-3, "dynamics MSE {last}");
     // Held-out states.
