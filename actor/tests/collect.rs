@@ -303,3 +303,82 @@ fn the_stored_action_is_clipped_or_not_as_configured() {
         "the policy's steering leaves the box somewhere"
     );
 }
+
+/// DART (`collection.action_noise_std`): under the expert alone (beta = 1) the applied action is the expert's plus
+/// Gaussian noise of the configured deviation, the label stays the expert's answer at the state the car is in, and
+/// the noise moves the car off the line the noiseless expert drives.
+#[test]
+fn action_noise_perturbs_the_applied_action_and_leaves_the_label() {
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.actors.envs_per_actor = 2;
+    let steps = |config: &RunConfig| {
+        let (segments, _) = collect_epochs(config, 400, 1, 1.0, usize::MAX);
+        segments
+            .into_iter()
+            .flat_map(|s| s.steps)
+            .collect::<Vec<_>>()
+    };
+    let quiet = steps(&config);
+    let std = [0.3, 0.05];
+    config.collection.action_noise_std = std;
+    let noisy = steps(&config);
+    let bound = cabc_sim::vehicle::clip_action(&[1e9, 1e9]);
+    let mut residuals = [Vec::new(), Vec::new()];
+    for step in &noisy {
+        let pid = PidLaneFollower::new(1.2).action(
+            step.state[0] as f64,
+            step.state[4] as f64,
+            step.state[5] as f64,
+        );
+        let label = [pid[0] as f32, pid[1] as f32];
+        // The step stores the state in f32; the expert answered the f64 state.
+        let gap = (0..2).map(|d| (step.expert_action[d] - label[d]).abs());
+        assert!(
+            gap.fold(0.0, f32::max) < 1e-5,
+            "the label is the expert's: {:?} against {label:?}",
+            step.expert_action
+        );
+        let label = step.expert_action;
+        for d in 0..2 {
+            // Inside the box the applied action is the expert's plus the noise, unclipped.
+            if (step.applied_action[d] as f64).abs() < bound[d] {
+                residuals[d].push((step.applied_action[d] - label[d]) as f64);
+            }
+        }
+    }
+    for d in 0..2 {
+        let r = &residuals[d];
+        assert!(
+            r.len() > 300,
+            "{} unclipped steps in dimension {d}",
+            r.len()
+        );
+        let mean = r.iter().sum::<f64>() / r.len() as f64;
+        let sd = (r.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / r.len() as f64).sqrt();
+        // 300+ draws: the sample deviation is within 15 % of the configured one, the mean within 4 standard errors.
+        assert!(
+            (sd / std[d] - 1.0).abs() < 0.15,
+            "dimension {d}: deviation {sd} for {}",
+            std[d]
+        );
+        assert!(
+            mean.abs() < 4.0 * std[d] / (r.len() as f64).sqrt(),
+            "dimension {d}: mean {mean}"
+        );
+    }
+    for step in &quiet {
+        assert_eq!(
+            step.applied_action, step.expert_action,
+            "no noise: the expert's action"
+        );
+    }
+    let moved = quiet
+        .iter()
+        .zip(&noisy)
+        .filter(|(q, n)| (q.state[4] - n.state[4]).abs() > 0.01)
+        .count();
+    assert!(
+        moved > 100,
+        "the noise moves the car off the line: {moved} steps"
+    );
+}

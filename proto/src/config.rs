@@ -195,6 +195,13 @@ pub struct CollectionSection {
     pub expert_failure_staged: ExpertFailureStaged,
     /// The action stored for the dynamics model: `clipped` (ours) or `unclipped` (the reference).
     pub stored_action: StoredAction,
+    /// Noise injected into the applied action in collection, not in evaluation: Gaussian, standard deviation per
+    /// action dimension [acceleration m/s², steering rad], added to the mixture before the plant clips it (DART,
+    /// Laskey et al., CoRL 2017). The car then visits the states just off the line it would drive, each labelled
+    /// with the expert's correction, so the policy learns the feedback on x_tran and e_psi rather than a map of s
+    /// alone. The stored label stays the expert's; the stored action is the one applied. [0, 0] (the reference):
+    /// none.
+    pub action_noise_std: [f64; 2],
 }
 
 impl Default for CollectionSection {
@@ -210,6 +217,7 @@ impl Default for CollectionSection {
             flush: Flush::WithStep,
             expert_failure_staged: ExpertFailureStaged::Uncertain,
             stored_action: StoredAction::Clipped,
+            action_noise_std: [0.0; 2],
         }
     }
 }

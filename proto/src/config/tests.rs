@@ -280,6 +280,14 @@ fn the_recipe_keys_are_checked() {
         ("training.lr_min=-1", "training.lr_min"),
         ("algorithm.lambda_growth=0.9", "algorithm.lambda_growth"),
         ("algorithm.lambda_start=-1", "algorithm.lambda_start"),
+        (
+            "collection.action_noise_std=[0.3,-0.1]",
+            "collection.action_noise_std",
+        ),
+        (
+            "collection.action_noise_std=[nan,0]",
+            "collection.action_noise_std",
+        ),
     ] {
         let e = RunConfig::default()
             .with_overrides(&[bad.to_string()])

@@ -132,6 +132,14 @@ impl RunConfig {
                 "standard deviations must be finite and >= 0",
             );
         }
+        let action_noise = self.collection.action_noise_std;
+        if !action_noise.iter().all(|s| s.is_finite() && *s >= 0.0) {
+            return invalid(
+                "collection.action_noise_std",
+                format!("{action_noise:?}"),
+                "standard deviations must be finite and >= 0",
+            );
+        }
         // An empty `bus.listen` makes the learner a client of the routers in `bus.connect` (a standalone zenohd,
         // deploy/SCALE-OUT.md §2); the others always need somewhere to connect to.
         if self.bus.connect.is_empty() {
