@@ -122,6 +122,7 @@ RECIPE_LR=(--set training.lr_min=1e-4)
 RECIPE_CLONE=(--set training.clone_uncertain=true)
 RECIPE_WARMUP=(--set algorithm.lambda_start=1 --set algorithm.lambda_growth=1.007)
 RECIPE_DMINUS=(--set 'algorithm.critic_negatives="d-minus"')
+RECIPE_DART=(--set 'collection.action_noise_std=[0.3,0.05]')
 plan_recipe() {
   # lambda's warm-up first (the reference's unused step_schedule): the recipe's first three candidates (v1: the state
   # standardised, the moving average, the learning-rate floor; v2 and v3: with L_clone on D? too) drove no lap on
@@ -132,12 +133,18 @@ plan_recipe() {
   # and 40) left the track 8-14 steps after the fixed spawn in most early evaluations, where the reference drives
   # 20-46: DAgger's aggregate (L_clone on D?'s expert labels) alone, and the warm-up with the paper's critic
   # negatives (D-, eq. (16)), on the two seeds where everything failed.
-  for k in 2 3; do
-    slices+=(
-      "--seeds $k-$k --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
-      "--seeds $k-$k --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
-    )
-  done
+  slices+=(
+    "--seeds 2-2 --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
+    "--seeds 2-2 --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
+  )
+  # DAgger's aggregate drove 14-34 steps to version 100 on seed 43. A probe of a policy (docs/REPRODUCTION.md, "The
+  # V-B recipe") steers by s and barely by x_tran and e_psi: DART's noise in collection puts the states just off the
+  # line, with the expert's corrections, into D+.
+  for k in 2 3; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag dart ${RECIPE_DART[*]} v-b-ref"); done
+  slices+=(
+    "--seeds 3-3 --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
+    "--seeds 3-3 --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
+  )
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods baseline --tag recipe v-b"); done
   for k in 2 3 1 4 5; do
