@@ -188,7 +188,7 @@ fi
 
 if [ "$tables" = 1 ]; then
   # Built every time (a no-op when current): a stale learner would draw last version's tables.
-  cargo build --release --quiet -p cabc-learner --bin learner
+  cargo build --release --quiet --workspace --bins  # --workspace: -p would rebuild the dependencies
   out=docs/reproduction
   # The run folders of GROUP (<group>-s<k>, <group>-s<k>-baseline), appended to folders.
   add_group() {
@@ -213,7 +213,7 @@ if [ "$tables" = 1 ]; then
     "v-b-ablation v-b-ref v-b-ref-abl-clip v-b-ref-abl-schedule v-b-ref-abl-collection v-b-ref-abl-envs v-b-ref-abl-carry v-b-ref-abl-uncertain v-b-rerun"
     "v-c-protocols v-c-ref v-c-ref-bc v-c-cpu"
     "v-a-protocols v-a-ref v-a-ref-abl-lr v-a-ref-abl-collection v-a-ref-abl-clip v-a-ref-abl-uncertain v-a-cpu v-a-cpu-rerun"
-    "v-b-recipe-view v-b-ref v-b-recipe v-b-recipe-v1 v-b-recipe-v2 v-b-recipe-v3 v-b-ref-warmup v-b-ref-clone v-b-ref-std v-b-ref-ema v-b-ref-lrmin"
+    "v-b-recipe-view v-b-ref v-b-ref-warmup v-b-ref-clone v-b-ref-warmup-dminus v-b-ref-dart v-b-recipe v-b-recipe-v1 v-b-recipe-v2 v-b-recipe-v3 v-b-warmup v-b-warmup-dminus v-b-ref-std v-b-ref-ema v-b-ref-lrmin"
   )
   for view in "${views[@]}"; do
     read -r name groups <<< "$view"
