@@ -126,13 +126,4 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// A run's data (its checkpoint's replay) as a LeRobot v3 dataset: parquet rows of every step with the expert's
-    /// label, the applied action, the next state, episode, store and policy version; prints what it wrote as JSON.
-    Export {
-        /// The run folder.
-        run: PathBuf,
-        /// The dataset's folder (new, or empty).
-        #[arg(long)]
-        out: PathBuf,
-    },
 }

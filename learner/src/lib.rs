@@ -11,13 +11,14 @@
 //! * [`train`]: the dynamics model (eq. (15)), the critic (eq. (16)) and the policy with L_CA = L_clone + L_safety
 //!   (eq. (14));
 //! * [`checkpoint`]: the one checkpoint writer (atomic) and reader;
-//! * [`export`]: a run's data as a LeRobot v3 dataset (parquet), for Python;
 //! * [`demo`]: the paper's Fig. 3 reproduced; [`bench`]: throughput figures;
 //! * [`ledger`]: exactly-once storage of segments; [`rundir`]: the run folder; [`plots`]: the run's plots;
 //!   `serve` (feature `server`): `learner run`, Algorithm 1 with the actors over zenoh; `show` (feature `server`): a
 //!   run's evaluation videos on request; [`video`]: the GIFs.
 //!
 //! Apart from `serve` (behind the `server` feature), the library knows nothing of the bus.
+//! A run's data as a LeRobot dataset (parquet) is the cabc-export crate's (`cabc export`), so that the learning core
+//! depends on no arrow or parquet.
 
 pub mod algorithm;
 pub mod autolabel;
@@ -27,7 +28,6 @@ pub mod checkpoint;
 pub mod compare;
 pub mod demo;
 pub mod evaluations;
-pub mod export;
 pub mod fault;
 pub mod groups;
 pub mod hull;

@@ -130,11 +130,6 @@ fn main() -> anyhow::Result<()> {
             let report = cabc_learner::bench_vision::run(&options).context("bench-vision")?;
             print_json(true, &report)
         }
-        Command::Export { run, out } => {
-            let report = cabc_learner::export::export(&run, &out)
-                .with_context(|| format!("exporting {}", run.display()))?;
-            print_json(true, &report)
-        }
     }
 }
 

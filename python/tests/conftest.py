@@ -1,4 +1,4 @@
-"""Where the tests find the workspace's release binaries (`cabc-sim`, `learner`): $CABC_BIN_DIR, by default
+"""Where the tests find the workspace's release binaries (`cabc-sim`, `learner`, `cabc`): $CABC_BIN_DIR, by default
 target/release of the repository (deploy/test.sh builds them first). A missing binary fails the test that needs it."""
 
 from __future__ import annotations

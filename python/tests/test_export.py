@@ -1,4 +1,4 @@
-"""`learner export` of a smoke run, read back with pyarrow: the LeRobot v3 layout, a row per step the replay holds
+"""`cabc export` of a smoke run, read back with pyarrow: the LeRobot v3 layout, a row per step the replay holds
 (counted against the run's summary.json), episodes, versions, images, and errors that name what is wrong."""
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ CONFIGS = {"state": "smoke", "camera": "smoke-camera"}
 
 @pytest.fixture(scope="module", params=sorted(CONFIGS))
 def exported(request, bin_dir, tmp_path_factory):
-    """A fresh `learner run --local --config smoke[-camera]` (seconds) and its export."""
-    learner = binary(bin_dir, "learner")
+    """A fresh `learner run --local --config smoke[-camera]` (seconds) and its `cabc export`."""
+    learner, cabc = binary(bin_dir, "learner"), binary(bin_dir, "cabc")
     tmp = tmp_path_factory.mktemp(request.param)
     run, out = tmp / "run", tmp / "dataset"
     subprocess.run(
         [learner, "run", "--local", "--config", CONFIGS[request.param], "--run-dir", run],
         check=True, capture_output=True,
     )
-    done = subprocess.run([learner, "export", run, "--out", out], check=True, capture_output=True, text=True)
+    done = subprocess.run([cabc, "export", run, "--out", out], check=True, capture_output=True, text=True)
     return request.param, run, out, json.loads(done.stdout)
 
 
@@ -110,12 +110,12 @@ def test_images_are_pngs_where_the_run_keeps_them(exported, bin_dir):
 
 
 def test_bad_runs_and_outputs_are_refused(bin_dir, tmp_path, exported):
-    learner = binary(bin_dir, "learner")
+    cabc = binary(bin_dir, "cabc")
     _, run, out, _ = exported
     for args, message in [
         ([tmp_path / "nowhere", "--out", tmp_path / "a"], "not a run folder"),
         ([tmp_path, "--out", tmp_path / "b"], "config.toml"),
         ([run, "--out", out], "not empty"),
     ]:
-        done = subprocess.run([learner, "export", *args], capture_output=True, text=True)
+        done = subprocess.run([cabc, "export", *args], capture_output=True, text=True)
         assert done.returncode != 0 and message in done.stderr, done.stderr

@@ -18,7 +18,7 @@ fn run(binary: &str, args: &[&str]) -> (bool, String) {
 
 #[test]
 fn every_binary_answers_help_and_version() {
-    for binary in ["learner", "actor", "expert-server", "cabc-sim"] {
+    for binary in ["learner", "actor", "expert-server", "cabc-sim", "cabc"] {
         let (ok, text) = run(binary, &["--help"]);
         assert!(ok, "{binary} --help failed: {text}");
         assert!(text.contains("Usage"), "{binary} --help: {text}");

@@ -1,6 +1,6 @@
 //! A replay read back without changing its run folder: the whole-replay decoding (every version of `replay.bin`),
 //! and [`ReplaySnapshot`], the stores as a checkpoint left them with D+'s images left on disk, read one at a time
-//! ([`Images`]) by tools that stream a run's data out (`learner export`). [`Replay::from_checkpoint`] instead loads
+//! ([`Images`]) by tools that stream a run's data out (`cabc export`). [`Replay::from_checkpoint`] instead loads
 //! every image and opens the log for appending, cutting off records of a checkpoint that did not commit: right for
 //! the learner that resumes, wrong for a reader beside a live run.
 

@@ -1,4 +1,6 @@
-//! `learner export RUN --out DIR`: a run's data as a LeRobot v3 dataset, for Python (pyarrow, pandas, LeRobot).
+//! cabc-export: a run's data as a LeRobot v3 dataset, for Python (pyarrow, pandas, LeRobot); its command line is
+//! `cabc export RUN --out DIR` (cabc-cli). It reads the run folder through cabc-learner's checkpoint and replay readers
+//! and writes parquet (arrow) and PNG, so that the learning core depends on neither.
 //!
 //! ```text
 //! DIR/data/chunk-000/file-000.parquet        one row per step the replay holds (a new file past 100 MB)
@@ -25,8 +27,8 @@ mod meta;
 mod rows;
 mod table;
 
-use crate::checkpoint::{Checkpoint, CheckpointError};
-use crate::replay::{ReplayError, ReplaySnapshot};
+use cabc_learner::checkpoint::{Checkpoint, CheckpointError};
+use cabc_learner::replay::{ReplayError, ReplaySnapshot};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use lineage::{EpochSizes, Versions};
 use meta::Info;

@@ -1,12 +1,12 @@
-//! `learner export`: a hand-built camera run (laps, a failure, D-, an unfinished lap, two epochs) read back from its
+//! `cabc export`: a hand-built camera run (laps, a failure, D-, an unfinished lap, two epochs) read back from its
 //! parquet: every row, the derived episodes and policy versions, the PNG images; the run folder untouched, even its
 //! image log's uncommitted tail; errors that name what is wrong.
 
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float32Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
+use cabc_export::{export, ExportError};
 use cabc_learner::checkpoint::CheckpointWriter;
-use cabc_learner::export::{export, ExportError};
 use cabc_learner::replay::{ImageLog, Replay};
 use cabc_learner::AutolabelReport;
 use cabc_proto::config::{ObservationKind, RunConfig};
