@@ -145,6 +145,17 @@ plan_recipe() {
     "--seeds 3-3 --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
     "--seeds 3-3 --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
   )
+  # The two candidates that won seed 43, and their union, over seeds 42, 45 and 46 (the union on 43 and 44 first);
+  # v1 (the preset v-b) after them: it failed on 43 and 44 from the spawn.
+  for k in 2 3 1 4 5; do
+    slices+=("--seeds $k-$k --epochs $E --methods proposed --tag clone-warmup-dminus ${RECIPE_CLONE[*]} ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref")
+  done
+  for k in 1 4 5; do
+    slices+=(
+      "--seeds $k-$k --epochs $E --methods proposed --tag warmup-dminus ${RECIPE_WARMUP[*]} ${RECIPE_DMINUS[*]} v-b-ref"
+      "--seeds $k-$k --epochs $E --methods proposed --tag clone ${RECIPE_CLONE[*]} v-b-ref"
+    )
+  done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods proposed --tag recipe v-b"); done
   for k in 2 3 1 4 5; do slices+=("--seeds $k-$k --epochs $E --methods baseline --tag recipe v-b"); done
   for k in 2 3 1 4 5; do
