@@ -1,0 +1,419 @@
+//! The sections of the run configuration ([`super::RunConfig`]), one struct per TOML table, with their defaults.
+
+use super::{
+    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
+    Precision, ScheduleKind, SecuritySection, Spawn, StoredAction, VisionTrunk,
+};
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunSection {
+    /// Names the run: the key prefix `cabc/<name>/` and the folder `runs/<name>/`.
+    pub name: String,
+    /// Which experiment of the paper this reproduces (free text, for reports).
+    pub experiment: String,
+    pub seed: u64,
+    /// Training stops after this many epochs at the latest.
+    pub max_epochs: u64,
+    /// Where run folders go.
+    pub runs_dir: String,
+}
+
+impl Default for RunSection {
+    fn default() -> Self {
+        RunSection {
+            name: "cabc".into(),
+            experiment: "custom".into(),
+            seed: 42,
+            max_epochs: 500,
+            runs_dir: "runs".into(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExpertSection {
+    pub kind: ExpertKind,
+    /// PID target speed (m/s), simulator.md 5.
+    pub pid_target_speed: f64,
+    /// Consecutive expert failures after which a rollout is truncated (PATIENCE).
+    pub patience: u32,
+    /// Warm starts the MPCC server keeps (least-recently-used eviction). Each holds a QP solver (~0.5 MB); the
+    /// streams in use at once are actors x environments, so a few hundred is plenty.
+    pub max_streams: usize,
+    /// Largest batch a server answers.
+    pub max_batch: usize,
+    /// Seconds an actor waits for an expert reply before it asks again.
+    pub timeout_s: f64,
+}
+
+impl Default for ExpertSection {
+    fn default() -> Self {
+        ExpertSection {
+            kind: ExpertKind::Mpcc,
+            pid_target_speed: 1.0,
+            patience: 2,
+            max_streams: 256,
+            max_batch: 1024,
+            timeout_s: 10.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObservationSection {
+    pub kind: ObservationKind,
+    /// Camera image width and height in pixels (224 in the reference; 64 for CPU runs).
+    pub width: u16,
+    pub height: u16,
+    /// Horizontal field of view in degrees.
+    pub fov_deg: f64,
+    pub trunk: VisionTrunk,
+    /// Sensor noise n_k (the paper's output equation), standard deviation per state dimension [v_long, v_tran,
+    /// omega, s, x_tran, e_psi] of what the policy sees; zeros (the default) for none.
+    pub state_noise_std: [f64; 6],
+    /// Sensor noise on the camera image: standard deviation per channel, in intensity units (0..255); 0 for none.
+    pub pixel_noise_std: f64,
+    /// ImageNet weights for the ResNet-18 trunk: a safetensors file of torchvision's `resnet18` state dict (the
+    /// reference starts from them; they cannot be fetched here). Absent: random initialisation, which the run's
+    /// summary states (`trunk_init`).
+    pub pretrained: Option<String>,
+}
+
+impl Default for ObservationSection {
+    fn default() -> Self {
+        ObservationSection {
+            kind: ObservationKind::State,
+            width: 224,
+            height: 224,
+            fov_deg: 110.0,
+            trunk: VisionTrunk::Resnet18,
+            state_noise_std: [0.0; 6],
+            pixel_noise_std: 0.0,
+            pretrained: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlgorithmSection {
+    /// Weight of the safety term in L_CA (0 = the behaviour-cloning baseline); with `lambda_growth`, its cap.
+    pub lambda: f64,
+    /// lambda's warm-up: lambda_j = min(lambda, lambda_start * lambda_growth^j) ([`RunConfig::lambda`]). The
+    /// reference's unused `SafeActor.step_schedule` grows it by 1.007 an epoch up to 10 (`models/safeAC.py:40-41`).
+    /// Absent (the default): lambda from epoch 0.
+    pub lambda_start: Option<f64>,
+    /// lambda's growth per epoch with `lambda_start` (1.007 in the reference's `step_schedule`).
+    pub lambda_growth: f64,
+    /// Auto-labelling radius rho (eq. (20)).
+    pub rho: f64,
+    /// Shrink rho as D+ grows (the paper's future work); off by default.
+    pub adaptive_rho: bool,
+    /// Scale the state by its per-dimension standard deviation before the radius search.
+    pub scale_states: bool,
+    /// Auto-labelling runs every this many epochs.
+    pub autolabel_every: u64,
+    /// beta_j = beta_decay^j.
+    pub beta_decay: f64,
+    /// Critic label for D- (reference 0.1, paper 0).
+    pub negative_label: f64,
+    /// The critic's negatives: `d-minus` (ours) or all of the current D? (`uncertain`, the reference).
+    pub critic_negatives: CriticNegatives,
+    /// Auto-labelling runs only when D? holds at least this many points (ours 1, the reference 16).
+    pub autolabel_min_uncertain: usize,
+    /// Auto-labelling thins D+ to at most this many points first, spread over D+ (the reference's FADS, 32,768);
+    /// 0 for all of D+ (ours).
+    pub autolabel_max_plus: usize,
+    /// A D? point is removed only when the hull of its neighbours has at least this many vertices (the reference's
+    /// Qhull check, 8); 0 for no such check (ours).
+    pub autolabel_min_vertices: usize,
+    /// lambda of the `--baseline` variant of the run: 0 is plain behaviour cloning (ours); the paper's Fig. 6 caption
+    /// gives its V-C baseline lambda = 1, rho = 1.
+    pub baseline_lambda: f64,
+    /// rho of the `--baseline` variant; absent: the run's rho.
+    pub baseline_rho: Option<f64>,
+}
+
+impl Default for AlgorithmSection {
+    fn default() -> Self {
+        AlgorithmSection {
+            lambda: 10.0,
+            lambda_start: None,
+            lambda_growth: 1.0,
+            rho: 1.0,
+            adaptive_rho: false,
+            scale_states: false,
+            autolabel_every: 10,
+            beta_decay: 0.95,
+            negative_label: 0.1,
+            critic_negatives: CriticNegatives::DMinus,
+            autolabel_min_uncertain: 1,
+            autolabel_max_plus: 0,
+            autolabel_min_vertices: 0,
+            baseline_lambda: 0.0,
+            baseline_rho: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CollectionSection {
+    /// Environment steps per epoch, all actors together (reference `eps_len`).
+    pub steps_per_epoch: u64,
+    /// Environment steps in epoch 0 (reference `initial_traj_len`).
+    pub initial_steps: u64,
+    pub spawn: Spawn,
+    /// Whether episodes go on across epoch boundaries.
+    pub episodes: Episodes,
+    /// Maximum laps of an episode (the env truncates after it).
+    pub max_laps: u32,
+    /// Evaluation: laps a policy must complete from the fixed spawn.
+    pub eval_laps: u32,
+    /// Early stop when the evaluation completes `eval_laps` this many times.
+    pub early_stop_successes: u32,
+    /// Which segment the step that completes a lap or truncates belongs to: `with-step` (ours) or `before-step` (the
+    /// reference: the truncating step is dropped).
+    pub flush: Flush,
+    /// The staged steps of an episode the expert ended: into D? (`uncertain`, ours) or `discard` (the reference).
+    pub expert_failure_staged: ExpertFailureStaged,
+    /// The action stored for the dynamics model: `clipped` (ours) or `unclipped` (the reference).
+    pub stored_action: StoredAction,
+    /// Noise injected into the applied action in collection, not in evaluation: Gaussian, standard deviation per
+    /// action dimension [acceleration m/s², steering rad], added to the mixture before the plant clips it (DART,
+    /// Laskey et al., CoRL 2017). The car then visits the states just off the line it would drive, each labelled
+    /// with the expert's correction, so the policy learns the feedback on x_tran and e_psi rather than a map of s
+    /// alone. The stored label stays the expert's; the stored action is the one applied. [0, 0] (the reference):
+    /// none.
+    pub action_noise_std: [f64; 2],
+}
+
+impl Default for CollectionSection {
+    fn default() -> Self {
+        CollectionSection {
+            steps_per_epoch: 1024,
+            initial_steps: 1024,
+            spawn: Spawn::Random,
+            episodes: Episodes::Carry,
+            max_laps: 50,
+            eval_laps: 50,
+            early_stop_successes: 2,
+            flush: Flush::WithStep,
+            expert_failure_staged: ExpertFailureStaged::Uncertain,
+            stored_action: StoredAction::Clipped,
+            action_noise_std: [0.0; 2],
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplaySection {
+    /// Capacity of D+ and of D? each; random eviction on overflow.
+    pub capacity: usize,
+    /// Memory the replay may hold, in bytes (0: no budget beyond `capacity`). D+ holds the images; its capacity
+    /// becomes what fits in this budget once the other stores' (and D-'s) full capacity is set aside, and random
+    /// eviction keeps it there. A budget too small for one batch of D+ is refused at start.
+    pub max_bytes: u64,
+    /// Keep a dynamics-only store for f_hat (ours): unfinished laps, the step after the last lap, and the D? points
+    /// auto-labelling removes. false (the reference): unfinished laps are dropped, removed points deleted, and f_hat
+    /// trains on D+ and D? alone.
+    pub dynamics_only: bool,
+}
+
+impl Default for ReplaySection {
+    fn default() -> Self {
+        ReplaySection {
+            capacity: 102_400,
+            max_bytes: 0,
+            dynamics_only: true,
+        }
+    }
+}
+
+/// Bytes of one replay step besides its image: state, next state, expert and applied action, as f32.
+pub const REPLAY_STEP_BYTES: u64 = 4 * (2 * 6 + 2 * 2);
+
+/// An MLP: `layers` hidden Linear+ReLU layers of `width`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MlpSize {
+    pub layers: usize,
+    pub width: usize,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworksSection {
+    pub policy: MlpSize,
+    pub dynamics: MlpSize,
+    pub critic: MlpSize,
+}
+
+impl Default for NetworksSection {
+    fn default() -> Self {
+        NetworksSection {
+            policy: MlpSize {
+                layers: 3,
+                width: 128,
+            },
+            dynamics: MlpSize {
+                layers: 3,
+                width: 64,
+            },
+            critic: MlpSize {
+                layers: 4,
+                width: 256,
+            },
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainingSection {
+    pub lr: f64,
+    pub weight_decay: f64,
+    pub grad_clip: f64,
+    /// ExponentialLR gamma, stepped once per fit call (reference 0.1^(1/100)).
+    pub lr_gamma: f64,
+    /// The policy's own gamma; absent: `lr_gamma` (ours). The reference's vision trainer keeps the policy's
+    /// learning rate at 1e-3 (gamma 1).
+    pub policy_lr_gamma: Option<f64>,
+    /// The learning rates' floor: lr = max(lr * gamma^fits, lr_min), for all three networks; 0 (the reference) for
+    /// none, where gamma 0.1^(1/100) per fit leaves 1e-5 by epoch 200 and the policy all but frozen.
+    pub lr_min: f64,
+    /// Which gradients the policy's clip measures: `policy` (ours) or `policy-critic-dynamics` (the reference).
+    pub clip_scope: ClipScope,
+    /// Standardise the state for the three networks with D+'s mean and standard deviation, taken once, at the first
+    /// policy fit, and checkpointed (robomimic, LeRobot and Diffusion Policy standardise inputs). The reference feeds
+    /// the raw state, where s runs over the whole track and the other dimensions stay near 1. The published policy
+    /// takes raw states: the standardisation is folded into its first layer.
+    pub standardise: bool,
+    /// The published policy (collection and evaluation) is an exponential moving average of the trained weights,
+    /// updated once an epoch after the policy's fit: ema = policy_ema * ema + (1 - policy_ema) * theta (LeRobot and
+    /// Diffusion Policy evaluate such an average). 0 (the reference) publishes the trained weights.
+    pub policy_ema: f64,
+    /// L_clone also on D?'s states, with the expert's labels (the steps where the expert failed excepted): DAgger's
+    /// aggregate, where the reference and Algorithm 1's diagram clone D+ alone. The states where the policy left the
+    /// track, and the expert's corrections there, are then in the policy's training set; L_safety stays on D+'s
+    /// states (at a D? state every action may lead out of the safe set). Full-state policies only (D? keeps no
+    /// images). false (the reference): D+ alone.
+    pub clone_uncertain: bool,
+    pub batch_size: usize,
+    /// Passes over D+ for the policy in epoch 0 and later.
+    pub initial_passes: usize,
+    pub passes: usize,
+    /// At most this many mini-batches per policy fit (a uniform sample of D+ without replacement) instead of whole
+    /// passes: 0 (the paper) for no cap. With images on a CPU a pass over D+ grows by seconds each epoch; the CPU
+    /// presets cap it so an epoch's training time stays flat.
+    pub policy_max_batches: usize,
+    pub schedule: ScheduleKind,
+    /// k_f: the dynamics model trains every this many epochs.
+    pub dynamics_every: u64,
+    /// k_p: the critic trains every this many epochs.
+    pub critic_every: u64,
+    /// Passes of the dynamics model and critic each time they train (`paper` schedule).
+    pub aux_passes: usize,
+    /// Their passes in epoch 0 (`paper` schedule); absent: `aux_passes`. The reference's vision trainer makes 50
+    /// (10 x the policy's 5).
+    pub initial_aux_passes: Option<usize>,
+    /// At most this many mini-batches per fit of the dynamics model or the critic (a uniform sample without
+    /// replacement of the first pass, then of the next), instead of whole passes: 0 (the paper) for no cap. Both
+    /// networks keep their weights from one fit to the next, so a fixed budget of steps holds their cost flat while
+    /// D+ u D? grows (10 passes over it cost 45 s at epoch 140 in V-B on a 2-core CPU).
+    pub aux_max_batches: usize,
+    /// The critic trains only when its negatives (D-, or D? with `critic_negatives = "uncertain"`) are more than
+    /// this many (ours and the reference's vision trainer 16; its full-state trainer 0).
+    pub critic_min_uncertain: usize,
+    /// "auto" (CUDA when present), "cpu" or "cuda:N".
+    pub device: String,
+    /// "fp32" (default) or "bf16" (CUDA autocast for the forward passes; fp32 on a CPU).
+    pub precision: Precision,
+}
+
+impl Default for TrainingSection {
+    fn default() -> Self {
+        TrainingSection {
+            lr: 1e-3,
+            weight_decay: 1e-4,
+            grad_clip: 1.0,
+            lr_gamma: 0.1f64.powf(1.0 / 100.0),
+            policy_lr_gamma: None,
+            lr_min: 0.0,
+            clip_scope: ClipScope::Policy,
+            standardise: false,
+            policy_ema: 0.0,
+            clone_uncertain: false,
+            batch_size: 64,
+            initial_passes: 5,
+            passes: 1,
+            policy_max_batches: 0,
+            schedule: ScheduleKind::Paper,
+            dynamics_every: 5,
+            critic_every: 10,
+            aux_passes: 10,
+            initial_aux_passes: None,
+            aux_max_batches: 0,
+            critic_min_uncertain: 16,
+            device: "auto".into(),
+            precision: Precision::Fp32,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActorsSection {
+    /// Actor processes (the eval actor comes on top).
+    pub count: u32,
+    /// Environments each actor steps in lockstep.
+    pub envs_per_actor: u32,
+    /// Evaluator processes (`actor --eval`): evaluator i evaluates every version v with v mod evaluators = i, so
+    /// that several keep up with a slow evaluation (a 50-lap camera run) between them.
+    pub evaluators: u32,
+    /// An evaluation stores the driven line subsampled to at most this many points.
+    pub eval_line_points: usize,
+}
+
+impl Default for ActorsSection {
+    fn default() -> Self {
+        ActorsSection {
+            count: 2,
+            envs_per_actor: 4,
+            evaluators: 1,
+            eval_line_points: 2000,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BusSection {
+    /// Endpoints the learner listens on (the embedded default: no router needed on one machine).
+    pub listen: Vec<String>,
+    /// Endpoints the other processes connect to (the learner, or a zenohd router).
+    pub connect: Vec<String>,
+    /// Seconds the learner waits for the last actor of an epoch before it closes the epoch without it.
+    pub epoch_timeout_s: f64,
+    /// zenoh multicast scouting; off by default, so that a loopback run never meets strangers.
+    pub multicast_scouting: bool,
+    /// TLS, passwords and access control (`[bus.security]`); off by default.
+    pub security: SecuritySection,
+}
+
+impl Default for BusSection {
+    fn default() -> Self {
+        BusSection {
+            listen: vec!["tcp/127.0.0.1:7447".into()],
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            epoch_timeout_s: 120.0,
+            multicast_scouting: false,
+            security: SecuritySection::default(),
+        }
+    }
+}
