@@ -120,12 +120,7 @@ impl RunConfig {
             );
         }
         let noise = &self.observation;
-        if !noise
-            .state_noise_std
-            .iter()
-            .chain([&noise.pixel_noise_std])
-            .all(|s| s.is_finite() && *s >= 0.0)
-        {
+        if !deviations(noise.state_noise_std.iter().chain([&noise.pixel_noise_std])) {
             return invalid(
                 "observation.state_noise_std / pixel_noise_std",
                 format!("{:?} / {}", noise.state_noise_std, noise.pixel_noise_std),
@@ -133,7 +128,7 @@ impl RunConfig {
             );
         }
         let action_noise = self.collection.action_noise_std;
-        if !action_noise.iter().all(|s| s.is_finite() && *s >= 0.0) {
+        if !deviations(&action_noise) {
             return invalid(
                 "collection.action_noise_std",
                 format!("{action_noise:?}"),
@@ -151,4 +146,9 @@ impl RunConfig {
         }
         Ok(())
     }
+}
+
+/// Whether every value is a standard deviation: finite and >= 0.
+fn deviations<'a>(values: impl IntoIterator<Item = &'a f64>) -> bool {
+    values.into_iter().all(|s| s.is_finite() && *s >= 0.0)
 }
