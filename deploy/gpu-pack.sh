@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Packs what a session with the lent GPU machine carries there (issue 22): the learner, stripped, and the C
+# Packs what a session with the lent GPU machine carries there (issue 22): the learner and cabc (its bench-vision), stripped, and the C
 # libraries of its plots that the machine may lack, and the CUDA test, into .gpu/ (git-ignored), with .gpu/run.sh,
 # which runs them
 # against the machine's own libtorch 2.11.0 (the version this source builds against).
@@ -13,16 +13,17 @@ set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
 "$root/deploy/setup.sh"
-cargo build --release --quiet --bin learner
-# The CUDA test (learner/tests/cuda.rs), which runs there as `.gpu/run.sh cuda-test`.
-test_bin=$(cargo test --release -p cabc-learner --test cuda --no-run 2>&1 | grep -o 'target/release/deps/cuda-[0-9a-f]*' | head -1)
+cargo build --release --quiet --bin learner --bin cabc
+# The CUDA test (learning/tests/cuda.rs), which runs there as `.gpu/run.sh cuda-test`.
+test_bin=$(cargo test --release --workspace --test cuda --no-run 2>&1 | grep -o 'target/release/deps/cuda-[0-9a-f]*' | head -1)
 [ -x "$test_bin" ] || { echo "[gpu-pack] error: the CUDA test was not built" >&2; exit 1; }
 rm -rf .gpu && mkdir -p .gpu/lib
 strip -o .gpu/learner target/release/learner
+strip -o .gpu/cabc target/release/cabc
 strip -o .gpu/cuda-test "$test_bin"
 # Everything the binary needs besides glibc, the C++ runtime and libtorch: the plots' fontconfig and freetype and
 # what they pull in.
-ldd target/release/learner | awk '$3 ~ /^\// {print $1, $3}' | while read -r name path; do
+{ ldd target/release/learner; ldd target/release/cabc; } | awk '$3 ~ /^\// {print $1, $3}' | sort -u | while read -r name path; do
   case "$name" in
     libc.so*|libm.so*|libdl.so*|librt.so*|libpthread.so*|libutil.so*|libstdc++.so*|libgcc_s.so*|ld-linux*) ;;
     *) case "$path" in "$root"/.deps/*) ;; *) cp -L "$path" ".gpu/lib/$name" ;; esac ;;
@@ -30,7 +31,7 @@ ldd target/release/learner | awk '$3 ~ /^\// {print $1, $3}' | while read -r nam
 done
 cat > .gpu/run.sh <<'RUN'
 #!/usr/bin/env bash
-# Runs a packed binary (deploy/gpu-pack.sh) against the machine's libtorch: .gpu/run.sh learner ARGS...
+# Runs a packed binary (deploy/gpu-pack.sh) against the machine's libtorch: .gpu/run.sh learner|cabc ARGS...
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 torch_lib=${TORCH_LIB:-/opt/torch/.venv/lib/python3.12/site-packages/torch/lib}

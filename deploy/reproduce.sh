@@ -9,7 +9,7 @@
 # (an ablation), and --tag names it: run folders are runs/<exp>[-<tag>]-s<k> and runs/<exp>[-<tag>]-s<k>-baseline.
 # An interrupted campaign resumes where it stopped: a run with summary.json from an ended run is skipped, a run with
 # a checkpoint is resumed, any other starts fresh. After each run its results (summary.json, metrics.csv, evals.csv,
-# plots) are copied to docs/reproduction/<run>/ and the comparison figures of its group redrawn with `learner
+# plots) are copied to docs/reproduction/<run>/ and the comparison figures of its group redrawn with `cabc
 # compare` into docs/reproduction/<exp>[-<tag>]-*.png, its tables (per run, and per method over seeds: median and
 # range) into docs/reproduction/<exp>[-<tag>]-table.md. With CABC_BIN=DIR the binaries in DIR are used and nothing
 # is built (a campaign that outlives code changes keeps its binaries; deploy/campaign.sh pins them).
@@ -56,7 +56,7 @@ else
   bin="$root/target/release"
 fi
 export CABC_BIN="$bin"
-learner="$bin/learner"
+cabc="$bin/cabc"
 runs_dir=runs
 out=docs/reproduction
 mkdir -p "$out"
@@ -105,7 +105,7 @@ for exp in "${experiments[@]}"; do
     folders=()
     for d in "$out/$group"-s*; do [ -f "$d/metrics.csv" ] && folders+=("$d"); done
     if [ ${#folders[@]} -gt 0 ]; then
-      if "$learner" compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"; then
+      if "$cabc" compare --out "$out/$group" "${folders[@]}" > "$out/$group-table.md"; then
         cat "$out/$group-table.md"
       else
         echo "[reproduce] compare $group failed" >&2

@@ -42,7 +42,7 @@ else
   cargo build --release --quiet --bins
   bin="$root/target/release"
 fi
-for b in learner actor expert-server; do
+for b in learner actor expert-server cabc; do
   [ -x "$bin/$b" ] || { echo "[run-local] error: $bin/$b was not built" >&2; exit 1; }
 done
 
@@ -53,8 +53,8 @@ run_dir=$("$bin/learner" prepare ${config:+--config "$config"} "${extra[@]}" "${
 cfg="$run_dir/config.toml"
 logs="$run_dir/logs"
 mkdir -p "$logs"
-actors=$("$bin/learner" show --config "$cfg" actors.count)
-evaluators=$("$bin/learner" show --config "$cfg" actors.evaluators)
+actors=$("$bin/cabc" show --config "$cfg" actors.count)
+evaluators=$("$bin/cabc" show --config "$cfg" actors.evaluators)
 echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s); logs in $logs" >&2
 
 # This script writes each process's stderr into its log (panics included): the binaries' own log files would be a

@@ -22,7 +22,7 @@ pub fn evaluate(
 }
 
 /// [`evaluate`], showing `watch` the environment before each step: the car's full state and the sun, which a video
-/// of the evaluation draws (`learner video`).
+/// of the evaluation draws (`cabc video`).
 pub fn evaluate_watched(
     actor: &str,
     version: u64,

@@ -7,10 +7,9 @@
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
 use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
+use cabc_bus::expert::ZenohExpert;
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::ports::{
-    Shard, SharedStats, ZenohEvals, ZenohExpert, ZenohPolicySource, ZenohSegments,
-};
+use cabc_bus::ports::{Shard, SharedStats, ZenohEvals, ZenohPolicySource, ZenohSegments};
 use cabc_bus::{Bus, Role};
 use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::RunConfig;

@@ -3,13 +3,12 @@
 //! * [`ZenohPolicySource`]: the learner's latest version on start (its queryable), then `policy` updates, and
 //!   `control` stops; a collector skips to the newest version, an evaluator ([`ZenohPolicySource::every_version`])
 //!   takes every version of its shard in order;
-//! * [`ZenohExpert`] (`crate::expert`): batch queries on `expert/<kind>`, two in flight (the actor's halves),
+//! * `ZenohExpert` (in `crate::expert`, which uses the statistics here): batch queries on `expert/<kind>`, two in flight (the actor's halves),
 //!   waiting and retrying while no server answers;
 //! * [`ZenohSegments`], [`ZenohEvals`]: reliable puts on `traj/<id>` and `eval/<id>`.
 //!
 //! [`WireStats`] adds up the time spent waiting on the expert and the time on the wire, for the actor's metrics.
 
-pub use crate::expert::ZenohExpert;
 use crate::interrupt::Interrupt;
 use crate::{decode_sample, Bus};
 use cabc_proto::messages::{EvalReport, PolicyUpdate, Stop, TrajMessage};

@@ -1,18 +1,25 @@
-//! `cabc`: the tools a user runs on a run's results, one subcommand each (the cargo and git convention), while the
-//! processes of a run stay `learner`, `actor` and `expert-server`.
+//! `cabc`: the tools a user runs on a run's results and on a deployment, one subcommand each (the cargo and git
+//! convention), while the processes of a run stay `learner`, `actor` and `expert-server`.
 //!
-//! A subcommand is one module: its arguments (a [`clap::Args`] struct) and its `run`, and one variant of
-//! [`Command`] below that hands the one to the other.
+//! A subcommand is its arguments (a [`clap::Args`] struct) and one function, and one variant of [`Command`] below
+//! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], the rest in [`tools`].
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
+use std::path::PathBuf;
 
 mod export;
+mod show;
+mod tools;
+
+use tools::load;
 
 #[derive(Parser)]
 #[command(
     name = "cabc",
     version,
-    about = "cabc's tools for finished runs: export (more to come: compare, video, show, bench, ...)"
+    about = "cabc's tools: finished runs (compare, show, video, export), the learning core's demo and benchmarks, a \
+             secure deployment's zenohd configuration and denials"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -21,15 +28,98 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
+    /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
+    Compare(cabc_analysis::compare::CompareOptions),
+    /// Print one value of a configuration (dotted key, e.g. actors.count); or, with --gif, write a video of a run's
+    /// policy: `cabc show RUN --gif [VERSION]`.
+    Show {
+        /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
+        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
+        config: String,
+        /// The configuration's key; with --gif, the run folder.
+        key: String,
+        /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
+        /// evaluated anew) or a version number (its evaluation's plots/eval-v<N>.gif, or the best version's weights
+        /// evaluated anew; no other version's weights are kept).
+        #[arg(long, value_name = "VERSION", num_args = 0..=1, default_missing_value = "best")]
+        gif: Option<show::Which>,
+        /// Where to write the GIF (default: in the run folder).
+        #[arg(long, requires = "gif")]
+        out: Option<PathBuf>,
+    },
+    /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
+    Video {
+        /// The run folder.
+        run: PathBuf,
+        /// The final policy instead of the best.
+        #[arg(long = "final")]
+        final_: bool,
+        /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// A run's data (its checkpoint's replay) as a LeRobot v3 dataset: parquet rows of every step with the expert's
     /// label, the applied action, the next state, episode, store and policy version; prints what it wrote as JSON.
     Export(export::Args),
+    /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
+    Demo(tools::DemoArgs),
+    /// Throughput of auto-labelling and training.
+    Bench(tools::BenchArgs),
+    /// The camera policy's training and inference images per second (ResNet-18 at 224x224 by default), on a GPU
+    /// where there is one; prints JSON.
+    BenchVision(cabc_bench::vision::VisionBenchOptions),
+    /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
+    /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
+    ZenohdConfig(tools::ZenohdConfigArgs),
+    /// The messages a standalone zenohd's access control dropped, from its log (written with
+    /// `RUST_LOG=info,zenoh::net::routing::interceptor::access_control=trace`), as JSON by "<subject>: <action> on
+    /// <key>" (deploy/SCALE-OUT.md §2).
+    AclDenials(tools::AclDenialsArgs),
 }
 
 fn main() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();
+    cabc_models::flush_denormals();
     match Cli::parse().command {
+        Command::Compare(options) => tools::compare(&options),
+        Command::Show {
+            key: run,
+            gif: Some(which),
+            out,
+            ..
+        } => {
+            let shown = show::gif(std::path::Path::new(&run), which, out)?;
+            if let Some(report) = shown.evaluated {
+                println!("{} laps, ended by {}", report.laps, report.end_reason);
+            }
+            println!("{}", shown.gif.display());
+            Ok(())
+        }
+        Command::Show {
+            config,
+            key,
+            gif: None,
+            ..
+        } => {
+            let value = load(&config)?.show(&key);
+            println!(
+                "{}",
+                value.with_context(|| format!("no key {key} in the configuration"))?
+            );
+            Ok(())
+        }
+        Command::Video { run, final_, out } => {
+            let report = show::video(&run, final_, out)?;
+            println!("{} laps, ended by {}", report.laps, report.end_reason);
+            Ok(())
+        }
         Command::Export(args) => export::run(&args),
+        Command::Demo(args) => tools::demo(&args),
+        Command::Bench(args) => tools::bench(&args),
+        Command::BenchVision(options) => tools::bench_vision(&options),
+        Command::ZenohdConfig(args) => tools::zenohd_config(&args),
+        Command::AclDenials(args) => tools::acl_denials(&args),
     }
 }
 

@@ -27,8 +27,8 @@ mod meta;
 mod rows;
 mod table;
 
-use cabc_learner::checkpoint::{Checkpoint, CheckpointError};
-use cabc_learner::replay::{ReplayError, ReplaySnapshot};
+use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
+use cabc_learning::replay::{ReplayError, ReplaySnapshot};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use lineage::{EpochSizes, Versions};
 use meta::Info;

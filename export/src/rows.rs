@@ -6,7 +6,7 @@ use super::lineage::{same_state, Label, Versions};
 use super::meta::Stats;
 use super::table::{DataFiles, EpisodeRow, Row};
 use super::ExportError;
-use cabc_learner::replay::{ReplayError, ReplaySnapshot, Store};
+use cabc_learning::replay::{ReplayError, ReplaySnapshot, Store};
 use std::collections::BTreeMap;
 
 /// What the rows came to.

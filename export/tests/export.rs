@@ -6,9 +6,8 @@ use arrow_array::cast::AsArray;
 use arrow_array::types::{Float32Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
 use cabc_export::{export, ExportError};
-use cabc_learner::checkpoint::CheckpointWriter;
-use cabc_learner::replay::{ImageLog, Replay};
-use cabc_learner::AutolabelReport;
+use cabc_learning::checkpoint::CheckpointWriter;
+use cabc_learning::replay::{ImageLog, Replay};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
@@ -69,7 +68,7 @@ fn make_run(dir: &Path) {
     ] {
         replay.add_segment(&s).unwrap();
     }
-    replay.apply_labels(&AutolabelReport::default());
+    replay.apply_labels(&[]);
     for s in [
         segment(1, 4, 1, Outcome::Lap, steps(30.0, 2)),
         segment(1, 5, 1, fail, steps(90.0, 1)),

@@ -1,8 +1,5 @@
 //! `learner`'s command line: one variant of [`Command`] per subcommand.
 
-use cabc_learner::bench::BenchOptions;
-use cabc_learner::compare;
-use cabc_learner::demo::DemoOptions;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -10,7 +7,7 @@ use std::path::PathBuf;
 #[command(
     name = "learner",
     version,
-    about = "cabc learner: replay, safety auto-labelling, constraint-aware training, the distributed run"
+    about = "cabc learner: the learner process of a run (Algorithm 1 over zenoh, or in-process with --local)"
 )]
 pub struct Cli {
     #[command(subcommand)]
@@ -57,73 +54,5 @@ pub enum Command {
         /// A configuration value, `key=value` (e.g. `run.seed=3`); repeatable.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
-    },
-    /// Print one value of a configuration (dotted key, e.g. actors.count); or, with --gif, write a video of a run's
-    /// policy: `learner show RUN --gif [VERSION]`.
-    Show {
-        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
-        config: String,
-        /// The configuration's key; with --gif, the run folder.
-        key: String,
-        /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
-        /// evaluated anew) or a version number (its evaluation's plots/eval-v<N>.gif, or the best version's weights
-        /// evaluated anew; no other version's weights are kept).
-        #[arg(long, value_name = "VERSION", num_args = 0..=1, default_missing_value = "best")]
-        gif: Option<cabc_learner::show::Which>,
-        /// Where to write the GIF (default: in the run folder).
-        #[arg(long, requires = "gif")]
-        out: Option<PathBuf>,
-    },
-    /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
-    Video {
-        /// The run folder.
-        run: PathBuf,
-        /// The final policy instead of the best.
-        #[arg(long = "final")]
-        final_: bool,
-        /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
-    /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
-    /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
-    ZenohdConfig {
-        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
-        config: String,
-        /// Endpoints zenohd listens on (default: the protocol and port of every bus.connect endpoint, on every
-        /// address); repeatable.
-        #[arg(long)]
-        listen: Vec<String>,
-        /// A configuration value, `key=value`; repeatable.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-    },
-    /// The messages a standalone zenohd's access control dropped, from its log (written with
-    /// `RUST_LOG=info,zenoh::net::routing::interceptor::access_control=trace`), as JSON by "<subject>: <action> on
-    /// <key>" (deploy/SCALE-OUT.md §2).
-    AclDenials {
-        /// zenohd's log file.
-        log: PathBuf,
-    },
-    /// The paper's figures for a set of run folders, both methods on one plot: laps per version, imitation loss with
-    /// the early stops, lap times of the full evaluations; a Markdown table of the runs on stdout.
-    Compare(compare::CompareOptions),
-    /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
-    AutolabelDemo {
-        #[command(flatten)]
-        options: DemoOptions,
-        /// Print the report as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-    },
-    /// The camera policy's training and inference images per second (ResNet-18 at 224x224 by default), on a GPU
-    /// where there is one; prints JSON.
-    BenchVision(cabc_learner::bench_vision::VisionBenchOptions),
-    /// Throughput of auto-labelling and training.
-    Bench {
-        #[command(flatten)]
-        options: BenchOptions,
-        #[arg(long)]
-        json: bool,
     },
 }

@@ -1,13 +1,10 @@
-//! `learner run`: Algorithm 1 ([`crate::algorithm`]) with the actors over zenoh (`cabc_bus::rollouts`), or in this
+//! `learner run`: Algorithm 1 (`cabc_learning::algorithm`) with the actors over zenoh (`cabc_bus::rollouts`), or in this
 //! process (`--local`).
 //!
 //! The learner listens on `bus.listen` (the embedded router of a one-machine run; with `bus.listen = []` it is a
 //! client of the standalone router of `bus.connect`, deploy/SCALE-OUT.md §2), resumes from the run folder's
 //! checkpoint with `resume`, and at the end publishes Stop, writes the final outputs and prints the summary.
 
-use crate::algorithm::{self, Ending};
-use crate::learner::Learner;
-use crate::rundir::RunDir;
 use anyhow::{Context, Result};
 use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
@@ -15,6 +12,9 @@ use cabc_bus::rollouts::ZenohActors;
 use cabc_bus::{Bus, Role};
 use cabc_expert::mpcc::{Mpcc, MpccConfig};
 use cabc_expert::relabel::{Expert, Relabeller};
+use cabc_learning::algorithm::{self, Ending};
+use cabc_learning::learner::Learner;
+use cabc_outputs::RunDir;
 use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
@@ -39,7 +39,7 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     // Subscribe first: actors reconnecting to a restarted learner flush what they could not deliver at once.
     let expected = config.actors.count as usize;
     let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
-    let mut learner = crate::outputs::learner(config, run_dir, resume)?;
+    let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     run_to_the_end(&mut learner, &mut actors)?;
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));
@@ -66,7 +66,7 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
         ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
     };
     let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
-    let mut learner = crate::outputs::learner(config, run_dir, resume)?;
+    let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     tracing::info!(
         run = learner.config.run.name,
         dir = %learner.folder().display(),

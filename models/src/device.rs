@@ -47,7 +47,7 @@ pub fn parse_device(spec: &str) -> Result<Device, ModelError> {
 /// Flushes subnormal floats to zero in this thread's CPU arithmetic (x86-64's MXCSR flush-to-zero and
 /// denormals-are-zero, what PyTorch's `torch.set_flush_denormal(True)` sets). Late in a run the networks' small
 /// weights and gradients reach subnormal values, which the CPU handles in microcode: on a V-B checkpoint at epoch 136
-/// (`learner/examples/fit_timing.rs`) one pass of the critic took 45.5 s with them and 4.9 s without, the policy's
+/// (`learning/examples/fit_timing.rs`) one pass of the critic took 45.5 s with them and 4.9 s without, the policy's
 /// 19.9 s and 2.3 s. Values below 1.2e-38 become 0; GPUs' fast paths flush them too. Set per thread; a no-op on
 /// other architectures.
 pub fn flush_denormals() {

@@ -4,10 +4,10 @@
 
 use cabc_actor::local::LocalActors;
 use cabc_expert::relabel::{Expert, Relabeller};
-use cabc_learner::algorithm::{self, Ending};
-use cabc_learner::learner::Learner;
-use cabc_learner::record::{Record, Value};
-use cabc_learner::rundir::RunDir;
+use cabc_learning::algorithm::{self, Ending};
+use cabc_learning::learner::Learner;
+use cabc_learning::record::{Record, Value};
+use cabc_outputs::rundir::RunDir;
 use cabc_proto::config::RunConfig;
 
 fn smoke(epochs: u64) -> RunConfig {
@@ -24,7 +24,7 @@ fn run(config: &RunConfig, dir: &std::path::Path) -> (Learner, Ending) {
     );
     let mut actors = LocalActors::new(config, expert, true);
     let run_dir = RunDir::create(dir).unwrap();
-    let mut learner = cabc_learner::outputs::learner(config.clone(), run_dir, false).unwrap();
+    let mut learner = cabc_outputs::learner(config.clone(), run_dir, false).unwrap();
     let ending = algorithm::run(&mut learner, &mut actors).unwrap();
     (learner, ending)
 }

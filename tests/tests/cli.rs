@@ -41,6 +41,7 @@ fn a_bad_configuration_is_refused_with_key_and_line() {
         ("actor", vec!["--config", path.as_str()]),
         ("expert-server", vec!["--config", path.as_str(), "serve"]),
         ("learner", vec!["prepare", "--config", path.as_str()]),
+        ("cabc", vec!["show", "--config", path.as_str(), "run.name"]),
     ] {
         let (ok, text) = run(binary, &args);
         assert!(!ok, "{binary} accepted a bad configuration");

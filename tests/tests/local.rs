@@ -95,7 +95,7 @@ fn a_local_run_gives_the_distributed_runs_numbers() {
         .unwrap()
         .unwrap()
         .path();
-    let events = cabc_learner::tensorboard::read_scalars(&std::fs::read(tb).unwrap()).unwrap();
+    let events = cabc_outputs::tensorboard::read_scalars(&std::fs::read(tb).unwrap()).unwrap();
     let rows = csv_rows(&local.dir.join("metrics.csv"));
     let mut cells = 0;
     for row in &rows[1..] {
@@ -194,13 +194,13 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
         assert!(bytes.starts_with(b"GIF89a"), "{}", gif.display());
         assert!(bytes.len() < 3 << 20, "{} bytes", bytes.len());
     }
-    // `learner video RUN` evaluates the final policy anew and writes its video.
+    // `cabc video RUN` evaluates the final policy anew and writes its video.
     let out = tmp.path().join("final.gif");
     let (run_s, out_s) = (run.display().to_string(), out.display().to_string());
     local
         .start(
             "video",
-            "learner",
+            "cabc",
             &["video", &run_s, "--final", "--out", &out_s],
         )
         .unwrap();
@@ -208,11 +208,11 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
     assert!(status.success(), "{}", local.log_tail("video"));
     assert!(said.contains("laps, ended by"), "{said}");
     assert!(std::fs::read(&out).unwrap().starts_with(b"GIF89a"));
-    // `learner show RUN --gif VERSION` names the evaluation's video; `learner show --config X key` still prints a
-    // configuration value.
+    // `cabc show RUN --gif VERSION` names the evaluation's video; `cabc show --config X key` prints a configuration
+    // value.
     let version = first.to_string();
     local
-        .start("show", "learner", &["show", &run_s, "--gif", &version])
+        .start("show", "cabc", &["show", &run_s, "--gif", &version])
         .unwrap();
     let (status, said) = local.wait("show", Duration::from_secs(60)).unwrap();
     assert!(status.success(), "{}", local.log_tail("show"));
@@ -223,7 +223,7 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
     local
         .start(
             "key",
-            "learner",
+            "cabc",
             &["show", "--config", "smoke", "actors.count"],
         )
         .unwrap();

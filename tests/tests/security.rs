@@ -453,7 +453,7 @@ fn zenohd() -> anyhow::Result<std::path::PathBuf> {
 }
 
 /// deploy/SCALE-OUT.md §2 as a user follows it, in two network namespaces: a standalone zenohd configured by
-/// `learner zenohd-config` (mutual TLS, the run's access control) in the first with the learner (its client,
+/// `cabc zenohd-config` (mutual TLS, the run's access control) in the first with the learner (its client,
 /// `bus.listen = []`) and the expert server, the actors in the second. A rogue process with actor-0's certificate
 /// poses as actor-1: zenohd drops its segments and its liveliness token, and logs the drops.
 #[test]
@@ -467,7 +467,7 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
     let endpoint = format!("tls/{SERVER_IP}:{}", free_port());
     let mut cluster = mtls_cluster(tmp.path(), "routed", 4, "", &endpoint);
     // §2: zenohd's configuration from the run configuration.
-    let generated = std::process::Command::new(cabc_tests::bin("learner").unwrap())
+    let generated = std::process::Command::new(cabc_tests::bin("cabc").unwrap())
         .args(["zenohd-config", "--config"])
         .arg(&cluster.config)
         .output()
@@ -528,7 +528,7 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
     let _ = cluster.kill("rogue");
     let _ = cluster.kill("zenohd");
     let log = std::fs::read_to_string(cluster.dir.join("zenohd.log")).unwrap();
-    // As an operator reads them (`learner acl-denials zenohd.log` prints the same).
+    // As an operator reads them (`cabc acl-denials zenohd.log` prints the same).
     let denied = cabc_proto::telemetry::acl_denials_in_log(&log);
     println!("zenohd dropped: {denied:#?}");
     // The rogue's segments were dropped, and nothing of the honest processes: every drop names actor-1's keys

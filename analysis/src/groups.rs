@@ -1,0 +1,304 @@
+//! `cabc compare --by-group`: the ablation view of many runs. Runs are grouped by their name less the seed's
+//! suffix (`<group>-s<k>`, `<group>-s<k>-baseline`), proposed and baseline apart, in the order the groups first
+//! appear on the command line; per group and seed one cell says the first 50-lap version (and the early stop), the
+//! laps completed over all evaluations and the late evaluations' steps ([`RunRecord::late_steps`]), a second table
+//! gives the statistics over seeds ([`crate::intervals`]), and `<out>-groups.png` draws the late steps per group, a
+//! dot per seed, filled where the run reached `eval_laps` laps, with the group's IQM and its bootstrap 95 % interval.
+
+use crate::runs::{RunRecord, LATE_VERSIONS};
+use crate::stats::{bootstrap_95, iqm};
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// The group of a run: its name without `-s<k>` (and `-baseline`, which marks the method instead).
+pub fn group_of(name: &str) -> String {
+    let stem = name.strip_suffix("-baseline").unwrap_or(name);
+    match stem.rsplit_once("-s") {
+        Some((group, k)) if !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()) => group.into(),
+        _ => stem.into(),
+    }
+}
+
+/// A group's label: the group, "(baseline)" for the baseline runs.
+fn label(r: &RunRecord) -> String {
+    let group = group_of(&r.name);
+    if r.is_baseline() {
+        format!("{group} (baseline)")
+    } else {
+        group
+    }
+}
+
+/// The groups' labels in first-appearance order, each with its runs.
+fn grouped(runs: &[RunRecord]) -> Vec<(String, Vec<&RunRecord>)> {
+    let mut groups: Vec<(String, Vec<&RunRecord>)> = Vec::new();
+    for r in runs {
+        let l = label(r);
+        match groups.iter_mut().find(|(g, _)| *g == l) {
+            Some((_, of)) => of.push(r),
+            None => groups.push((l, vec![r])),
+        }
+    }
+    groups
+}
+
+/// The seeds of the runs, sorted (None, a folder without config.toml, last).
+fn seeds(runs: &[RunRecord]) -> Vec<Option<u64>> {
+    let mut seeds: Vec<Option<u64>> = runs.iter().map(|r| r.seed).collect();
+    seeds.sort_by_key(|s| s.unwrap_or(u64::MAX));
+    seeds.dedup();
+    seeds
+}
+
+/// One run's cell: "first 50-lap version (stop S) · laps · late steps".
+fn cell(r: &RunRecord) -> String {
+    let first = match (r.full().next(), r.early_stop) {
+        (Some(e), Some(stop)) => format!("**{}** (stop {stop})", e.version),
+        (Some(e), None) => format!("**{}**", e.version),
+        (None, _) => "none".into(),
+    };
+    let late = r.late_steps().map_or("-".into(), |s| format!("{s:.0}"));
+    format!("{first} · {} · {late}", r.laps_completed())
+}
+
+/// The Markdown table: a row per group, a column per seed, then the group's count of runs that reached the laps
+/// and the median [range] of its laps and late steps.
+pub fn table(runs: &[RunRecord]) -> String {
+    let seeds = seeds(runs);
+    let seed_name = |s: &Option<u64>| s.map_or("seed ?".into(), |s| format!("seed {s}"));
+    let mut out = format!(
+        "Each seed's cell: the version of the first 50-lap evaluation (bold; the early stop), or none · the laps \
+         completed over all evaluations · the median steps of the evaluations of the last {LATE_VERSIONS} versions.\n\n\
+         | group | {} | reached the laps | laps, all evals | eval steps, last {LATE_VERSIONS} |\n|---|{}---|---|---|\n",
+        seeds.iter().map(seed_name).collect::<Vec<_>>().join(" | "),
+        "---|".repeat(seeds.len()),
+    );
+    for (group, of) in grouped(runs) {
+        let cells: Vec<String> = seeds
+            .iter()
+            .map(|s| {
+                of.iter()
+                    .filter(|r| r.seed == *s)
+                    .map(|r| cell(r))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            })
+            .collect();
+        let reached = of.iter().filter(|r| r.full().next().is_some()).count();
+        let laps: Vec<f64> = of.iter().map(|r| r.laps_completed() as f64).collect();
+        let late: Vec<f64> = of.iter().filter_map(|r| r.late_steps()).collect();
+        out.push_str(&format!(
+            "| {group} | {} | {reached} of {} | {} | {} |\n",
+            cells.join(" | "),
+            of.len(),
+            crate::stats::median_range(&laps, 0),
+            crate::stats::median_range(&late, 0),
+        ));
+    }
+    out.push_str(&format!(
+        "\nOver seeds, per group: the share that reached the early stop with its Wilson \
+         interval; the interquartile mean of the first 50-lap version (a run that never got there at its budget) \
+         and of the late steps, with stratified-bootstrap 95 % intervals ({} resamples).\n\n{}",
+        crate::stats::BOOTSTRAP_RESAMPLES,
+        crate::intervals::interval_header("group")
+    ));
+    for (group, of) in grouped(runs) {
+        out.push_str(&crate::intervals::interval_row(&group, &of));
+    }
+    out
+}
+
+/// Distinct colours for the seeds (Tableau 10).
+const SEED_COLOURS: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+/// Draws `<out>-groups.png`: per group (a row), each seed's late evaluation steps (a dot, filled where the run
+/// reached the laps), the group's interquartile mean (a black bar) and its bootstrap 95 % interval (a line). Returns
+/// its path.
+pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let path = out.with_file_name(format!("{name}-groups.png"));
+    let groups = grouped(runs);
+    let seeds = seeds(runs);
+    let values: Vec<f64> = runs.iter().filter_map(|r| r.late_steps()).collect();
+    let lo = values
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .min(10.0)
+        / 1.5;
+    // Room on the right for the legend.
+    let hi = values.iter().copied().fold(10.0, f64::max) * 3.0;
+    let labels: Vec<String> = groups.iter().map(|(g, _)| g.clone()).collect();
+    let rows = groups.len().max(1);
+    // The first group on top.
+    let row = |i: usize| SegmentValue::CenterOf(rows - 1 - i);
+    let height = 140 + 44 * rows as u32;
+    cabc_outputs::plots::png(&path, (1000, height), |root| {
+        root.fill(&WHITE)?;
+        let caption = format!(
+            "Late eval steps (median of the last {LATE_VERSIONS} versions): a dot per seed, filled: 50 laps; bar: IQM, line: its 95 % CI"
+        );
+        let mut chart = cabc_outputs::plots::chart(root, &caption, 230)
+            .build_cartesian_2d((lo..hi).log_scale(), (0..rows).into_segmented())?;
+        chart
+            .configure_mesh()
+            .x_desc("steps")
+            .y_labels(rows)
+            .y_label_formatter(&|v| match v {
+                SegmentValue::CenterOf(i) | SegmentValue::Exact(i) if *i < rows => {
+                    labels[rows - 1 - i].clone()
+                }
+                _ => String::new(),
+            })
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .draw()?;
+        for (k, seed) in seeds.iter().enumerate() {
+            let c = SEED_COLOURS[k % SEED_COLOURS.len()];
+            // Each seed a few pixels apart, so that equal values stay visible.
+            let dy = (k as i32 - seeds.len() as i32 / 2) * 5;
+            let dots = groups.iter().enumerate().flat_map(|(i, (_, of))| {
+                of.iter().filter(|r| r.seed == *seed).filter_map(move |r| {
+                    let style = if r.full().next().is_some() {
+                        c.filled()
+                    } else {
+                        c.stroke_width(2)
+                    };
+                    Some(
+                        EmptyElement::at((r.late_steps()?, row(i)))
+                            + Circle::new((0, dy), 6, style),
+                    )
+                })
+            });
+            let seed_label = seed.map_or("seed ?".into(), |s| format!("seed {s}"));
+            chart
+                .draw_series(dots)?
+                .label(seed_label)
+                .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
+        }
+        let late =
+            |of: &[&RunRecord]| -> Vec<f64> { of.iter().filter_map(|r| r.late_steps()).collect() };
+        let iqms = groups.iter().enumerate().filter_map(|(i, (_, of))| {
+            Some(
+                EmptyElement::at((iqm(&late(of))?, row(i)))
+                    + Rectangle::new([(-1, -16), (1, 16)], BLACK.filled()),
+            )
+        });
+        chart
+            .draw_series(iqms)?
+            .label("IQM")
+            .legend(|(x, y)| Rectangle::new([(x + 9, y - 6), (x + 11, y + 6)], BLACK.filled()));
+        let intervals = groups.iter().enumerate().filter_map(|(i, (_, of))| {
+            let (lo, hi) = bootstrap_95(&late(of), iqm)?;
+            Some(PathElement::new(
+                vec![(lo, row(i)), (hi, row(i))],
+                BLACK.stroke_width(2),
+            ))
+        });
+        chart
+            .draw_series(intervals)?
+            .label("IQM's 95 % CI (bootstrap)")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+        cabc_outputs::plots::legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+        Ok(())
+    })?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runs::Eval;
+
+    fn record(
+        name: &str,
+        seed: u64,
+        evals: &[(u64, u32, u64)],
+        early_stop: Option<u64>,
+    ) -> RunRecord {
+        RunRecord {
+            name: name.into(),
+            lambda: if name.ends_with("-baseline") {
+                0.0
+            } else {
+                10.0
+            },
+            seed: Some(seed),
+            eval_laps: 50,
+            evals: evals
+                .iter()
+                .map(|&(version, laps, steps)| Eval {
+                    version,
+                    laps,
+                    lap_mean: (laps > 0).then_some(5.0),
+                    lap_std: (laps > 0).then_some(0.1),
+                    steps: Some(steps),
+                })
+                .collect(),
+            imitation: vec![],
+            epochs: 200,
+            wall_s: 0.0,
+            incomplete_share: None,
+            early_stop,
+            expert_lap_time: None,
+            ended: None,
+            peak_mb: None,
+        }
+    }
+
+    #[test]
+    fn groups_are_names_less_their_seed() {
+        assert_eq!(group_of("v-b-ref-abl-clip-s3"), "v-b-ref-abl-clip");
+        assert_eq!(group_of("v-b-ref-s12-baseline"), "v-b-ref");
+        assert_eq!(group_of("v-b-s1-to-300"), "v-b-s1-to-300");
+        assert_eq!(group_of("smoke"), "smoke");
+        assert_eq!(group_of("v-b-s"), "v-b-s");
+    }
+
+    #[test]
+    fn a_row_per_group_a_column_per_seed() {
+        let runs = [
+            record(
+                "ref-s1",
+                42,
+                &[(0, 0, 10), (100, 50, 2600), (101, 50, 2600)],
+                Some(101),
+            ),
+            record("ref-s1-baseline", 42, &[(0, 0, 10), (1, 0, 20)], None),
+            record("ref-s2", 43, &[(0, 0, 30), (1, 2, 120)], None),
+            record("abl-s2", 43, &[(5, 0, 12)], None),
+        ];
+        let table = table(&runs);
+        let rows: Vec<&str> = table.lines().filter(|l| l.starts_with("| ")).collect();
+        assert_eq!(
+            rows[0],
+            "| group | seed 42 | seed 43 | reached the laps | laps, all evals | eval steps, last 50 |"
+        );
+        assert_eq!(
+            rows[1],
+            "| ref | **100** (stop 101) · 100 · 2600 | none · 2 · 75 | 1 of 2 | 51 [2–100] | 1338 [75–2600] |"
+        );
+        assert_eq!(
+            rows[2],
+            "| ref (baseline) | none · 0 · 15 |  | 0 of 1 | 0 | 15 |"
+        );
+        assert_eq!(rows[3], "| abl |  | none · 0 · 12 | 0 of 1 | 0 | 12 |");
+        let tmp = tempfile::tempdir().unwrap();
+        let path = draw(&runs, &tmp.path().join("ablation")).unwrap();
+        assert!(path.ends_with("ablation-groups.png"));
+        assert!(std::fs::metadata(&path).unwrap().len() > 1000);
+    }
+}

@@ -1,0 +1,227 @@
+//! A finished (or running) run folder as the analysis reads it back: its configuration, `metrics.csv`, `evals.csv`
+//! and `summary.json`, as one [`RunRecord`].
+
+use crate::stats::median;
+use cabc_proto::config::RunConfig;
+use std::path::{Path, PathBuf};
+
+/// A run folder that cannot be compared.
+#[derive(Debug, thiserror::Error)]
+pub enum CompareError {
+    #[error("{path}: {why}")]
+    Run { path: PathBuf, why: String },
+    #[error("drawing {path}: {why}")]
+    Draw { path: PathBuf, why: String },
+}
+
+/// One evaluation as `evals.csv` holds it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Eval {
+    pub version: u64,
+    pub laps: u32,
+    pub lap_mean: Option<f64>,
+    pub lap_std: Option<f64>,
+    /// The steps the evaluation lasted (until its laps, a failure or its step cap).
+    pub steps: Option<u64>,
+}
+
+/// The late evaluations of [`RunRecord::late_steps`]: those of a run's last `LATE_VERSIONS` versions.
+pub const LATE_VERSIONS: u64 = 50;
+
+/// What the comparison needs of one run.
+#[derive(Clone, Debug)]
+pub struct RunRecord {
+    pub name: String,
+    pub lambda: f64,
+    /// None for a folder without config.toml (read from summary.json).
+    pub seed: Option<u64>,
+    pub eval_laps: u32,
+    pub evals: Vec<Eval>,
+    /// (epoch, imitation loss) where the policy trained.
+    pub imitation: Vec<(u64, f64)>,
+    pub epochs: u64,
+    pub wall_s: f64,
+    pub incomplete_share: Option<f64>,
+    pub early_stop: Option<u64>,
+    pub expert_lap_time: Option<(f64, f64)>,
+    pub ended: Option<String>,
+    /// The learner's peak resident memory (MB), when the summary has it.
+    pub peak_mb: Option<f64>,
+}
+
+/// A CSV with a header, as the learner writes it (no quoting).
+struct Table {
+    header: Vec<String>,
+    rows: Vec<Vec<String>>,
+}
+
+impl Table {
+    fn read(path: &Path) -> Result<Table, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+        let mut lines = text
+            .lines()
+            .map(|l| l.split(',').map(str::to_string).collect());
+        let header = lines.next().ok_or("empty")?;
+        Ok(Table {
+            header,
+            rows: lines.collect(),
+        })
+    }
+
+    fn column(&self, name: &str) -> Result<Vec<&str>, String> {
+        let i = self
+            .header
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| format!("no column {name}"))?;
+        Ok(self
+            .rows
+            .iter()
+            .map(|r| r.get(i).map_or("", String::as_str))
+            .collect())
+    }
+}
+
+fn number<T: std::str::FromStr>(text: &str) -> Option<T> {
+    text.parse().ok()
+}
+
+impl RunRecord {
+    pub fn read(dir: &Path) -> Result<RunRecord, CompareError> {
+        let fail = |why: String| CompareError::Run {
+            path: dir.to_path_buf(),
+            why,
+        };
+        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join("summary.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        // A folder of results without config.toml (older copies): the name and lambda from summary.json.
+        let config_path = dir.join("config.toml");
+        let (name, lambda, seed, eval_laps) = if config_path.exists() {
+            let config = RunConfig::load(&config_path.display().to_string())
+                .map_err(|e| fail(e.to_string()))?;
+            (
+                config.run.name.clone(),
+                config.algorithm.lambda,
+                Some(config.run.seed),
+                config.collection.eval_laps,
+            )
+        } else {
+            let s = summary
+                .as_ref()
+                .ok_or_else(|| fail("neither config.toml nor summary.json".into()))?;
+            (
+                s["run"].as_str().unwrap_or("?").to_string(),
+                s["lambda"].as_f64().unwrap_or(f64::NAN),
+                None,
+                cabc_proto::config::CollectionSection::default().eval_laps,
+            )
+        };
+        let metrics =
+            Table::read(&dir.join("metrics.csv")).map_err(|e| fail(format!("metrics.csv: {e}")))?;
+        let column = |name| {
+            metrics
+                .column(name)
+                .map_err(|e| fail(format!("metrics.csv: {e}")))
+        };
+        let epochs: Vec<u64> = column("epoch")?.iter().filter_map(|v| number(v)).collect();
+        let imitation = epochs
+            .iter()
+            .zip(column("imitation_loss")?)
+            .filter_map(|(&e, v)| number::<f64>(v).filter(|v| *v > 0.0).map(|v| (e, v)))
+            .collect();
+        let wall_s = column("epoch_s")?
+            .iter()
+            .filter_map(|v| number::<f64>(v))
+            .sum();
+        // Older run folders have no incomplete share.
+        let incomplete: Vec<f64> = metrics
+            .column("incomplete_share")
+            .map(|c| c.iter().filter_map(|v| number(v)).collect())
+            .unwrap_or_default();
+        let evals_table =
+            Table::read(&dir.join("evals.csv")).map_err(|e| fail(format!("evals.csv: {e}")))?;
+        let evals_column = |name| {
+            evals_table
+                .column(name)
+                .map_err(|e| fail(format!("evals.csv: {e}")))
+        };
+        let versions = evals_column("version")?;
+        // Older folders may lack the steps.
+        let steps = evals_table
+            .column("steps")
+            .unwrap_or_else(|_| vec![""; versions.len()]);
+        let mut evals: Vec<Eval> = versions
+            .iter()
+            .zip(evals_column("laps")?)
+            .zip(evals_column("lap_mean")?)
+            .zip(evals_column("lap_std")?)
+            .zip(steps)
+            .filter_map(|((((v, l), m), s), steps)| {
+                Some(Eval {
+                    version: number(v)?,
+                    laps: number(l)?,
+                    lap_mean: number(m),
+                    lap_std: number(s),
+                    steps: number(steps),
+                })
+            })
+            .collect();
+        evals.sort_by_key(|e| e.version);
+        evals.dedup_by_key(|e| e.version);
+        let expert_lap_time = summary.as_ref().and_then(|s| {
+            let e = &s["expert_lap_time"];
+            Some((e["mean"].as_f64()?, e["std"].as_f64()?))
+        });
+        Ok(RunRecord {
+            name,
+            lambda,
+            seed,
+            eval_laps,
+            evals,
+            imitation,
+            epochs: epochs.len() as u64,
+            wall_s,
+            incomplete_share: cabc_proto::stats::mean(&incomplete),
+            early_stop: summary
+                .as_ref()
+                .and_then(|s| s["early_stop_version"].as_u64()),
+            expert_lap_time,
+            ended: summary
+                .as_ref()
+                .and_then(|s| s["ended"].as_str().map(str::to_string)),
+            peak_mb: summary
+                .as_ref()
+                .and_then(|s| s["learner_peak_rss_mb"].as_f64()),
+        })
+    }
+
+    /// The evaluations that completed `eval_laps` laps, in version order.
+    pub fn full(&self) -> impl Iterator<Item = &Eval> {
+        self.evals.iter().filter(|e| e.laps >= self.eval_laps)
+    }
+
+    /// The laps completed over all its evaluations: a run that never reaches `eval_laps` may still complete some.
+    pub fn laps_completed(&self) -> u64 {
+        self.evals.iter().map(|e| u64::from(e.laps)).sum()
+    }
+
+    /// The median steps of the evaluations of the run's last [`LATE_VERSIONS`] versions: how long its late policies
+    /// stay on the track, a figure that tells apart runs that never complete a lap. None without evaluations.
+    pub fn late_steps(&self) -> Option<f64> {
+        let last = self.evals.last()?.version;
+        let late: Vec<f64> = self
+            .evals
+            .iter()
+            .filter(|e| e.version + LATE_VERSIONS > last)
+            .filter_map(|e| e.steps.map(|s| s as f64))
+            .collect();
+        median(&late)
+    }
+
+    /// A baseline run: named so by `--baseline` (its name ends in `-baseline`, whatever lambda it has: the Fig. 6
+    /// caption's V-C baseline keeps lambda = 1), or trained with lambda = 0.
+    pub fn is_baseline(&self) -> bool {
+        self.name.ends_with("-baseline") || self.lambda == 0.0
+    }
+}

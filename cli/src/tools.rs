@@ -1,0 +1,104 @@
+//! The subcommands that hand their arguments to a library whole: `cabc compare` (cabc-analysis), `cabc demo`,
+//! `cabc bench` and `cabc bench-vision` (cabc-bench), and a secure deployment's `cabc zenohd-config` and
+//! `cabc acl-denials` (cabc-bus, deploy/SCALE-OUT.md §2).
+
+use anyhow::Context;
+use cabc_proto::config::RunConfig;
+use std::path::PathBuf;
+
+/// `cabc compare RUN...`: the paper's figures and the table of runs (Markdown on stdout).
+pub fn compare(options: &cabc_analysis::compare::CompareOptions) -> anyhow::Result<()> {
+    print!("{}", cabc_analysis::compare::run(options)?);
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    options: cabc_bench::demo::DemoOptions,
+    /// Print the report as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `cabc demo`: the paper's Fig. 3.
+pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
+    let o = &args.options;
+    let report =
+        cabc_bench::demo::autolabel_demo(&o.rho, o.seed, &o.out).context("auto-labelling demo")?;
+    report.log();
+    if args.json {
+        crate::print_json(&report)?;
+    }
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    options: cabc_bench::throughput::BenchOptions,
+    /// Print the report as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `cabc bench`: auto-labelling's and training's throughput.
+pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
+    let report = cabc_bench::throughput::run_bench(&args.options);
+    if args.json {
+        crate::print_json(&report)?;
+    }
+    Ok(())
+}
+
+/// `cabc bench-vision`: the camera policy's images per second (JSON).
+pub fn bench_vision(options: &cabc_bench::vision::VisionBenchOptions) -> anyhow::Result<()> {
+    let report = cabc_bench::vision::run(options).context("bench-vision")?;
+    crate::print_json(&report)
+}
+
+#[derive(clap::Args)]
+pub struct ZenohdConfigArgs {
+    /// Run configuration: a preset or a TOML file.
+    #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
+    config: String,
+    /// Endpoints zenohd listens on (default: the protocol and port of every bus.connect endpoint, on every
+    /// address); repeatable.
+    #[arg(long)]
+    listen: Vec<String>,
+    /// A configuration value, `key=value`; repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+}
+
+/// `cabc zenohd-config`: zenohd's JSON5 configuration for a run.
+pub fn zenohd_config(args: &ZenohdConfigArgs) -> anyhow::Result<()> {
+    let config = crate::load(&args.config)?
+        .with_overrides(&args.set)
+        .context("applying --set")?;
+    let listen = match args.listen.is_empty() {
+        true => cabc_bus::zenohd::default_listen(&config.bus.connect),
+        false => args.listen.clone(),
+    };
+    let keys = cabc_proto::keys::Keys::new(&config.run.name)?;
+    print!("{}", cabc_bus::zenohd::config(&config.bus, &keys, &listen)?);
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct AclDenialsArgs {
+    /// zenohd's log file.
+    log: PathBuf,
+}
+
+/// `cabc acl-denials LOG`: the messages zenohd's access control dropped, as JSON.
+pub fn acl_denials(args: &AclDenialsArgs) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(&args.log)
+        .with_context(|| format!("reading {}", args.log.display()))?;
+    crate::print_json(&cabc_proto::telemetry::acl_denials_in_log(&text))
+}
+
+/// The configuration `name` (a preset or a TOML file) resolved.
+pub fn load(name: &str) -> anyhow::Result<RunConfig> {
+    RunConfig::load_variant(name, false).with_context(|| format!("loading configuration {name}"))
+}

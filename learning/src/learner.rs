@@ -1,0 +1,434 @@
+//! What the learner holds between epochs of Algorithm 1 ([`crate::algorithm`]): D+, D? and D- (the replay), the
+//! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations, the epochs' records
+//! and the checkpoint. Everything it writes besides the checkpoint goes through one port, a [`Sink`]
+//! (the cabc-outputs crate has the run folder's).
+
+use crate::autolabel::{autolabel_replay, AutolabelOptions};
+use crate::checkpoint::{Checkpoint, CheckpointError};
+use crate::provenance::Provenance;
+use crate::record::Record;
+use crate::replay::{Checked, Frames, ImageLog, Replay};
+use crate::sink::{Sink, SinkError};
+use crate::state::{LearnerState, StateError, CHECKPOINT};
+use crate::train::{TrainError, Trainer};
+use cabc_models::device::parse_device;
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment};
+use cabc_proto::ports::PortError;
+use serde_json::json;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Errors that end the learner.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    #[error("the actors' port: {0}")]
+    Port(#[from] PortError),
+    #[error("training: {0}")]
+    Train(#[from] TrainError),
+    #[error("the learner state: {0}")]
+    State(#[from] StateError),
+    #[error("the checkpoint: {0}")]
+    CheckpointFile(#[from] CheckpointError),
+    #[error("writing the run's outputs: {0}")]
+    Sink(#[from] SinkError),
+    #[error("{0}")]
+    Checkpoint(String),
+}
+
+/// The replay's file in the checkpoint.
+const REPLAY: &str = "replay.bin";
+
+/// Counts of the epoch in progress, from [`Learner::begin_epoch`] on.
+#[derive(Default)]
+struct Tally {
+    /// The ledger's stored steps and segments when the epoch began.
+    stored_before: (u64, u64),
+    /// Steps in incomplete segments.
+    incomplete_steps: u64,
+    /// Where the epoch's D? steps came from.
+    provenance: Provenance,
+}
+
+/// Everything the learner holds.
+pub struct Learner {
+    pub config: RunConfig,
+    pub trainer: Trainer,
+    /// D+, D?, D- and the dynamics-only store.
+    pub replay: Replay,
+    /// The records, the evaluations, the ledger: what the checkpoint saves besides networks and replay.
+    pub state: LearnerState,
+    /// The run folder: the checkpoint and D+'s image logs.
+    folder: PathBuf,
+    sink: Box<dyn Sink>,
+    /// The segments of the epoch being collected, until [`Learner::partition`].
+    d_new: Vec<Checked>,
+    tally: Tally,
+    expert_streams: HashSet<(String, u32, u64)>,
+    /// Segments refused or not stored, since the process started.
+    failed_segments: u64,
+    /// The track's half-width (off-track spawns in [`Provenance`]).
+    half_width: f64,
+    /// D+'s images on disk (`replay-images-<generation>.log` in the run folder), appended to at each checkpoint.
+    image_log: Option<ImageLog>,
+}
+
+impl Learner {
+    /// A fresh learner for `config` with its checkpoint in `folder` (`folder/checkpoint`, and D+'s image logs),
+    /// writing its outputs through `sink`; or the one of its checkpoint with `resume` (refused without `resume` when
+    /// a checkpoint exists).
+    pub fn open(
+        config: RunConfig,
+        folder: PathBuf,
+        mut sink: Box<dyn Sink>,
+        resume: bool,
+    ) -> Result<Self, LearnerError> {
+        let device = parse_device(&config.training.device).map_err(TrainError::from)?;
+        let checkpoint = folder.join(CHECKPOINT);
+        let (trainer, replay, image_log, state) = if Checkpoint::exists(&checkpoint) {
+            if !resume {
+                return Err(LearnerError::Checkpoint(format!(
+                    "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
+                    folder.display()
+                )));
+            }
+            let ck = Checkpoint::open(&checkpoint)?;
+            let state = LearnerState::load(&ck)?;
+            let mut trainer = Trainer::with_device(&config, device);
+            trainer.load(&ck)?;
+            let (replay, image_log) = ck
+                .read(REPLAY)
+                .map_err(|e| LearnerError::Checkpoint(e.to_string()))
+                .and_then(|bytes| {
+                    Replay::from_checkpoint(&bytes, &folder)
+                        .map(|(replay, log)| {
+                            let replay = replay
+                                .with_frames(Frames::of(&config))
+                                .with_dynamics_only(config.replay.dynamics_only);
+                            (replay, log)
+                        })
+                        .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
+                })?;
+            tracing::info!(
+                epoch = state.next_epoch,
+                d_plus = replay.len_plus(),
+                d_uncertain = replay.len_uncertain(),
+                "resumed from {}",
+                ck.path().display()
+            );
+            (trainer, replay, image_log, state)
+        } else if resume {
+            return Err(LearnerError::Checkpoint(format!(
+                "{} holds no checkpoint to resume (not even checkpoint.old/): nothing was started; drop --resume to \
+                 start a new run",
+                folder.display()
+            )));
+        } else {
+            let replay = Replay::from_config(&config);
+            tracing::info!(
+                d_plus_capacity = replay.plus.capacity(),
+                capacity = config.replay.capacity,
+                max_bytes = config.replay.max_bytes,
+                "replay"
+            );
+            let mut trainer = Trainer::with_device(&config, device);
+            let state = LearnerState {
+                trunk_init: Some(trainer.init_trunk()?),
+                ..LearnerState::default()
+            };
+            (trainer, replay, None, state)
+        };
+        sink.open(&state);
+        Ok(Learner {
+            config,
+            trainer,
+            replay,
+            state,
+            folder,
+            sink,
+            d_new: Vec::new(),
+            tally: Tally::default(),
+            expert_streams: HashSet::new(),
+            failed_segments: 0,
+            half_width: cabc_sim::track::Track::l_track_barc().half_width(),
+            image_log,
+        })
+    }
+
+    /// The run folder (the checkpoint's parent).
+    pub fn folder(&self) -> &Path {
+        &self.folder
+    }
+
+    /// (pi_j, beta_j) as the actors receive it, with each actor's step budget for the epoch.
+    pub fn policy_update(&mut self, epoch: u64) -> PolicyUpdate {
+        let weights = self.trainer.policy_bytes();
+        self.state.evaluations.publish(epoch, weights.clone());
+        self.progress(epoch, "collecting");
+        PolicyUpdate {
+            version: epoch,
+            beta: self.config.beta(epoch),
+            architecture: self.trainer.policy_architecture(),
+            weights,
+            steps_per_actor: self.config.steps_per_actor(epoch),
+            published_unix_ms: unix_ms(),
+        }
+    }
+
+    /// Starts an epoch's counts (what the ledger stored so far, no incomplete steps, no D? steps).
+    pub fn begin_epoch(&mut self) {
+        let ledger = &self.state.ledger;
+        self.tally = Tally {
+            stored_before: (ledger.stored_steps, ledger.stored_segments),
+            ..Tally::default()
+        };
+    }
+
+    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment the replay would not
+    /// take (images not of the run's observation size, [`Replay::check_segment`]) is refused and counted in
+    /// `segments_not_stored` before the ledger sees it. This is the one check of a segment: it waits in D_new as
+    /// [`Checked`], and [`Learner::partition`] stores it and counts it stored.
+    pub fn store(&mut self, segment: Segment) {
+        let (actor, seq) = (segment.actor.clone(), segment.seq);
+        let checked = match self.replay.checked(segment) {
+            Ok(checked) => checked,
+            Err(e) => {
+                self.failed_segments += 1;
+                tracing::warn!(actor, seq, "segment refused: {e}");
+                return;
+            }
+        };
+        if self.state.ledger.seen(checked.segment()) {
+            tracing::warn!(actor, seq, "duplicate segment dropped");
+            return;
+        }
+        self.state.ledger.admit(checked.segment());
+        self.d_new.push(checked);
+    }
+
+    /// Partitions D_new into D+' (laps) and D?' (failures; unfinished steps go to the dynamics-only store) and adds
+    /// them to D+ and D?. Segments are added in (actor, incarnation, seq) order, whatever order the bus delivered
+    /// them in, so a distributed run with a given seed is as reproducible as an in-process one. Puts what the epoch
+    /// stored, and where its D? steps came from.
+    pub fn partition(&mut self, record: &mut Record) {
+        let mut d_new = std::mem::take(&mut self.d_new);
+        d_new.sort_by(|a, b| {
+            let (a, b) = (a.segment(), b.segment());
+            (&a.actor, a.incarnation, a.seq).cmp(&(&b.actor, b.incarnation, b.seq))
+        });
+        for checked in d_new {
+            let segment = checked.segment();
+            self.expert_lap_time(segment);
+            if segment.outcome == Outcome::Incomplete {
+                self.tally.incomplete_steps += segment.steps.len() as u64;
+            }
+            self.replay.add_checked(&checked);
+            self.state.ledger.stored(segment);
+            let flush = self.config.collection.flush;
+            self.tally.provenance.add(segment, flush, self.half_width);
+        }
+        let (ledger, t) = (&self.state.ledger, &self.tally);
+        let stored = ledger.stored_steps - t.stored_before.0;
+        record.count("steps_collected", stored);
+        record.count("segments", ledger.stored_segments - t.stored_before.1);
+        // Cut by the budget: dynamics only, never labelled.
+        record.count("incomplete_steps", t.incomplete_steps);
+        record.real(
+            "incomplete_share",
+            t.incomplete_steps as f64 / stored.max(1) as f64,
+            4,
+        );
+        record.count("uncertain_truncating", t.provenance.truncating);
+        record.count("uncertain_spawn", t.provenance.spawn);
+        record.count("uncertain_patience", t.provenance.patience);
+        record.count("uncertain_failed_lap", t.provenance.failed_lap);
+        record.count("expert_failures", t.provenance.expert_failures);
+        record.count("segments_not_stored", self.failed_segments);
+    }
+
+    /// Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
+    /// episode after its first starts at the start line.
+    fn expert_lap_time(&mut self, segment: &Segment) {
+        if segment.outcome == Outcome::Lap
+            && segment.policy_version == 0
+            && self.config.beta(0) >= 1.0
+        {
+            let stream = (segment.actor.clone(), segment.env, segment.episode);
+            if !self.expert_streams.insert(stream) {
+                let dt = cabc_sim::env::DT;
+                self.state
+                    .expert_lap_times
+                    .push(segment.steps.len() as f64 * dt);
+            }
+        }
+    }
+
+    /// Auto-labels D? (eq. (19)) and makes what stays in it D-. Returns (points removed, rho used); None when D? holds
+    /// fewer than `algorithm.autolabel_min_uncertain` points (or none).
+    pub fn autolabel(&mut self, epoch: u64) -> Option<(usize, f64)> {
+        if self.replay.len_uncertain() < self.config.algorithm.autolabel_min_uncertain.max(1) {
+            return None;
+        }
+        self.progress(epoch, "auto-labelling");
+        let report = autolabel_replay(&self.replay, &AutolabelOptions::from_config(&self.config));
+        self.replay.apply_labels(&report.removed);
+        let removed = report.removed.len();
+        tracing::info!(
+            epoch,
+            removed,
+            queried = report.queries,
+            secs = report.seconds,
+            d_minus = self.replay.len_minus(),
+            "auto-labelling removed {removed} likely-safe states from D?"
+        );
+        Some((removed, report.rho))
+    }
+
+    /// An evaluation report ([`crate::evaluations::Evaluations::take`]).
+    pub fn on_eval(&mut self, report: EvalReport) {
+        let rules = &self.config.collection;
+        let sink = &mut self.sink;
+        self.state
+            .evaluations
+            .take(report, rules, |taken| sink.evaluation(taken));
+    }
+
+    /// Closes an epoch: puts D+, D?, D-, the evaluations and the epoch's time, checkpoints, and writes the record
+    /// through the sink.
+    pub fn end_epoch(&mut self, mut record: Record, started: Instant) -> Result<(), LearnerError> {
+        record.count("d_plus", self.replay.len_plus());
+        record.count("d_uncertain", self.replay.len_uncertain());
+        // What the last auto-labelling left in D? (the critic's negatives), held until the next labelling.
+        record.count("d_minus", self.replay.len_minus());
+        record.count("dynamics_only", self.replay.len_dynamics_only());
+        self.state.evaluations.put(&mut record);
+        record.count("acl_denied", self.acl_denied());
+        record.real("epoch_s", started.elapsed().as_secs_f64(), 3);
+        let epoch = record.epoch();
+        tracing::info!("epoch done: {record}");
+        self.state.next_epoch = epoch + 1;
+        self.state.rows.push(record);
+        self.checkpoint()?;
+        Ok(self.sink.write_last(&self.state)?)
+    }
+
+    /// Messages the router's access control has dropped so far, warned about when they grew since the last epoch
+    /// (zenoh logs its decisions only at TRACE): an operator under attack sees who tried what.
+    fn acl_denied(&self) -> u64 {
+        let by = cabc_proto::telemetry::acl_denials();
+        let total: u64 = by.values().sum();
+        let before = self.state.rows.last().and_then(|r| r.u64("acl_denied"));
+        if total > before.unwrap_or(0) {
+            tracing::warn!(
+                new = total - before.unwrap_or(0),
+                total,
+                "the access control dropped messages: {by:?}"
+            );
+        }
+        total
+    }
+
+    /// Shows the phase of epoch `epoch` (the progress bar).
+    pub fn progress(&mut self, epoch: u64, phase: &str) {
+        self.sink.phase(epoch, phase);
+    }
+
+    /// The networks, the replay and the learner state, written atomically (see `crate::checkpoint`).
+    /// D+'s images go to the image log first (only those new since the last checkpoint); a generation the
+    /// committed checkpoint no longer names is removed after the commit.
+    fn checkpoint(&mut self) -> Result<(), LearnerError> {
+        let mut files = self.trainer.to_checkpoint();
+        let replay = self
+            .replay
+            .checkpoint_bytes(&self.folder, &mut self.image_log)
+            .map_err(|e| LearnerError::Checkpoint(format!("saving the replay: {e}")))?;
+        files.push((REPLAY, replay));
+        self.state.save(&self.folder.join(CHECKPOINT), files)?;
+        if let Some(log) = &self.image_log {
+            if let Err(e) = log.prune() {
+                tracing::warn!("removing an old image log: {e}");
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the run: the final outputs (unless interrupted) and the summary, written through the sink and returned.
+    pub fn finish(
+        &mut self,
+        reason: &str,
+        interrupted: bool,
+        rejected: u64,
+    ) -> Result<serde_json::Value, LearnerError> {
+        tracing::info!("run ends: {reason}");
+        let not_evaluated = self.state.evaluations.not_evaluated();
+        if !not_evaluated.is_empty() {
+            // The rule by which a version goes unevaluated: the run ended before its report arrived.
+            tracing::warn!(
+                ?not_evaluated,
+                "the run ends before these versions' evaluations arrived"
+            );
+        }
+        if !interrupted {
+            self.state.stopped = Some(reason.to_string());
+        }
+        let summary = self.summary(reason, rejected);
+        let final_policy = (!interrupted).then(|| self.trainer.policy_bytes());
+        self.sink
+            .close(&self.state, &summary, final_policy.as_deref())?;
+        Ok(summary)
+    }
+
+    fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
+        let evaluations = &self.state.evaluations;
+        let expert = cabc_proto::stats::mean_std(&self.state.expert_lap_times);
+        let epoch_s: Vec<f64> = self
+            .state
+            .rows
+            .iter()
+            .filter_map(|r| r.f64("epoch_s"))
+            .collect();
+        json!({
+            "run": self.config.run.name,
+            "experiment": self.config.run.experiment,
+            "lambda": self.config.algorithm.lambda,
+            "rho": self.config.algorithm.rho,
+            "ended": reason,
+            "epochs": self.state.rows.len(),
+            "early_stop_version": evaluations.early_stop(),
+            "first_version_with_eval_laps": evaluations.first_completing(self.config.collection.eval_laps),
+            "best_eval": evaluations.best(),
+            "last_eval": evaluations.evals.last(),
+            "trunk_init": self.state.trunk_init,
+            "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
+            "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
+            "learner_peak_rss_mb": peak_rss_mb(),
+            "steps_stored": self.state.ledger.stored_steps,
+            "segments_stored": self.state.ledger.stored_segments,
+            "duplicate_segments": self.state.ledger.duplicates,
+            "segments_not_stored": self.failed_segments,
+            "refused_evals": evaluations.refused(),
+            "duplicate_evals": evaluations.duplicates(),
+            "versions_not_evaluated": evaluations.not_evaluated(),
+            "rejected_messages": rejected,
+            "acl_denied": cabc_proto::telemetry::acl_denials(),
+            "d_plus": self.replay.len_plus(),
+            "d_uncertain": self.replay.len_uncertain(),
+            "d_minus": self.replay.len_minus(),
+        })
+    }
+}
+
+/// The learner process's peak resident memory (MB), from /proc/self/status (None where there is no /proc).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}

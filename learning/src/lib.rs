@@ -1,0 +1,47 @@
+//! cabc-learning: the learning core of constraint-aware behaviour cloning, the paper's Algorithm 1 and the state it
+//! keeps between epochs. It knows nothing of the bus, the run folder's files, plots, videos, TensorBoard or datasets:
+//! everything it writes besides its checkpoint goes through one port, [`sink::Sink`].
+//!
+//! Algorithm 1, line by line, and where each part lives:
+//!
+//! | Algorithm 1 | file |
+//! |---|---|
+//! | the loop: collect with beta-mixing, partition, auto-label, train, publish, evaluate | [`algorithm`] |
+//! | what is held between epochs (replay, networks, ledger, evaluations, checkpoint) | [`learner`], [`state`] |
+//! | "store trajectories in D+ / D?" (safe prefixes and failures' last steps), D- | [`replay`], [`ledger`] (exactly once), [`provenance`] |
+//! | "auto-label D?": eq. (19), local convex hulls of D+ | [`autolabel`], over [`kdtree`] and [`hull`] |
+//! | "train f̂ on D+ ∪ D?": eq. (15) | [`train`] (`train/dynamics.rs`) |
+//! | "train p̂ on D+ (safe) and D- (unsafe)": eq. (16) | [`train`] (`train/critic.rs`) |
+//! | "train π on L_CA = L_clone + λ L_safety": eq. (14) | [`train`] (`train/policy.rs`) |
+//! | when each part runs (k_f, k_p, labelling, λ warm-up) | [`schedule`] |
+//! | the evaluations from the fixed spawn, early stopping, the best version | [`evaluations`] |
+//! | an epoch's metrics, one line where each is computed | [`record`], written through [`sink`] |
+//! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `migrate` |
+//!
+//! The actors are a port (`cabc_proto::ports::Rollouts`): over zenoh in a run (the `learner` binary), in-process
+//! in a test. The sinks of a run folder (CSV tables, plots, GIFs, TensorBoard, the progress bar) are the
+//! cabc-outputs crate's; the analysis over run folders is cabc-analysis's; the LeRobot export is cabc-export's.
+
+pub mod algorithm;
+pub mod autolabel;
+pub mod checkpoint;
+pub mod evaluations;
+pub mod fault;
+pub mod hull;
+pub mod kdtree;
+pub mod learner;
+pub mod ledger;
+mod migrate;
+pub mod provenance;
+pub mod record;
+pub mod replay;
+pub mod schedule;
+pub mod sink;
+pub mod state;
+pub mod train;
+
+pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};
+pub use checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
+pub use replay::{Replay, ReplayError};
+pub use schedule::Schedule;
+pub use train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};

@@ -1,0 +1,514 @@
+//! The replay buffers of Algorithm 1 (algorithm.md 2 and 4).
+//!
+//! * **D+** (`plus`): steps of completed laps (every state safe, eq. (18)) whose expert answered: the policy's
+//!   labels and the critic's positives.
+//! * **D?** (`uncertain`): steps of truncated episodes and steps where the expert failed (the reference sends those
+//!   straight to D_neg; simulator.md 6). Auto-labelling removes likely-safe ones.
+//! * **D-** (`minus`): what D? held right after the last auto-labelling (eq. (19)), a snapshot of its states, held
+//!   until the next labelling: the critic's negatives. D? points that arrive after a labelling stay out of D- until
+//!   the next one, whatever the schedules (a snapshot rather than indices into D?, which eviction would invalidate).
+//! * **dynamics-only**: steps of segments cut by the step budget (never labelled), and the states auto-labelling
+//!   removed from D? (still good (x, u, x') samples for f_hat).
+//!
+//! Each store is a structure of arrays with a fixed capacity (`replay.capacity`); once full, a new step overwrites a
+//! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
+
+mod log;
+mod read;
+mod store;
+
+pub use log::ImageLog;
+pub use read::ReplaySnapshot;
+pub(crate) use store::NOT_LOGGED;
+pub use store::{ImageStore, Store, STEP_BYTES};
+
+use cabc_proto::config::{ObservationKind, RunConfig};
+use cabc_proto::messages::{Image, Outcome, Segment, Step, STATE_DIM};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Why the replay could not take a step or be saved or loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error(
+        "image of {got_w}x{got_h} ({bytes} bytes) in a buffer of {want_w}x{want_h} RGB images"
+    )]
+    ImageSize {
+        want_w: u16,
+        want_h: u16,
+        got_w: u16,
+        got_h: u16,
+        bytes: usize,
+    },
+    #[error("a step without an image in a buffer of images (or the other way round)")]
+    ImagePresence,
+    #[error("not a replay file (bad magic)")]
+    BadMagic,
+    #[error("replay file version {found}, this build reads versions 1 to {expected}")]
+    Version { found: u32, expected: u32 },
+    #[error("replay file: {0}")]
+    Decode(String),
+    #[error("image log: {0}")]
+    Log(String),
+}
+
+/// Counts of what [`Replay::add_segment`] did with a segment's steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AddCounts {
+    pub plus: usize,
+    pub uncertain: usize,
+    pub dynamics_only: usize,
+}
+
+/// The images a run's steps carry: every segment is held to it before anything of it is stored, so a segment
+/// from the bus with images of another size (or none, or unasked-for ones) is refused, not stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Frames {
+    /// Whatever size the first image has (a replay made without a configuration: tests, tools).
+    #[default]
+    Any,
+    /// A full-state run: no step carries an image.
+    None,
+    /// A camera run: every step carries a `width` x `height` RGB image (`observation.width/height`).
+    Rgb { width: u16, height: u16 },
+}
+
+impl Frames {
+    /// The images of a run configuration's observation.
+    pub fn of(config: &RunConfig) -> Self {
+        match config.observation.kind {
+            ObservationKind::State => Frames::None,
+            ObservationKind::Camera => Frames::Rgb {
+                width: config.observation.width,
+                height: config.observation.height,
+            },
+        }
+    }
+
+    fn check(self, image: Option<&Image>) -> Result<(), ReplayError> {
+        match (self, image) {
+            (Frames::Any, _) | (Frames::None, None) => Ok(()),
+            (Frames::Rgb { width, height }, Some(i))
+                if i.width == width
+                    && i.height == height
+                    && i.rgb.len() == width as usize * height as usize * 3 =>
+            {
+                Ok(())
+            }
+            (Frames::Rgb { width, height }, Some(i)) => Err(ReplayError::ImageSize {
+                want_w: width,
+                want_h: height,
+                got_w: i.width,
+                got_h: i.height,
+                bytes: i.rgb.len(),
+            }),
+            _ => Err(ReplayError::ImagePresence),
+        }
+    }
+}
+
+/// D+, D?, D- and the dynamics-only store, with the eviction RNG.
+#[derive(Clone, Debug)]
+pub struct Replay {
+    /// The images every step must carry (not saved: it is the configuration's).
+    frames: Frames,
+    pub plus: Store,
+    pub uncertain: Store,
+    pub dynamics_only: Store,
+    /// D-: the states of D? right after the last [`Replay::apply_labels`], in D?'s order.
+    minus: Vec<[f32; STATE_DIM]>,
+    rng: ChaCha8Rng,
+    /// Steps ever added to each store (evicted ones included).
+    pub added: AddCounts,
+    /// `replay.dynamics_only` (not saved: it is the configuration's): whether unfinished laps and the points
+    /// auto-labelling removes are kept for f_hat, or dropped (the reference).
+    keep_dynamics_only: bool,
+}
+
+/// Where D+'s images are in the run's image log (version 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub(crate) struct LogRef {
+    generation: u64,
+    /// Records the log holds at this checkpoint (later ones are cut off on resume).
+    records: u64,
+    record_len: usize,
+}
+
+/// What the bytes hold, besides the magic and the version (version 3: images in the log, not in the file).
+#[derive(Serialize)]
+struct SavedRef<'a> {
+    plus: &'a Store,
+    uncertain: &'a Store,
+    dynamics_only: &'a Store,
+    minus: &'a [[f32; STATE_DIM]],
+    rng_seed: [u8; 32],
+    rng_stream: u64,
+    rng_word_pos: u128,
+    added: AddCounts,
+    image_log: Option<LogRef>,
+}
+
+/// The replay as the current version reads back (every version is decoded by `crate::migrate`, `Saved::decode`).
+#[derive(Deserialize)]
+pub(crate) struct Saved {
+    pub(crate) plus: Store,
+    pub(crate) uncertain: Store,
+    pub(crate) dynamics_only: Store,
+    pub(crate) minus: Vec<[f32; STATE_DIM]>,
+    pub(crate) rng_seed: [u8; 32],
+    pub(crate) rng_stream: u64,
+    pub(crate) rng_word_pos: u128,
+    pub(crate) added: AddCounts,
+    pub(crate) image_log: Option<LogRef>,
+}
+
+pub(crate) const MAGIC: &[u8; 8] = b"CABCRPLY";
+pub(crate) const VERSION: u32 = 3;
+
+/// A segment the replay has checked ([`Replay::checked`]): it is stored whole by [`Replay::add_checked`].
+#[derive(Debug)]
+pub struct Checked(Segment);
+
+impl Checked {
+    pub fn segment(&self) -> &Segment {
+        &self.0
+    }
+}
+
+impl Replay {
+    /// Empty buffers of `capacity` steps each.
+    pub fn new(capacity: usize, seed: u64) -> Self {
+        Self::with_capacities(capacity, capacity, seed)
+    }
+
+    /// Empty buffers: D+ of `plus` steps, the others of `capacity` steps. Only D+ keeps images (only the policy's
+    /// training reads them).
+    pub fn with_capacities(plus: usize, capacity: usize, seed: u64) -> Self {
+        Replay {
+            frames: Frames::Any,
+            plus: Store::new(plus, true),
+            uncertain: Store::new(capacity, false),
+            dynamics_only: Store::new(capacity, false),
+            minus: Vec::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            added: AddCounts::default(),
+            keep_dynamics_only: true,
+        }
+    }
+
+    /// Capacity `replay.capacity` (D+: within `replay.max_bytes`, [`RunConfig::plus_capacity`]), seed derived
+    /// from `run.seed`, images of `observation` ([`Frames::of`]).
+    pub fn from_config(config: &RunConfig) -> Self {
+        let seed = config.run.seed ^ 0x5245_504c_4159;
+        Replay::with_capacities(config.plus_capacity(), config.replay.capacity, seed)
+            .with_frames(Frames::of(config))
+            .with_dynamics_only(config.replay.dynamics_only)
+    }
+
+    /// The same replay, keeping a dynamics-only store (`replay.dynamics_only`, ours) or dropping what would go
+    /// there (the reference).
+    pub fn with_dynamics_only(mut self, keep: bool) -> Self {
+        self.keep_dynamics_only = keep;
+        self
+    }
+
+    /// Memory the steps hold (arrays and images) across the stores and D-.
+    pub fn bytes(&self) -> usize {
+        self.plus.bytes()
+            + self.uncertain.bytes()
+            + self.dynamics_only.bytes()
+            + self.minus.len() * STATE_DIM * 4
+    }
+
+    /// The same replay, holding every segment to `frames`.
+    pub fn with_frames(mut self, frames: Frames) -> Self {
+        self.frames = frames;
+        self
+    }
+
+    pub fn len_plus(&self) -> usize {
+        self.plus.len()
+    }
+
+    pub fn len_uncertain(&self) -> usize {
+        self.uncertain.len()
+    }
+
+    pub fn len_dynamics_only(&self) -> usize {
+        self.dynamics_only.len()
+    }
+
+    /// |D-|.
+    pub fn len_minus(&self) -> usize {
+        self.minus.len()
+    }
+
+    /// D-: the states of D? right after the last labelling (empty before the first).
+    pub fn minus(&self) -> &[[f32; STATE_DIM]] {
+        &self.minus
+    }
+
+    /// Partitions a segment by its outcome (algorithm.md 2): Lap -> D+, Failure / ExpertFailure -> D?,
+    /// Incomplete -> dynamics-only. A step whose expert failed never becomes a label: it goes to D? whatever the
+    /// outcome (the reference's behaviour). The whole segment is checked before anything is stored
+    /// ([`Replay::check_segment`]).
+    pub fn add_segment(&mut self, segment: &Segment) -> Result<AddCounts, ReplayError> {
+        self.check_segment(segment)?;
+        Ok(self.add_unchecked(segment))
+    }
+
+    /// `segment` checked once ([`Replay::check_segment`]), to be added later with [`Replay::add_checked`] (the
+    /// learner checks a segment when it arrives and stores it when the epoch's data is partitioned).
+    pub fn checked(&self, segment: Segment) -> Result<Checked, ReplayError> {
+        self.check_segment(&segment)?;
+        Ok(Checked(segment))
+    }
+
+    /// Adds a segment [`Replay::checked`] took, without checking it again. The images' sizes are the run's
+    /// ([`Frames`]), so a segment that passed when its store was empty still fits it.
+    pub fn add_checked(&mut self, segment: &Checked) -> AddCounts {
+        self.add_unchecked(&segment.0)
+    }
+
+    fn add_unchecked(&mut self, segment: &Segment) -> AddCounts {
+        let mut counts = AddCounts::default();
+        for step in &segment.steps {
+            let which = Self::which(segment.outcome, step);
+            let store = match which {
+                Which::Plus => {
+                    counts.plus += 1;
+                    &mut self.plus
+                }
+                Which::Uncertain => {
+                    counts.uncertain += 1;
+                    &mut self.uncertain
+                }
+                Which::DynamicsOnly if !self.keep_dynamics_only => continue,
+                Which::DynamicsOnly => {
+                    counts.dynamics_only += 1;
+                    &mut self.dynamics_only
+                }
+            };
+            store.push_step(step, &mut self.rng);
+        }
+        self.added.plus += counts.plus;
+        self.added.uncertain += counts.uncertain;
+        self.added.dynamics_only += counts.dynamics_only;
+        counts
+    }
+
+    /// Whether [`Replay::add_segment`] would take `segment`: every image of the run's size ([`Frames`]) and of the
+    /// size its store already holds, all of the segment's images alike.
+    pub fn check_segment(&self, segment: &Segment) -> Result<(), ReplayError> {
+        for step in &segment.steps {
+            self.frames.check(step.image.as_ref())?;
+            self.store_for(segment.outcome, step)
+                .check_image(step.image.as_ref())?;
+        }
+        // A segment's images must also agree with each other when a store is still empty.
+        if let Some(first) = segment.steps.iter().find_map(|s| s.image.as_ref()) {
+            for step in &segment.steps {
+                match &step.image {
+                    Some(i)
+                        if i.width == first.width
+                            && i.height == first.height
+                            && i.rgb.len() == first.rgb.len() => {}
+                    Some(i) => {
+                        return Err(ReplayError::ImageSize {
+                            want_w: first.width,
+                            want_h: first.height,
+                            got_w: i.width,
+                            got_h: i.height,
+                            bytes: i.rgb.len(),
+                        })
+                    }
+                    None => return Err(ReplayError::ImagePresence),
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn which(outcome: Outcome, step: &Step) -> Which {
+        match outcome {
+            Outcome::Lap if step.expert_ok => Which::Plus,
+            Outcome::Incomplete if step.expert_ok => Which::DynamicsOnly,
+            _ => Which::Uncertain,
+        }
+    }
+
+    fn store_for(&self, outcome: Outcome, step: &Step) -> &Store {
+        match Self::which(outcome, step) {
+            Which::Plus => &self.plus,
+            Which::Uncertain => &self.uncertain,
+            Which::DynamicsOnly => &self.dynamics_only,
+        }
+    }
+
+    /// Applies an auto-labelling pass (eq. (19)), Algorithm 1's "remove x from D?": the D? entries at
+    /// `removed` (an auto-labelling report's `removed`: indices into D? as it was labelled) leave D? (as in the reference they are not labelled
+    /// safe; they stay available to the dynamics model unless `replay.dynamics_only` is off, where, as in the
+    /// reference, they are deleted), and D- becomes what D? then holds, until the next labelling.
+    pub fn apply_labels(&mut self, removed: &[usize]) {
+        let mut keep = vec![true; self.uncertain.len()];
+        for &i in removed {
+            if i < keep.len() && keep[i] {
+                keep[i] = false;
+                if self.keep_dynamics_only {
+                    self.uncertain
+                        .copy_entry(i, &mut self.dynamics_only, &mut self.rng);
+                }
+            }
+        }
+        self.uncertain.retain(&keep);
+        self.minus = self.uncertain.states.clone();
+    }
+
+    /// The replay as bytes for the checkpoint (magic, version, bincode), after appending D+'s images written since
+    /// the last checkpoint to the image log in `dir` (`log`: the one open, created on the first images; compacted
+    /// into a new generation first when mostly dead; see [`ImageLog`]). Nothing of the replay is copied.
+    pub fn checkpoint_bytes(
+        &mut self,
+        dir: &Path,
+        log: &mut Option<ImageLog>,
+    ) -> Result<Vec<u8>, ReplayError> {
+        let image_log = match self.plus.images.as_mut() {
+            None => None,
+            Some(images) => {
+                let len = images.image_len();
+                if log.is_none() {
+                    *log = Some(ImageLog::create(dir, 0, len)?);
+                }
+                let log = log.as_mut().expect("set above");
+                let live = images.records.len() as u64;
+                if log.wants_compaction(live) {
+                    let dir = log.dir().to_path_buf();
+                    let mut fresh = ImageLog::create(&dir, log.generation() + 1, len)?;
+                    for (i, record) in images.records.iter_mut().enumerate() {
+                        *record = fresh.append(&images.bytes[i * len..(i + 1) * len])?;
+                    }
+                    *log = fresh;
+                } else {
+                    for (i, record) in images.records.iter_mut().enumerate() {
+                        if *record == store::NOT_LOGGED {
+                            *record = log.append(&images.bytes[i * len..(i + 1) * len])?;
+                        }
+                    }
+                }
+                log.sync()?;
+                Some(LogRef {
+                    generation: log.generation(),
+                    records: log.records(),
+                    record_len: len,
+                })
+            }
+        };
+        let saved = SavedRef {
+            plus: &self.plus,
+            uncertain: &self.uncertain,
+            dynamics_only: &self.dynamics_only,
+            minus: &self.minus,
+            rng_seed: self.rng.get_seed(),
+            rng_stream: self.rng.get_stream(),
+            rng_word_pos: self.rng.get_word_pos(),
+            added: self.added,
+            image_log,
+        };
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&VERSION.to_le_bytes());
+        bincode::serde::encode_into_std_write(&saved, &mut bytes, bincode::config::standard())
+            .expect("writing into a Vec does not fail");
+        Ok(bytes)
+    }
+
+    /// The bytes of a replay without images (tests, tools); see [`Replay::checkpoint_bytes`].
+    pub fn to_bytes(&mut self) -> Result<Vec<u8>, ReplayError> {
+        if self.plus.images.is_some() {
+            return Err(ReplayError::Log(
+                "D+ holds images: use checkpoint_bytes with a folder".into(),
+            ));
+        }
+        self.checkpoint_bytes(Path::new("."), &mut None)
+    }
+
+    /// Reads what [`Replay::checkpoint_bytes`] wrote (or versions 1 and 2), with D+'s images from the image log in
+    /// `dir` (the run folder); returns the log to go on appending to.
+    pub fn from_checkpoint(
+        bytes: &[u8],
+        dir: &Path,
+    ) -> Result<(Self, Option<ImageLog>), ReplayError> {
+        let mut saved = Saved::decode(bytes)?;
+        let plus_empty = saved.plus.is_empty();
+        let log = match (saved.image_log, saved.plus.images.as_mut()) {
+            (Some(at), Some(images)) => {
+                let log = ImageLog::open(dir, at.generation, at.records, at.record_len)?;
+                if images.image_len() != at.record_len {
+                    return Err(ReplayError::Log(format!(
+                        "records of {} bytes for {}x{} images",
+                        at.record_len, images.width, images.height
+                    )));
+                }
+                images.bytes = vec![0; images.records.len() * at.record_len];
+                for (i, &record) in images.records.iter().enumerate() {
+                    log.read(
+                        record,
+                        &mut images.bytes[i * at.record_len..(i + 1) * at.record_len],
+                    )?;
+                }
+                Some(log)
+            }
+            (None, Some(images)) if images.records.iter().any(|&r| r != store::NOT_LOGGED) => {
+                return Err(ReplayError::Decode("D+ images without an image log".into()))
+            }
+            // Versions 1 and 2: the images came inline; they go to a new log at the next checkpoint.
+            (None, Some(_)) => None,
+            (Some(_), None) if plus_empty => None,
+            (Some(_), None) => {
+                return Err(ReplayError::Decode(
+                    "an image log for D+ without images".into(),
+                ))
+            }
+            (None, None) => None,
+        };
+        if saved.plus.len()
+            != saved
+                .plus
+                .images
+                .as_ref()
+                .map_or(saved.plus.len(), |i| i.records.len())
+        {
+            return Err(ReplayError::Decode(
+                "D+ slots and image records differ".into(),
+            ));
+        }
+        let mut rng = ChaCha8Rng::from_seed(saved.rng_seed);
+        rng.set_stream(saved.rng_stream);
+        rng.set_word_pos(saved.rng_word_pos);
+        let replay = Replay {
+            frames: Frames::Any,
+            plus: saved.plus,
+            uncertain: saved.uncertain,
+            dynamics_only: saved.dynamics_only,
+            minus: saved.minus,
+            rng,
+            added: saved.added,
+            keep_dynamics_only: true,
+        };
+        Ok((replay, log))
+    }
+
+    /// [`Replay::from_checkpoint`] for a replay without images in a log (no log is opened).
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ReplayError> {
+        let (replay, _) = Self::from_checkpoint(bytes, Path::new("/nonexistent"))?;
+        Ok(replay)
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Which {
+    Plus,
+    Uncertain,
+    DynamicsOnly,
+}

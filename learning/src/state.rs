@@ -1,0 +1,102 @@
+//! The learner's bookkeeping besides networks and replay, saved as `state.json` in each checkpoint (with the
+//! trainer's and the replay's files, through the one writer, [`crate::checkpoint`]).
+
+use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
+use crate::evaluations::Evaluations;
+use crate::record::Record;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The checkpoint's folder in the run folder.
+pub const CHECKPOINT: &str = "checkpoint";
+/// The learner state's file in the checkpoint.
+const STATE: &str = "state.json";
+
+/// A state that could not be saved or read.
+#[derive(Debug, thiserror::Error)]
+pub enum StateError {
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+}
+
+/// The learner's bookkeeping besides networks and replay (saved with each checkpoint).
+#[derive(Debug, Default, Serialize, Deserialize)]
+pub struct LearnerState {
+    /// The next epoch to run.
+    pub next_epoch: u64,
+    /// Every epoch's record (`metrics.csv`'s rows). Old checkpoints' rows (objects of named fields) load too
+    /// ([`crate::migrate::rows`]).
+    #[serde(deserialize_with = "crate::migrate::rows")]
+    pub rows: Vec<Record>,
+    /// The evaluations (saved as the fields `evals` and `successes`).
+    #[serde(flatten)]
+    pub evaluations: Evaluations,
+    pub ledger: crate::ledger::Ledger,
+    /// Lap times of the expert seen in the data (complete laps collected with beta = 1).
+    pub expert_lap_times: Vec<f64>,
+    pub stopped: Option<String>,
+    /// What the policy's vision trunk started from ([`crate::train::Trainer::init_trunk`]).
+    #[serde(default)]
+    pub trunk_init: Option<String>,
+}
+
+impl LearnerState {
+    /// Writes a checkpoint into `dir` atomically: `files` (the trainer's, the replay's) and this state as
+    /// `state.json`.
+    pub fn save<N: AsRef<str>>(
+        &self,
+        dir: &Path,
+        files: impl IntoIterator<Item = (N, Vec<u8>)>,
+    ) -> Result<(), StateError> {
+        let json = serde_json::to_vec(self).map_err(|e| StateError::Format {
+            path: dir.join(STATE),
+            message: e.to_string(),
+        })?;
+        CheckpointWriter::new(dir)
+            .files(files)
+            .file(STATE, json)
+            .commit()?;
+        Ok(())
+    }
+
+    /// The state of a checkpoint.
+    pub fn load(checkpoint: &Checkpoint) -> Result<Self, StateError> {
+        let bytes = checkpoint.read(STATE)?;
+        serde_json::from_slice(&bytes).map_err(|e| StateError::Format {
+            path: checkpoint.path().join(STATE),
+            message: e.to_string(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn checkpoint_round_trip_and_fresh_start() {
+        let dir = tempfile::tempdir().unwrap();
+        let ck = dir.path().join(CHECKPOINT);
+        assert!(!Checkpoint::exists(&ck));
+        let mut state = LearnerState {
+            next_epoch: 3,
+            ..Default::default()
+        };
+        state.save(&ck, [("x", b"1".to_vec())]).unwrap();
+        state.next_epoch = 4;
+        state.rows.push(Record::new(3));
+        state.save(&ck, [("x", b"2".to_vec())]).unwrap();
+        let opened = Checkpoint::open(&ck).unwrap();
+        let loaded = LearnerState::load(&opened).unwrap();
+        assert_eq!((loaded.next_epoch, loaded.rows), (4, vec![Record::new(3)]));
+        assert_eq!(opened.read("x").unwrap(), b"2");
+        assert!(ck.join("state.json").exists());
+        // A failing commit leaves the last checkpoint untouched.
+        assert!(state.save(&ck, [("a/b", vec![])]).is_err());
+        assert_eq!(std::fs::read(ck.join("x")).unwrap(), b"2");
+        Checkpoint::remove(&ck).unwrap();
+        assert!(!Checkpoint::exists(&ck));
+    }
+}

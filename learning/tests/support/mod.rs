@@ -1,0 +1,50 @@
+//! An epoch's losses as the tests read them: from the record `Trainer::train_epoch` writes, the one place an epoch's
+//! losses and samples are kept (what `metrics.csv`, TensorBoard and the bus get).
+#![allow(dead_code)]
+
+use cabc_learning::record::Record;
+use cabc_learning::{Replay, Trainer};
+
+/// The training metrics of one epoch's record (its wall clock, `train_s`, left out: two runs compare equal).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Losses {
+    pub imitation: f64,
+    pub safety: f64,
+    pub safety_active: bool,
+    pub dynamics: Option<f64>,
+    pub critic: Option<f64>,
+    pub critic_accuracy: Option<f64>,
+    pub critic_points: Option<usize>,
+    pub critic_positives: Option<usize>,
+    pub policy_samples: usize,
+    pub dynamics_samples: usize,
+    pub critic_samples: usize,
+    pub lr_policy: f64,
+}
+
+impl Losses {
+    pub fn of(record: &Record) -> Self {
+        let count = |name| record.u64(name).map(|n| n as usize);
+        Losses {
+            imitation: record.f64("imitation_loss").expect("imitation_loss"),
+            safety: record.f64("safety_loss").expect("safety_loss"),
+            safety_active: record.f64("safety_active").expect("safety_active") == 1.0,
+            dynamics: record.f64("dynamics_loss"),
+            critic: record.f64("critic_loss"),
+            critic_accuracy: record.f64("critic_accuracy"),
+            critic_points: count("critic_points"),
+            critic_positives: count("critic_positives"),
+            policy_samples: count("policy_samples").unwrap_or(0),
+            dynamics_samples: count("dynamics_samples").unwrap_or(0),
+            critic_samples: count("critic_samples").unwrap_or(0),
+            lr_policy: record.f64("lr_policy").expect("lr_policy"),
+        }
+    }
+}
+
+/// One epoch of `t` on `replay`: its losses, from its record.
+pub fn train(t: &mut Trainer, epoch: u64, replay: &Replay) -> Losses {
+    let mut record = Record::new(epoch);
+    t.train_epoch(epoch, replay, &mut record).expect("trains");
+    Losses::of(&record)
+}

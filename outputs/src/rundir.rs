@@ -1,0 +1,180 @@
+//! The run folder `runs/<run>/`: configuration, checkpoints, `metrics.csv`, `evals.csv`, plots, `summary.json`.
+//!
+//! The checkpoint (`checkpoint/`) is the learner's ([`cabc_learning::state::LearnerState::save`]), written by the one writer,
+//! [`cabc_learning::checkpoint`], which also says how a crash mid-write leaves the previous checkpoint intact.
+
+use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
+use cabc_learning::state::{LearnerState, CHECKPOINT};
+use cabc_proto::config::RunConfig;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Errors of the run folder.
+#[derive(Debug, thiserror::Error)]
+pub enum RunDirError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
+    move |source| RunDirError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// A run folder.
+#[derive(Clone, Debug)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+impl RunDir {
+    /// `runs_dir/<name>`, created with `logs/` and `plots/`.
+    pub fn create(root: impl Into<PathBuf>) -> Result<Self, RunDirError> {
+        let root = root.into();
+        for sub in ["logs", "plots"] {
+            let p = root.join(sub);
+            std::fs::create_dir_all(&p).map_err(io(&p))?;
+        }
+        Ok(RunDir { root })
+    }
+
+    /// The run folder of `config` (`<runs_dir>/<run name>`, or `dir`), created, with `config.toml` written into it.
+    /// With `fresh`, its checkpoint is discarded.
+    pub fn prepare(
+        config: &RunConfig,
+        dir: Option<PathBuf>,
+        fresh: bool,
+    ) -> Result<Self, RunDirError> {
+        let dir = dir.unwrap_or_else(|| PathBuf::from(&config.run.runs_dir).join(&config.run.name));
+        let run_dir = RunDir::create(dir)?;
+        if fresh {
+            run_dir.remove_checkpoint()?;
+        }
+        run_dir.write_config(config)?;
+        Ok(run_dir)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join("config.toml")
+    }
+
+    pub fn checkpoint(&self) -> PathBuf {
+        self.root.join(CHECKPOINT)
+    }
+
+    pub fn plots(&self) -> PathBuf {
+        self.root.join("plots")
+    }
+
+    pub fn write_config(&self, config: &RunConfig) -> Result<(), RunDirError> {
+        let path = self.config_path();
+        std::fs::write(&path, config.to_toml()).map_err(io(&path))
+    }
+
+    /// Whether the run has a checkpoint (`checkpoint/`, or `checkpoint.old/` after a crash mid-commit).
+    pub fn has_checkpoint(&self) -> bool {
+        Checkpoint::exists(&self.checkpoint())
+    }
+
+    /// Removes the checkpoint and what a commit leaves beside it (`--fresh`).
+    pub fn remove_checkpoint(&self) -> Result<(), RunDirError> {
+        Ok(Checkpoint::remove(&self.checkpoint())?)
+    }
+
+    /// Rewrites `metrics.csv` and `evals.csv` from the state (so a resumed run's files stay consistent).
+    pub fn write_tables(&self, state: &LearnerState) -> Result<(), RunDirError> {
+        let path = self.root.join("metrics.csv");
+        write_atomic(&path, cabc_learning::record::table(&state.rows).as_bytes())?;
+        let path = self.root.join("evals.csv");
+        let mut text =
+            String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
+        for e in &state.evaluations.evals {
+            text.push_str(&format!(
+                "{},{},{},{},{},{},{},{}\n",
+                e.version,
+                e.laps,
+                opt(e.lap_mean),
+                opt(e.lap_std),
+                opt(e.lap_min),
+                opt(e.lap_max),
+                e.end_reason,
+                e.steps
+            ));
+        }
+        write_atomic(&path, text.as_bytes())
+    }
+
+    pub fn write_summary(&self, summary: &serde_json::Value) -> Result<(), RunDirError> {
+        let path = self.root.join("summary.json");
+        let text = serde_json::to_string_pretty(summary).unwrap_or_else(|_| summary.to_string());
+        write_atomic(&path, text.as_bytes())
+    }
+
+    /// Writes policy weights beside the checkpoint (`best-policy.safetensors` on early stop).
+    pub fn write_file(&self, name: &str, bytes: &[u8]) -> Result<(), RunDirError> {
+        write_atomic(&self.root.join(name), bytes)
+    }
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
+    let tmp = path.with_extension("tmp");
+    let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
+    f.write_all(bytes).map_err(io(&tmp))?;
+    f.sync_all().map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cabc_learning::evaluations::EvalSummary;
+    use cabc_learning::record::Record;
+    use cabc_proto::messages::{EndReason, EvalReport};
+
+    #[test]
+    fn tables_are_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(dir.path()).unwrap();
+        let report = EvalReport {
+            actor: "e".into(),
+            version: 2,
+            laps: 2,
+            lap_times: vec![5.0, 6.0],
+            end_reason: EndReason::Spin,
+            steps: 130,
+            line: vec![],
+        };
+        let mut state = LearnerState {
+            rows: vec![Record::new(0)],
+            ..Default::default()
+        };
+        state.evaluations.evals.push(EvalSummary::of(&report));
+        run.write_tables(&state).unwrap();
+        let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+        assert_eq!(metrics.lines().count(), 2);
+        let header_cols = metrics.lines().next().unwrap().split(',').count();
+        assert_eq!(
+            metrics.lines().nth(1).unwrap().split(',').count(),
+            header_cols
+        );
+        let evals = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
+        assert!(
+            evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"),
+            "{evals}"
+        );
+    }
+}

@@ -1,0 +1,238 @@
+//! The sinks of the learner's records (`cabc_learning::sink::Sink`): the run folder's files ([`RunFolder`]: `metrics.csv`,
+//! `evals.csv`, plots, evaluation videos, the best and final policies, `summary.json`), TensorBoard's events
+//! ([`Tensorboard`]) and the progress bar ([`Progress`]) (the bus's JSON metrics are `cabc_learning::sink::Bus`);
+//! and [`learner`], the learner of a run folder with the three.
+
+use crate::plots;
+use crate::rundir::RunDir;
+use crate::tensorboard::EventWriter;
+use crate::video::{eval_gif, CameraView};
+use cabc_learning::evaluations::Taken;
+use cabc_learning::learner::{Learner, LearnerError};
+use cabc_learning::record::Record;
+use cabc_learning::sink::{Sink, SinkError, Sinks};
+use cabc_learning::state::LearnerState;
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::EvalReport;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// The learner of `run_dir` (its checkpoint there), writing the run folder's files, TensorBoard's events in `tb/` and
+/// the progress bar.
+pub fn learner(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Learner, LearnerError> {
+    let folder = run_dir.path().to_path_buf();
+    let sinks = Sinks(vec![
+        Box::new(RunFolder::new(run_dir.clone(), &config)),
+        Box::new(Tensorboard::new(&run_dir)),
+        Box::new(Progress::new(config.run.max_epochs)),
+    ]);
+    Learner::open(config, folder, Box::new(sinks), resume)
+}
+
+fn failed(what: &str, e: impl std::error::Error + Send + Sync + 'static) -> SinkError {
+    SinkError {
+        what: what.to_string(),
+        source: Box::new(e),
+    }
+}
+
+/// The run folder's files: the tables (rewritten from the state after each epoch, so a resumed run's files stay
+/// consistent with its checkpoint) and plots, an evaluation's video, the best and final policies, the summary.
+pub struct RunFolder {
+    run_dir: RunDir,
+    /// `collection.eval_laps`, drawn on the laps plot.
+    eval_laps: u32,
+    /// A camera run's camera, drawn beside the track in the videos.
+    camera: Option<CameraView>,
+}
+
+impl RunFolder {
+    pub fn new(run_dir: RunDir, config: &RunConfig) -> Self {
+        RunFolder {
+            run_dir,
+            eval_laps: config.collection.eval_laps,
+            camera: CameraView::of(&config.observation),
+        }
+    }
+
+    fn tables_and_plots(&self, run: &LearnerState) -> Result<(), SinkError> {
+        self.run_dir
+            .write_tables(run)
+            .map_err(|e| failed("the tables", e))?;
+        let last = run.evaluations.last();
+        if let Err(e) = plots::draw_all(&self.run_dir.plots(), run, last, self.eval_laps) {
+            tracing::warn!("drawing plots: {e}");
+        }
+        Ok(())
+    }
+
+    /// A video of an evaluation that completed the laps (`plots/eval-v<version>.gif`), also `best-policy.gif` when
+    /// it is the best so far; a failure is logged.
+    fn video(&mut self, report: &EvalReport, best: bool) {
+        let plots = self.run_dir.plots();
+        let path = plots.join(format!("eval-v{}.gif", report.version));
+        let written = std::fs::create_dir_all(&plots)
+            .map_err(|e| e.to_string())
+            .and_then(|_| eval_gif(&path, report, self.camera.as_mut()).map_err(|e| e.to_string()))
+            .and_then(|_| match best {
+                true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
+                    .map(|_| ())
+                    .map_err(|e| e.to_string()),
+                false => Ok(()),
+            });
+        if let Err(e) = written {
+            tracing::warn!(version = report.version, "the evaluation's video: {e}");
+        }
+    }
+}
+
+impl Sink for RunFolder {
+    fn write(&mut self, _record: &Record, run: &LearnerState) -> Result<(), SinkError> {
+        self.tables_and_plots(run)
+    }
+
+    fn evaluation(&mut self, taken: &Taken<'_>) {
+        if taken.completed {
+            self.video(taken.report, taken.best);
+        }
+        if let Some(weights) = taken.weights {
+            if let Err(e) = self.run_dir.write_file("best-policy.safetensors", weights) {
+                tracing::warn!("saving the best policy: {e}");
+            }
+        }
+    }
+
+    fn close(
+        &mut self,
+        run: &LearnerState,
+        summary: &serde_json::Value,
+        final_policy: Option<&[u8]>,
+    ) -> Result<(), SinkError> {
+        if let Some(weights) = final_policy {
+            self.tables_and_plots(run)?;
+            self.run_dir
+                .write_file("final-policy.safetensors", weights)
+                .map_err(|e| failed("the final policy", e))?;
+        }
+        self.run_dir
+            .write_summary(summary)
+            .map_err(|e| failed("the summary", e))
+    }
+}
+
+/// TensorBoard's events in the run folder's `tb/`: every metric of a record under `metrics/` at its epoch, and each
+/// evaluation's laps and lap time under `eval/` at its version. The file is created when the run starts; a failure
+/// is logged once and ends the events (the CSV tables stay).
+pub struct Tensorboard {
+    dir: std::path::PathBuf,
+    events: Option<EventWriter>,
+}
+
+impl Tensorboard {
+    pub fn new(run_dir: &RunDir) -> Self {
+        Tensorboard {
+            dir: run_dir.path().join("tb"),
+            events: None,
+        }
+    }
+
+    fn scalars(&mut self, step: u64, group: &str, scalars: impl Iterator<Item = (String, f64)>) {
+        let Some(events) = &mut self.events else {
+            return;
+        };
+        let tagged: Vec<(String, f32)> = scalars
+            .map(|(name, v)| (format!("{group}/{name}"), v as f32))
+            .collect();
+        let refs: Vec<(&str, f32)> = tagged.iter().map(|(t, v)| (t.as_str(), *v)).collect();
+        if let Err(e) = events.scalars(step, &refs) {
+            tracing::warn!("writing TensorBoard events: {e}; no more are written");
+            self.events = None;
+        }
+    }
+}
+
+impl Sink for Tensorboard {
+    fn open(&mut self, _run: &LearnerState) {
+        self.events = EventWriter::create(&self.dir)
+            .map_err(|e| tracing::warn!("no TensorBoard events: {e}"))
+            .ok();
+    }
+
+    fn write(&mut self, record: &Record, _run: &LearnerState) -> Result<(), SinkError> {
+        let scalars = record
+            .iter()
+            .map(|(name, v)| (name.to_string(), v.as_f64()));
+        self.scalars(record.epoch(), "metrics", scalars);
+        Ok(())
+    }
+
+    fn evaluation(&mut self, taken: &Taken<'_>) {
+        let s = taken.summary;
+        let scalars = [
+            ("laps", Some(s.laps as f64)),
+            ("lap_mean", s.lap_mean),
+            ("lap_std", s.lap_std),
+        ];
+        let scalars = scalars
+            .into_iter()
+            .filter_map(|(name, v)| Some((name.to_string(), v?)));
+        self.scalars(s.version, "eval", scalars);
+    }
+}
+
+/// The progress bar: the epoch, the phase, and the last record's beta, D+, D?, D- and evaluation.
+pub struct Progress {
+    bar: ProgressBar,
+    /// The last record, as the bar shows it.
+    last: String,
+}
+
+impl Progress {
+    pub fn new(epochs: u64) -> Self {
+        let bar = ProgressBar::new(epochs);
+        bar.set_style(
+            ProgressStyle::with_template("{elapsed_precise} epoch {pos}/{len} {bar:30} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        Progress {
+            bar,
+            last: String::new(),
+        }
+    }
+}
+
+impl Sink for Progress {
+    fn open(&mut self, run: &LearnerState) {
+        self.bar.set_position(run.next_epoch);
+    }
+
+    fn phase(&mut self, _epoch: u64, phase: &str) {
+        self.bar.set_message(format!("{phase}{}", self.last));
+    }
+
+    fn write(&mut self, r: &Record, run: &LearnerState) -> Result<(), SinkError> {
+        let n = |name| r.u64(name).unwrap_or(0);
+        let eval = match (r.u64("eval_version"), r.u64("eval_laps")) {
+            (Some(v), Some(laps)) => format!("v{v}: {laps} laps"),
+            _ => "none".into(),
+        };
+        self.last = format!(
+            " | beta {:.3} | D+ {} D? {} D- {} | last eval {eval}",
+            r.f64("beta").unwrap_or(f64::NAN),
+            n("d_plus"),
+            n("d_uncertain"),
+            n("d_minus")
+        );
+        self.bar.set_position(run.next_epoch);
+        Ok(())
+    }
+
+    fn close(
+        &mut self,
+        _: &LearnerState,
+        _: &serde_json::Value,
+        _: Option<&[u8]>,
+    ) -> Result<(), SinkError> {
+        self.bar.finish_and_clear();
+        Ok(())
+    }
+}

@@ -1,0 +1,120 @@
+//! What the learner refuses from the bus (issue 13, item 2): segments whose images are not of the run's observation
+//! size, and evaluation reports of versions not published yet; both counted in `summary.json`.
+
+use cabc_learning::record::Record;
+use cabc_learning::replay::{Frames, Replay, ReplayError};
+use cabc_outputs::rundir::RunDir;
+use cabc_proto::config::{ObservationKind, RunConfig};
+use cabc_proto::messages::{EndReason, EvalReport, Image, Outcome, Segment, Step};
+
+fn step(image: Option<Image>) -> Step {
+    Step {
+        state: [1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+        pose: [0.0; 3],
+        image,
+        expert_action: [0.1, 0.0],
+        applied_action: [0.1, 0.0],
+        next_state: [1.0, 0.0, 0.0, 1.1, 0.0, 0.0],
+        expert_ok: true,
+    }
+}
+
+fn segment(seq: u64, steps: Vec<Step>) -> Segment {
+    Segment {
+        actor: "actor-0".into(),
+        incarnation: 0,
+        env: 0,
+        episode: 0,
+        seq,
+        policy_version: 0,
+        outcome: Outcome::Lap,
+        steps,
+    }
+}
+
+fn image(w: u16, h: u16, len: usize) -> Option<Image> {
+    Some(Image {
+        width: w,
+        height: h,
+        rgb: vec![7; len],
+    })
+}
+
+#[test]
+fn images_are_held_to_the_run_observation_size() {
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.observation.kind = ObservationKind::Camera;
+    config.observation.width = 16;
+    config.observation.height = 16;
+    let mut replay = Replay::from_config(&config);
+    assert_eq!(
+        Frames::of(&config),
+        Frames::Rgb {
+            width: 16,
+            height: 16
+        }
+    );
+    let ok = 16 * 16 * 3;
+    for bad in [
+        vec![step(image(16, 16, ok)), step(image(8, 8, 8 * 8 * 3))],
+        vec![step(image(8, 8, 8 * 8 * 3))],
+        vec![step(image(16, 16, ok - 1))],
+        vec![step(None)],
+    ] {
+        let err = replay.add_segment(&segment(0, bad)).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ReplayError::ImageSize { .. } | ReplayError::ImagePresence
+            ),
+            "{err}"
+        );
+    }
+    assert_eq!(replay.len_plus(), 0);
+    replay
+        .add_segment(&segment(0, vec![step(image(16, 16, ok)); 2]))
+        .unwrap();
+    assert_eq!(replay.len_plus(), 2);
+    // A full-state run takes no images at all.
+    let mut state = Replay::from_config(&RunConfig::load("smoke").unwrap());
+    assert!(matches!(
+        state.add_segment(&segment(0, vec![step(image(16, 16, ok))])),
+        Err(ReplayError::ImagePresence)
+    ));
+}
+
+#[test]
+fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = RunConfig::load("smoke").unwrap();
+    let run_dir = RunDir::create(tmp.path()).unwrap();
+    let mut learner = cabc_outputs::learner(config, run_dir, false).unwrap();
+    let report = |version| EvalReport {
+        actor: "eval-0".into(),
+        version,
+        laps: 0,
+        lap_times: Vec::new(),
+        end_reason: EndReason::OutOfTrack,
+        steps: 3,
+        line: Vec::new(),
+    };
+    // Nothing published yet: no report counts.
+    learner.on_eval(report(0));
+    let _ = learner.policy_update(0);
+    learner.on_eval(report(1));
+    learner.on_eval(report(u64::MAX));
+    learner.on_eval(report(0));
+    assert_eq!(learner.state.evaluations.evals.len(), 1);
+    // A state run: a segment with an image is refused before the ledger sees it (its seq stays free).
+    learner.begin_epoch();
+    learner.store(segment(0, vec![step(image(2, 1, 6))]));
+    learner.store(segment(0, vec![step(None)]));
+    let mut record = Record::new(0);
+    learner.partition(&mut record);
+    assert_eq!(record.u64("steps_collected"), Some(1));
+    assert_eq!(record.u64("segments"), Some(1));
+    assert_eq!(record.u64("segments_not_stored"), Some(1));
+    let summary = learner.finish("test", true, 0).unwrap();
+    assert_eq!(summary["segments_not_stored"], 1, "{summary}");
+    assert_eq!(summary["refused_evals"], 3, "{summary}");
+}
