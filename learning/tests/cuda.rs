@@ -4,7 +4,6 @@
 //! and fall.
 
 mod support;
-use cabc_learning::record::Record;
 use cabc_learning::replay::Replay;
 use cabc_learning::train::Trainer;
 use cabc_models::Network;

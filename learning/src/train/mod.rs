@@ -46,7 +46,6 @@ use data::Uploaded;
 use fit::{limit_cpu_threads, Opt};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use tch::Device;
 

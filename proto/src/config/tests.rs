@@ -249,25 +249,22 @@ fn reference_presets_follow_the_reference_protocol() {
 fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
     let recipe = RunConfig::load("v-b").unwrap();
     let mut r = RunConfig::load("v-b-ref").unwrap();
-    assert!(!r.training.standardise && r.training.policy_ema == 0.0 && r.training.lr_min == 0.0);
     assert!(!r.training.clone_uncertain);
     assert_eq!(r.algorithm.lambda_start, None);
+    assert_eq!(r.algorithm.critic_negatives, CriticNegatives::Uncertain);
     r.run.name = recipe.run.name.clone();
-    let t = &recipe.training;
-    (
-        r.training.standardise,
-        r.training.policy_ema,
-        r.training.lr_min,
-    ) = (t.standardise, t.policy_ema, t.lr_min);
-    r.training.clone_uncertain = t.clone_uncertain;
+    r.training.clone_uncertain = recipe.training.clone_uncertain;
     let a = &recipe.algorithm;
     (r.algorithm.lambda_start, r.algorithm.lambda_growth) = (a.lambda_start, a.lambda_growth);
+    r.algorithm.critic_negatives = a.critic_negatives;
     assert_eq!(
         recipe.to_toml(),
         r.to_toml(),
         "only the recipe's keys differ"
     );
-    assert!(t.standardise, "the recipe standardises");
+    assert!(recipe.training.clone_uncertain);
+    assert_eq!((a.lambda_start, a.lambda_growth), (Some(1.0), 1.007));
+    assert_eq!(a.critic_negatives, CriticNegatives::DMinus);
     let default = RunConfig::load(DEFAULT_PRESET).unwrap();
     assert_eq!(default.run.experiment, recipe.run.experiment);
 }
