@@ -6,6 +6,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod campaign;
 mod export;
 
 #[derive(Parser)]
@@ -24,12 +25,16 @@ enum Command {
     /// A run's data (its checkpoint's replay) as a LeRobot v3 dataset: parquet rows of every step with the expert's
     /// label, the applied action, the next state, episode, store and policy version; prints what it wrote as JSON.
     Export(export::Args),
+    /// The reproduction campaign as data: a plan (deploy/campaign/<plan>.toml) of slices of deploy/reproduce.sh,
+    /// listed, its runs' states, run in lanes that share its slices, and its tables (deploy/campaign.sh wraps it).
+    Campaign(campaign::Args),
 }
 
 fn main() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();
     match Cli::parse().command {
         Command::Export(args) => export::run(&args),
+        Command::Campaign(args) => campaign::run(&args),
     }
 }
 
