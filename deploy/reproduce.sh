@@ -12,7 +12,8 @@
 # plots) are copied to docs/reproduction/<run>/ and the comparison figures of its group redrawn with `cabc
 # compare` into docs/reproduction/<exp>[-<tag>]-*.png, its tables (per run, and per method over seeds: median and
 # range) into docs/reproduction/<exp>[-<tag>]-table.md. With CABC_BIN=DIR the binaries in DIR are used and nothing
-# is built (a campaign that outlives code changes keeps its binaries; deploy/campaign.sh pins them).
+# is built (a campaign that outlives code changes keeps its binaries; deploy/campaign.sh pins them). Its run names are
+# proto/src/run_name.rs's (`cabc campaign status` reads the same folders).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -32,7 +33,7 @@ while [ $# -gt 0 ]; do
     --methods) methods=$2; shift ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
     --dry-run) dry=1 ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) experiments+=("$1") ;;
   esac

@@ -10,13 +10,10 @@ use crate::stats::{bootstrap_95, iqm};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
-/// The group of a run: its name without `-s<k>` (and `-baseline`, which marks the method instead).
+/// The group of a run: its name without `-s<k>` (and `-baseline`, which marks the method instead), by the naming
+/// convention's one reader (`cabc_proto::run_name`).
 pub fn group_of(name: &str) -> String {
-    let stem = name.strip_suffix("-baseline").unwrap_or(name);
-    match stem.rsplit_once("-s") {
-        Some((group, k)) if !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()) => group.into(),
-        _ => stem.into(),
-    }
+    cabc_proto::run_name::group_of(name).to_string()
 }
 
 /// A group's label: the group, "(baseline)" for the baseline runs.

@@ -8,6 +8,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
+mod campaign;
 mod export;
 mod show;
 mod tools;
@@ -76,6 +77,9 @@ enum Command {
     /// `RUST_LOG=info,zenoh::net::routing::interceptor::access_control=trace`), as JSON by "<subject>: <action> on
     /// <key>" (deploy/SCALE-OUT.md §2).
     AclDenials(tools::AclDenialsArgs),
+    /// The reproduction campaign as data: a plan (deploy/campaign/<plan>.toml) of slices of deploy/reproduce.sh,
+    /// listed, its runs' states, run in lanes that share its slices, and its tables (deploy/campaign.sh wraps it).
+    Campaign(campaign::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -120,6 +124,7 @@ fn main() -> anyhow::Result<()> {
         Command::BenchVision(options) => tools::bench_vision(&options),
         Command::ZenohdConfig(args) => tools::zenohd_config(&args),
         Command::AclDenials(args) => tools::acl_denials(&args),
+        Command::Campaign(args) => campaign::run(&args),
     }
 }
 

@@ -8,6 +8,8 @@
 //! * [`config`]: the run configuration (TOML), the one place for every number that defines an experiment;
 //! * [`ports`]: the narrow interfaces between the parts of Algorithm 1 (expert client, policy source, segment
 //!   sink, evaluation sink; the actors as the learner sees them);
+//! * [`run_name`]: the campaign's run names, `<experiment>-s<k>[-baseline]` with seed 41 + k, parsed and printed in
+//!   one place;
 //! * [`stats`]: mean / standard deviation and nearest-rank percentiles, the one definition for every report;
 //! * [`telemetry`]: `tracing` set up the same way in every binary.
 //!
@@ -18,6 +20,7 @@ pub mod config;
 pub mod keys;
 pub mod messages;
 pub mod ports;
+pub mod run_name;
 pub mod stats;
 pub mod telemetry;
 

@@ -1,0 +1,72 @@
+//! The plan files in deploy/campaign/ are the bash campaign's slices, translated: each plan's expanded list is, line
+//! for line, what `deploy/campaign.sh [--plan issue-18] --list` printed before the translation (the fixtures, captured
+//! from it), and the views are the ones its `--tables` drew. Since a slice's text names its claim, an equal text also
+//! keeps the claims of the bash lanes valid.
+
+use cabc_campaign::{list, plans_in, Plan};
+use std::path::Path;
+
+fn root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+fn fixture(name: &str) -> String {
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures")
+            .join(name),
+    )
+    .unwrap()
+}
+
+fn plan(name: &str) -> Plan {
+    Plan::load(&cabc_campaign::plan::plan_path(root(), name)).unwrap()
+}
+
+#[test]
+fn the_plans_list_the_bash_campaigns_slices() {
+    for name in ["recipe", "issue-18"] {
+        let ours = list(&plan(name));
+        let bash = fixture(&format!("{name}.list"));
+        for (i, (a, b)) in ours.lines().zip(bash.lines()).enumerate() {
+            assert_eq!(a, b, "{name}, slice {i}");
+        }
+        assert_eq!(ours.lines().count(), bash.lines().count(), "{name}");
+        assert_eq!(ours, bash);
+    }
+    assert_eq!(plan("recipe").slices.len(), 60);
+    assert_eq!(plan("issue-18").slices.len(), 52);
+}
+
+#[test]
+fn the_plans_views_are_the_bash_campaigns() {
+    let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
+        .unwrap()
+        .into_iter()
+        .flat_map(|(_, plan)| plan.views)
+        .map(|v| format!("{} {}", v.name, v.groups.join(" ")))
+        .collect();
+    assert_eq!(views, fixture("views.txt").lines().collect::<Vec<_>>());
+}
+
+/// A slice's arguments are what bash's `eval` made of its text, and its runs are named as reproduce.sh names them.
+#[test]
+fn a_slices_arguments_and_runs() {
+    let recipe = plan("recipe");
+    let s = &recipe.slices[6];
+    assert_eq!(
+        s.text(),
+        "--seeds 2-2 --epochs 200 --methods proposed --tag warmup-dminus --set algorithm.lambda_start=1 --set \
+         algorithm.lambda_growth=1.007 --set algorithm.critic_negatives=\"d-minus\" v-b-ref"
+    );
+    assert_eq!(s.args()[13], "algorithm.critic_negatives=d-minus");
+    let runs: Vec<String> = s.runs().iter().map(|r| r.to_string()).collect();
+    assert_eq!(runs, ["v-b-ref-warmup-dminus-s2"]);
+    let last: Vec<String> = recipe.slices[59]
+        .runs()
+        .iter()
+        .map(|r| r.to_string())
+        .collect();
+    assert_eq!(last, ["v-b-ref-s10", "v-b-ref-s10-baseline"]);
+    assert_eq!(recipe.slices[59].runs()[0].seed(), 51);
+}
