@@ -71,6 +71,16 @@ mod tests {
     use super::*;
     use cabc_proto::messages::Outcome;
 
+    /// A segment offered as the learner offers it: a new one is admitted, then stored; whether it was new.
+    fn offer(l: &mut Ledger, s: &Segment) -> bool {
+        let new = !l.seen(s);
+        if new {
+            l.admit(s);
+            l.stored(s);
+        }
+        new
+    }
+
     #[test]
     fn the_ledger_admits_each_segment_once() {
         let seg = |actor: &str, seq| Segment {
@@ -84,15 +94,7 @@ mod tests {
             steps: vec![],
         };
         let mut l = Ledger::default();
-        // As the learner offers them: a new one is admitted, then stored.
-        let mut offer = |s: Segment| {
-            let new = !l.seen(&s);
-            if new {
-                l.admit(&s);
-                l.stored(&s);
-            }
-            new
-        };
+        let mut offer = |s: Segment| offer(&mut l, &s);
         assert!(offer(seg("a", 0)));
         assert!(offer(seg("a", 1)));
         assert!(offer(seg("b", 0)));
@@ -114,14 +116,7 @@ mod tests {
             steps: vec![],
         };
         let mut l = Ledger::default();
-        let mut offer = |s: Segment| {
-            let new = !l.seen(&s);
-            if new {
-                l.admit(&s);
-                l.stored(&s);
-            }
-            new
-        };
+        let mut offer = |s: Segment| offer(&mut l, &s);
         assert!(offer(seg(1, 0)));
         assert!(offer(seg(1, 1)));
         assert!(offer(seg(2, 0)), "the restart's first segment is new");
