@@ -8,13 +8,12 @@ mod support;
 use cabc_learning::record::Record;
 use cabc_learning::replay::Replay;
 use cabc_learning::train::Trainer;
-use cabc_learning::{Checkpoint, CheckpointWriter};
 use cabc_models::Network;
 use cabc_proto::config::{RunConfig, ScheduleKind};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use support::train;
+use support::{train, Resumed};
 use tch::{Device, Tensor};
 
 fn config(seed: u64) -> RunConfig {
@@ -175,8 +174,6 @@ fn the_recipe_resumes_bit_for_bit() {
     c.training.lr_min = 5e-4;
     c.algorithm.lambda_start = Some(0.5);
     c.algorithm.lambda_growth = 1.5;
-    let k = 2;
-    let epoch = |t: &mut Trainer, e: u64| train(t, e, &r);
     let nets = |t: &Trainer| {
         [
             t.policy_bytes(),
@@ -185,24 +182,12 @@ fn the_recipe_resumes_bit_for_bit() {
             t.critic().to_bytes(),
         ]
     };
-    let mut straight = Trainer::with_device(&c, Device::Cpu);
-    let straight_losses: Vec<_> = (0..=k).map(|e| epoch(&mut straight, e)).collect();
-    let mut first = Trainer::with_device(&c, Device::Cpu);
-    let mut losses: Vec<_> = (0..k).map(|e| epoch(&mut first, e)).collect();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("checkpoint");
-    CheckpointWriter::new(&path)
-        .files(first.to_checkpoint())
-        .commit()
-        .unwrap();
-    assert!(path.join("policy.ema.safetensors").exists());
-    drop(first);
-    let mut resumed = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
-    assert_eq!(resumed.standardiser(), straight.standardiser());
-    losses.push(epoch(&mut resumed, k));
-    assert_eq!(losses, straight_losses);
+    let run = Resumed::run(&c, &r, 2);
+    assert!(run.checkpoint().join("policy.ema.safetensors").exists());
+    assert_eq!(run.resumed.standardiser(), run.straight.standardiser());
+    assert_eq!(run.losses, run.straight_losses);
     assert!(
-        nets(&resumed) == nets(&straight),
+        nets(&run.resumed) == nets(&run.straight),
         "the resumed networks differ"
     );
     // The safety term's weight grew with the epochs.

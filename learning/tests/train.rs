@@ -11,7 +11,7 @@ use cabc_proto::config::{CriticNegatives, RunConfig, ScheduleKind};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use support::train;
+use support::{train, Resumed};
 use tch::{Device, Kind, Tensor};
 
 fn config(seed: u64) -> RunConfig {
@@ -304,7 +304,6 @@ fn resume_continues_bit_for_bit() {
     let mut c = config(8);
     c.algorithm.lambda = 1.0;
     let k = 2;
-    let epoch = |t: &mut Trainer, e: u64| train(t, e, &r);
     let nets = |t: &Trainer| {
         use cabc_models::Network;
         [
@@ -313,25 +312,13 @@ fn resume_continues_bit_for_bit() {
             t.critic().to_bytes(),
         ]
     };
-    let mut straight = Trainer::with_device(&c, Device::Cpu);
-    let straight_losses: Vec<_> = (0..=k).map(|e| epoch(&mut straight, e)).collect();
-
-    let mut first = Trainer::with_device(&c, Device::Cpu);
-    let mut losses: Vec<_> = (0..k).map(|e| epoch(&mut first, e)).collect();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("checkpoint");
-    CheckpointWriter::new(&path)
-        .files(first.to_checkpoint())
-        .commit()
-        .unwrap();
-    drop(first);
-    let mut resumed = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
-    losses.push(epoch(&mut resumed, k));
-    assert_eq!(losses, straight_losses);
+    let run = Resumed::run(&c, &r, k);
+    assert_eq!(run.losses, run.straight_losses);
     assert!(
-        nets(&resumed) == nets(&straight),
+        nets(&run.resumed) == nets(&run.straight),
         "the resumed networks differ"
     );
+    let (path, straight, straight_losses) = (run.checkpoint(), &run.straight, &run.straight_losses);
 
     // An older checkpoint, without the optimiser states: it loads, and the moments restart.
     for name in [
@@ -342,7 +329,7 @@ fn resume_continues_bit_for_bit() {
         std::fs::remove_file(path.join(name)).unwrap();
     }
     let mut old = Trainer::resume(&c, &Checkpoint::open(&path).unwrap()).unwrap();
-    let l = epoch(&mut old, k);
+    let l = train(&mut old, k, &r);
     assert_ne!(l.imitation, straight_losses[k as usize].imitation);
     assert!(old.policy_bytes() != straight.policy_bytes());
 }

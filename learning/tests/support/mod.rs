@@ -48,3 +48,44 @@ pub fn train(t: &mut Trainer, epoch: u64, replay: &Replay) -> Losses {
     t.train_epoch(epoch, replay, &mut record).expect("trains");
     Losses::of(&record)
 }
+
+/// Issue 13's experiment: `k + 1` epochs straight, against `k` epochs, a checkpoint (in `dir`), a resume into a new
+/// trainer and one more epoch.
+pub struct Resumed {
+    pub straight: Trainer,
+    pub straight_losses: Vec<Losses>,
+    pub resumed: Trainer,
+    pub losses: Vec<Losses>,
+    pub dir: tempfile::TempDir,
+}
+
+impl Resumed {
+    pub fn run(config: &cabc_proto::config::RunConfig, replay: &Replay, k: u64) -> Self {
+        let device = tch::Device::Cpu;
+        let mut straight = Trainer::with_device(config, device);
+        let straight_losses = (0..=k).map(|e| train(&mut straight, e, replay)).collect();
+        let mut first = Trainer::with_device(config, device);
+        let mut losses: Vec<Losses> = (0..k).map(|e| train(&mut first, e, replay)).collect();
+        let dir = tempfile::tempdir().unwrap();
+        cabc_learning::CheckpointWriter::new(dir.path().join("checkpoint"))
+            .files(first.to_checkpoint())
+            .commit()
+            .unwrap();
+        drop(first);
+        let checkpoint = cabc_learning::Checkpoint::open(&dir.path().join("checkpoint")).unwrap();
+        let mut resumed = Trainer::resume(config, &checkpoint).unwrap();
+        losses.push(train(&mut resumed, k, replay));
+        Resumed {
+            straight,
+            straight_losses,
+            resumed,
+            losses,
+            dir,
+        }
+    }
+
+    /// The checkpoint the resume started from.
+    pub fn checkpoint(&self) -> std::path::PathBuf {
+        self.dir.path().join("checkpoint")
+    }
+}
