@@ -9,10 +9,10 @@
 # --plan picks the plan: `recipe` (the default, issue 30: the V-B recipe over seeds 42-51, its baseline and its keys
 # one at a time) or `issue-18` (the reference's protocol against ours; ended), or a TOML file's path.
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
-# repo, sharing target/), copies them (learner, actor, expert-server, cabc) to .deps/campaign-bin/<commit>/ and uses
-# them for every later call, so that the campaign's runs come from one code whatever is built meanwhile: a later
-# session on a fresh machine re-pins the campaign's commit with --pin f1047ba (the folder used is printed, and named
-# in docs/REPRODUCTION.md by the report). The options below map to the typed command, this checkout's
+# repo, sharing target/), copies them (learner, actor, expert-server, cabc) to .deps/campaign-bin/<commit>/, and
+# exits (it starts no lane); every later run of a lane uses them, so that the campaign's runs come from one code
+# whatever is built meanwhile: a later session on a fresh machine re-pins the campaign's commit with --pin f1047ba
+# (the folder used is printed, and named in docs/REPRODUCTION.md by the report). The options below map to the typed command, this checkout's
 # (target/release/cabc, built when stale):
 #   --list        cabc campaign list --plan P      the slices
 #   --status      cabc campaign status --plan P    each slice's runs: ended (and how), in progress (at which epoch)
@@ -86,14 +86,6 @@ cabc() {
   "$root/target/release/cabc" "$@"
 }
 
-if [ "$tables" = 1 ]; then
-  # Built every time (a no-op when current): a stale learner would draw last version's tables.
-  cargo build --release --quiet --workspace --bins
-  exec target/release/cabc campaign tables --compare "target/release/cabc compare"
-fi
-[ "$status" = 0 ] || { cabc campaign status --plan "$plan"; exit 0; }
-[ "$list" = 0 ] || { cabc campaign list --plan "$plan"; exit 0; }
-
 pinned="$root/.deps/campaign-bin/current"
 if [ "$pin" = 1 ]; then
   commit=$(git rev-parse --short "$pin_rev^{commit}")
@@ -116,7 +108,17 @@ if [ "$pin" = 1 ]; then
   echo "$commit" > "$dest/COMMIT"
   ln -sfn "$dest" "$pinned"
   echo "[campaign] pinned the binaries of $commit in $dest" >&2
+  exit 0
 fi
+
+if [ "$tables" = 1 ]; then
+  # Built every time (a no-op when current): a stale learner would draw last version's tables.
+  cargo build --release --quiet --workspace --bins
+  exec target/release/cabc campaign tables --compare "target/release/cabc compare"
+fi
+[ "$status" = 0 ] || { cabc campaign status --plan "$plan"; exit 0; }
+[ "$list" = 0 ] || { cabc campaign list --plan "$plan"; exit 0; }
+
 cabc campaign list --plan "$plan" > /dev/null  # builds cabc, and checks the plan before the lane starts
 # The lane (exec: its pid, which names its claims, is the typed command's).
 exec "$root/target/release/cabc" campaign run --plan "$plan" --lane "$lane" ${only:+--only "$only"} --bin "$pinned"

@@ -1,6 +1,6 @@
 //! `cabc campaign run`: one lane of a campaign, running its slices one after the other, each as one call of the
-//! per-run step, `deploy/reproduce.sh` (which skips an ended run, resumes one with a checkpoint, starts any other
-//! fresh, and copies its results to docs/reproduction/).
+//! per-run step, `cabc reproduce` ([`crate::reproduce`]: skips an ended run, resumes one with a checkpoint, starts
+//! any other fresh, and copies its results to docs/reproduction/).
 //!
 //! Lane I of N listens on its own loopback port, 7447 + I (`--set bus.listen=["tcp/127.0.0.1:<port>"]` and
 //! `bus.connect`, before the slice's own arguments: a run's numbers do not depend on its port), and with N > 1 takes
@@ -55,8 +55,9 @@ pub struct LaneOptions {
     pub only: Option<usize>,
     /// The binaries of the runs (`CABC_BIN`): must hold `learner`.
     pub bin: PathBuf,
-    /// The per-run step, called with the bus's settings and a slice's arguments: `deploy/reproduce.sh`.
-    pub runner: PathBuf,
+    /// The per-run step, its program and first arguments, called with the bus's settings and a slice's arguments:
+    /// `cabc reproduce` ([`crate::reproduce`]).
+    pub runner: Vec<std::ffi::OsString>,
 }
 
 /// The time as `date -u +%FT%TZ` prints it.
@@ -148,7 +149,9 @@ pub fn run_lane(plan: &Plan, opts: &LaneOptions) -> Result<usize> {
         };
         say(format!("[campaign] {} slice {i}: {text}", utc_now()))?;
         let out = log()?;
-        let status = Command::new(&opts.runner)
+        let (program, first) = opts.runner.split_first().context("no runner")?;
+        let status = Command::new(program)
+            .args(first)
             .args(&bus)
             .args(slice.args())
             .env("CABC_BIN", &opts.bin)
@@ -157,7 +160,7 @@ pub fn run_lane(plan: &Plan, opts: &LaneOptions) -> Result<usize> {
             .stdout(out.try_clone()?)
             .stderr(out)
             .status()
-            .with_context(|| format!("starting {}", opts.runner.display()))?;
+            .with_context(|| format!("starting {}", program.to_string_lossy()))?;
         if status.success() {
             if let Some(claim) = claim {
                 claim.done()?;

@@ -9,20 +9,21 @@
 //!   ([`status`]);
 //! * `cabc campaign run --lane I/N [--only N]`: a lane; lanes share the slices through claims ([`claims`], the lock
 //!   that deploy/claim.sh was, compatible with its claims) and run each with the per-run step ([`lane`]);
-//! * `cabc campaign tables`: the groups' tables and figures, and the plans' views over groups ([`tables`]).
+//! * `cabc campaign tables`: the groups' tables and figures, and the plans' views over groups ([`tables`]);
+//! * `cabc reproduce`: the per-run step a lane runs a slice with, and the tool for runs over seeds ([`reproduce`]).
 //!
 //! The run names and seeds (`<preset>[-<tag>]-s<k>[-baseline]`, seed 41 + k) are [`cabc_proto::run_name`]'s.
 //!
-//! What stays in bash, and why: the per-run step, `deploy/reproduce.sh` (skips an ended run, resumes one with a
-//! checkpoint through `deploy/run-local.sh`, copies its results to docs/reproduction/<run>/ and redraws its group
-//! with `cabc compare`), since it is also the tool for runs outside a campaign and the lanes running today call
-//! it; `deploy/campaign.sh`, now a wrapper that builds and calls `cabc campaign`, keeps the pinning of binaries
+//! What stays in bash, and why: `deploy/run-local.sh`, the main job (set-up, the processes of a run, their logs);
+//! `deploy/reproduce.sh`, a wrapper that builds the binaries (unless `CABC_BIN` names them) and calls `cabc
+//! reproduce`; `deploy/campaign.sh`, a wrapper that builds and calls `cabc campaign`, keeps the pinning of binaries
 //! (`--pin`: a build and copies) and `--snapshot` (copies of run folders and one `cabc compare`).
 
 pub mod claims;
 pub mod lane;
 mod md5;
 pub mod plan;
+pub mod reproduce;
 pub mod status;
 pub mod tables;
 

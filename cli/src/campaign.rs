@@ -1,9 +1,12 @@
 //! `cabc campaign list | status | run | tables`: a campaign's plan (`deploy/campaign/<plan>.toml`) listed, its runs'
-//! states, a lane that runs its slices, its tables ([`cabc_campaign`]; `deploy/campaign.sh` wraps it).
+//! states, a lane that runs its slices, its tables ([`cabc_campaign`]; `deploy/campaign.sh` wraps it); and `cabc
+//! reproduce`, the per-run step a lane runs each slice with ([`cabc_campaign::reproduce`]; `deploy/reproduce.sh`
+//! wraps it).
 
 use anyhow::{bail, Context};
 use cabc_campaign::lane::{Lane, LaneOptions};
-use cabc_campaign::plan::{plan_path, PLAN_DIR};
+use cabc_campaign::plan::{plan_path, Method, PLAN_DIR};
+use cabc_campaign::reproduce::{Reproduce, Seeds};
 use cabc_campaign::Plan;
 use std::path::{Path, PathBuf};
 
@@ -50,9 +53,10 @@ enum Command {
         /// The runs' binaries (CABC_BIN for the runner), under the root unless absolute.
         #[arg(long, default_value = ".deps/campaign-bin/current")]
         bin: PathBuf,
-        /// The per-run step, called with the bus's settings and a slice's arguments, under the root unless absolute.
-        #[arg(long, default_value = "deploy/reproduce.sh")]
-        runner: PathBuf,
+        /// The per-run step, called with the bus's settings and a slice's arguments, under the root unless absolute
+        /// (default: this program's `cabc reproduce`).
+        #[arg(long)]
+        runner: Option<PathBuf>,
     },
     /// Redraws every group's table and figures in docs/reproduction/ and every plan's views (also into
     /// docs/REPRODUCTION.md between their markers).
@@ -82,12 +86,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         } => {
             let root = absolute(&common.root)?;
             let under = |p: &Path| root.join(p);
+            let runner = match runner {
+                Some(runner) => vec![under(runner).into_os_string()],
+                None => vec![
+                    std::env::current_exe()
+                        .context("this program's path (the default runner)")?
+                        .into_os_string(),
+                    "reproduce".into(),
+                ],
+            };
             let opts = LaneOptions {
                 root: root.clone(),
                 lane: *lane,
                 only: *only,
                 bin: under(bin),
-                runner: under(runner),
+                runner,
             };
             let failed = cabc_campaign::lane::run_lane(&common.plan()?, &opts)?;
             if failed > 0 {
@@ -109,6 +122,72 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `cabc reproduce`'s arguments: deploy/reproduce.sh's.
+#[derive(clap::Args)]
+pub struct ReproduceArgs {
+    /// The seeds: N (1 to N) or A-B; seed k runs with run.seed = 41 + k.
+    #[arg(long, default_value = "1")]
+    seeds: Seeds,
+    /// run.max_epochs of every run (default: the preset's).
+    #[arg(long)]
+    epochs: Option<u32>,
+    /// Names the ablation: the runs are <preset>-<tag>-s<k>[-baseline].
+    #[arg(long)]
+    tag: Option<String>,
+    /// The methods, in order, separated by blanks or given again: proposed and/or baseline (default both).
+    #[arg(long)]
+    methods: Vec<String>,
+    /// Changes every run's configuration (KEY=VALUE, the learner's syntax), before the run's seed and name.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
+    /// Prints what would run; runs, copies and draws nothing.
+    #[arg(long)]
+    dry_run: bool,
+    /// The binaries of the runs (learner, actor, expert-server, cabc; default: $CABC_BIN, else this program's
+    /// folder).
+    #[arg(long)]
+    bin: Option<PathBuf>,
+    /// The repository's root: deploy/run-local.sh, runs/ and docs/reproduction/ are under it.
+    #[arg(long, default_value = ".")]
+    root: PathBuf,
+    /// Presets (default: v-b v-a-cpu v-c-cpu).
+    experiments: Vec<String>,
+}
+
+pub fn reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
+    let mut methods = vec![];
+    for word in args.methods.iter().flat_map(|m| m.split_whitespace()) {
+        methods.push(match word {
+            "proposed" => Method::Proposed,
+            "baseline" => Method::Baseline,
+            other => bail!("--methods: proposed and/or baseline, not {other}"),
+        });
+    }
+    if let Some(set) = args.sets.iter().find(|s| !s.contains('=')) {
+        bail!("--set needs KEY=VALUE, not {set:?}");
+    }
+    let call = Reproduce {
+        experiments: args.experiments.clone(),
+        seeds: args.seeds,
+        epochs: args.epochs,
+        tag: args.tag.clone(),
+        methods,
+        sets: args.sets.clone(),
+        dry_run: args.dry_run,
+    };
+    let root = absolute(&args.root)?;
+    let bin = match (&args.bin, std::env::var_os("CABC_BIN")) {
+        (Some(bin), _) => root.join(bin),
+        (None, Some(bin)) if !bin.is_empty() => root.join(bin),
+        _ => std::env::current_exe()
+            .context("this program's path")?
+            .parent()
+            .context("this program's folder")?
+            .to_path_buf(),
+    };
+    call.run(&root, &bin)
 }
 
 /// The root as an absolute path (the runner and the drawing command run there, with paths under it).

@@ -80,6 +80,11 @@ enum Command {
     /// The reproduction campaign as data: a plan (deploy/campaign/<plan>.toml) of slices of deploy/reproduce.sh,
     /// listed, its runs' states, run in lanes that share its slices, and its tables (deploy/campaign.sh wraps it).
     Campaign(campaign::Args),
+    /// Runs over seeds, the campaign's per-run step: each preset's runs `<preset>[-<tag>]-s<k>[-baseline]` (seed
+    /// 41 + k), an ended one skipped, one with a checkpoint resumed, any other started (deploy/run-local.sh with
+    /// the binaries of CABC_BIN); their results copied to docs/reproduction/<run>/ and each group's figures and table
+    /// redrawn (deploy/reproduce.sh builds the binaries and calls it).
+    Reproduce(campaign::ReproduceArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -125,6 +130,7 @@ fn main() -> anyhow::Result<()> {
         Command::ZenohdConfig(args) => tools::zenohd_config(&args),
         Command::AclDenials(args) => tools::acl_denials(&args),
         Command::Campaign(args) => campaign::run(&args),
+        Command::Reproduce(args) => campaign::reproduce(&args),
     }
 }
 
