@@ -1,5 +1,5 @@
-//! `cargo run --release -p cabc-learner --no-default-features --example autolabel_demo -- OUT.png [rho ...]`:
-//! the paper's Fig. 3 without building the server binary.
+//! `cargo run --release -p cabc-bench --example autolabel_demo -- OUT.png [rho ...]`:
+//! the paper's Fig. 3 without building the `cabc` binary (or `cabc demo`).
 
 use cabc_bench::demo::autolabel_demo;
 

@@ -1,5 +1,5 @@
-//! `cargo run --release -p cabc-learner --no-default-features --example bench [n_plus n_uncertain n_train]`:
-//! the `cabc bench` figures without building the server binary.
+//! `cargo run --release -p cabc-bench --example bench [n_plus n_uncertain n_train]`:
+//! the `cabc bench` figures without building the `cabc` binary.
 
 use cabc_bench::throughput::{run_bench, BenchOptions};
 

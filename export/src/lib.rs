@@ -1,5 +1,5 @@
 //! cabc-export: a run's data as a LeRobot v3 dataset, for Python (pyarrow, pandas, LeRobot); its command line is
-//! `cabc export RUN --out DIR` (cabc-cli). It reads the run folder through cabc-learner's checkpoint and replay readers
+//! `cabc export RUN --out DIR` (cabc-cli). It reads the run folder through cabc-learning's checkpoint and replay readers
 //! and writes parquet (arrow) and PNG, so that the learning core depends on neither.
 //!
 //! ```text

@@ -1,4 +1,4 @@
-//! `cargo run --release -p cabc-learner --example fit_timing -- RUN_DIR`: times each fit of one training epoch (one
+//! `cargo run --release -p cabc-learning --example fit_timing -- RUN_DIR`: times each fit of one training epoch (one
 //! pass each) on a run's checkpoint (its configuration, networks and replay), to find where an epoch's time goes.
 //! It found the subnormal floats that `cabc_models::flush_denormals` now flushes: on `v-b-ref-s1`'s checkpoint at
 //! epoch 136 (D+ 50,408, D? 48,322) the critic's pass took 45.5 s with them and 4.9 s without.
