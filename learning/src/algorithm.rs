@@ -74,12 +74,14 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         }
         // The record: to the checkpoint, the learner's sinks (metrics.csv, TensorBoard, ...) and the bus.
         learner.end_epoch(record, started)?;
-        let live = &collected.live;
-        Bus {
-            actors: &mut *actors,
-            live,
+        if let Some(record) = learner.state.rows.last() {
+            let live = &collected.live;
+            Bus {
+                actors: &mut *actors,
+                live,
+            }
+            .write(record)?;
         }
-        .write_last(&learner.state)?;
         if actors.interrupted() {
             return Ok(Ending::Interrupted);
         }

@@ -139,7 +139,7 @@ impl Learner {
             };
             (trainer, replay, None, state)
         };
-        sink.open(&state);
+        sink.open(&state.history());
         Ok(Learner {
             config,
             trainer,
@@ -256,10 +256,9 @@ impl Learner {
         {
             let stream = (segment.actor.clone(), segment.env, segment.episode);
             if !self.expert_streams.insert(stream) {
-                let dt = cabc_sim::env::DT;
-                self.state
-                    .expert_lap_times
-                    .push(segment.steps.len() as f64 * dt);
+                let seconds = segment.steps.len() as f64 * cabc_sim::env::DT;
+                self.state.expert_lap_times.push(seconds);
+                self.sink.expert_lap(seconds);
             }
         }
     }
@@ -310,7 +309,10 @@ impl Learner {
         self.state.next_epoch = epoch + 1;
         self.state.rows.push(record);
         self.checkpoint()?;
-        Ok(self.sink.write_last(&self.state)?)
+        match self.state.rows.last() {
+            Some(record) => Ok(self.sink.write(record)?),
+            None => Ok(()),
+        }
     }
 
     /// Messages the router's access control has dropped so far, warned about when they grew since the last epoch
@@ -374,8 +376,7 @@ impl Learner {
         }
         let summary = self.summary(reason, rejected);
         let final_policy = (!interrupted).then(|| self.trainer.policy_bytes());
-        self.sink
-            .close(&self.state, &summary, final_policy.as_deref())?;
+        self.sink.close(&summary, final_policy.as_deref())?;
         Ok(summary)
     }
 

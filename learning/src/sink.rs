@@ -3,9 +3,9 @@
 //! and [`Bus`], the sink of the actors' port's metrics (the other sinks, the run folder's files, TensorBoard and the
 //! progress bar, are the cabc-outputs crate's).
 
-use crate::evaluations::Taken;
+use crate::evaluations::{EvalSummary, Taken};
 use crate::record::Record;
-use crate::state::LearnerState;
+use cabc_proto::messages::EvalReport;
 use cabc_proto::ports::Rollouts;
 use serde_json::json;
 
@@ -17,29 +17,60 @@ pub struct SinkError {
     pub source: Box<dyn std::error::Error + Send + Sync>,
 }
 
-/// The port the learner writes its outputs through (Acme's logger): each epoch's record, the evaluations, the
-/// phase of an epoch and the run's end. The sinks (the cabc-outputs crate, and [`Bus`] here): `metrics.csv` and the run folder's other
-/// files, TensorBoard's events, the bus's JSON metrics, the progress bar.
+/// What a run has written so far: every epoch's record, every evaluation taken in (the last one's report whole) and
+/// the expert's lap times. [`Sink::open`] gives it to the sinks (empty for a fresh run, the checkpoint's for a
+/// resumed one); a sink that needs it later (the run folder's tables and plots) keeps its own from the events that
+/// follow ([`History::record`], [`History::evaluation`], [`History::expert_lap`]).
+#[derive(Debug, Clone, Default)]
+pub struct History {
+    pub rows: Vec<Record>,
+    pub evals: Vec<EvalSummary>,
+    pub last_eval: Option<EvalReport>,
+    pub expert_lap_times: Vec<f64>,
+}
+
+impl History {
+    /// The epoch the run goes on with.
+    pub fn next_epoch(&self) -> u64 {
+        self.rows.last().map_or(0, |r| r.epoch() + 1)
+    }
+
+    /// [`Sink::write`]'s record, appended.
+    pub fn record(&mut self, record: &Record) {
+        self.rows.push(record.clone());
+    }
+
+    /// [`Sink::evaluation`]'s, appended.
+    pub fn evaluation(&mut self, taken: &Taken<'_>) {
+        self.evals.push(taken.summary.clone());
+        self.last_eval = Some(taken.report.clone());
+    }
+
+    /// [`Sink::expert_lap`]'s, appended.
+    pub fn expert_lap(&mut self, seconds: f64) {
+        self.expert_lap_times.push(seconds);
+    }
+}
+
+/// The port the learner writes its outputs through (Acme's logger): events, each given once, in the order they
+/// happen (the run opens; per epoch its phases, the expert's laps and the evaluations taken in, then its record; the
+/// run closes). A sink sees no learner state: what it needs of the past it keeps itself ([`History`]). The sinks
+/// (the cabc-outputs crate, and [`Bus`] here): `metrics.csv` and the run folder's other files, TensorBoard's events,
+/// the bus's JSON metrics, the progress bar.
 pub trait Sink {
-    /// The run starts, fresh or resumed with `run` (the records so far).
-    fn open(&mut self, _run: &LearnerState) {}
+    /// The run starts, fresh or resumed with `history` (what was written before).
+    fn open(&mut self, _history: &History) {}
     /// A phase of epoch `epoch` begins (collecting, auto-labelling, training).
     fn phase(&mut self, _epoch: u64, _phase: &str) {}
-    /// An epoch's record, complete and checkpointed; `run` holds it as its last row.
-    fn write(&mut self, record: &Record, run: &LearnerState) -> Result<(), SinkError>;
-    /// [`Sink::write`] of `run`'s last record (none: nothing to write).
-    fn write_last(&mut self, run: &LearnerState) -> Result<(), SinkError> {
-        match run.rows.last() {
-            Some(record) => self.write(record, run),
-            None => Ok(()),
-        }
-    }
+    /// A lap driven by the expert alone (beta = 1), in seconds.
+    fn expert_lap(&mut self, _seconds: f64) {}
     /// An evaluation taken in.
     fn evaluation(&mut self, _taken: &Taken<'_>) {}
+    /// An epoch's record, complete and checkpointed.
+    fn write(&mut self, record: &Record) -> Result<(), SinkError>;
     /// The run ends with `summary`; `final_policy`: the policy's weights, unless the run was interrupted.
     fn close(
         &mut self,
-        _run: &LearnerState,
         _summary: &serde_json::Value,
         _final_policy: Option<&[u8]>,
     ) -> Result<(), SinkError> {
@@ -53,34 +84,37 @@ pub trait Sink {
 pub struct Sinks(pub Vec<Box<dyn Sink>>);
 
 impl Sink for Sinks {
-    fn open(&mut self, run: &LearnerState) {
-        self.0.iter_mut().for_each(|s| s.open(run));
+    fn open(&mut self, history: &History) {
+        self.0.iter_mut().for_each(|s| s.open(history));
     }
 
     fn phase(&mut self, epoch: u64, phase: &str) {
         self.0.iter_mut().for_each(|s| s.phase(epoch, phase));
     }
 
-    fn write(&mut self, record: &Record, run: &LearnerState) -> Result<(), SinkError> {
-        self.0
-            .iter_mut()
-            .map(|s| s.write(record, run))
-            .fold(Ok(()), Result::and)
+    fn expert_lap(&mut self, seconds: f64) {
+        self.0.iter_mut().for_each(|s| s.expert_lap(seconds));
     }
 
     fn evaluation(&mut self, taken: &Taken<'_>) {
         self.0.iter_mut().for_each(|s| s.evaluation(taken));
     }
 
+    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
+        self.0
+            .iter_mut()
+            .map(|s| s.write(record))
+            .fold(Ok(()), Result::and)
+    }
+
     fn close(
         &mut self,
-        run: &LearnerState,
         summary: &serde_json::Value,
         final_policy: Option<&[u8]>,
     ) -> Result<(), SinkError> {
         self.0
             .iter_mut()
-            .map(|s| s.close(run, summary, final_policy))
+            .map(|s| s.close(summary, final_policy))
             .fold(Ok(()), Result::and)
     }
 }
@@ -93,7 +127,7 @@ pub struct Bus<'a> {
 }
 
 impl Sink for Bus<'_> {
-    fn write(&mut self, record: &Record, _run: &LearnerState) -> Result<(), SinkError> {
+    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
         let json = json!({
             "epoch": record.epoch(),
             "row": record.to_json(),

@@ -4,6 +4,7 @@
 use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
 use crate::evaluations::Evaluations;
 use crate::record::Record;
+use crate::sink::History;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -43,6 +44,16 @@ pub struct LearnerState {
 }
 
 impl LearnerState {
+    /// What the run wrote so far, as the sinks are opened with it.
+    pub fn history(&self) -> History {
+        History {
+            rows: self.rows.clone(),
+            evals: self.evaluations.evals.clone(),
+            last_eval: self.evaluations.last().cloned(),
+            expert_lap_times: self.expert_lap_times.clone(),
+        }
+    }
+
     /// Writes a checkpoint into `dir` atomically: `files` (the trainer's, the replay's) and this state as
     /// `state.json`.
     pub fn save<N: AsRef<str>>(

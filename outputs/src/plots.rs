@@ -3,7 +3,7 @@
 
 use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::Record;
-use cabc_learning::state::LearnerState;
+use cabc_learning::sink::History;
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
 use plotters::coord::types::{RangedCoordf64, RangedCoordu32, RangedCoordu64};
@@ -72,17 +72,12 @@ pub fn png(
 const SIZE: (u32, u32) = (900, 500);
 
 /// Draws every plot into `dir`. Errors are returned, not fatal: a run goes on without a picture.
-pub fn draw_all(
-    dir: &Path,
-    state: &LearnerState,
-    last_eval: Option<&EvalReport>,
-    eval_laps: u32,
-) -> PlotResult {
-    let evals = &state.evaluations.evals;
+pub fn draw_all(dir: &Path, run: &History, eval_laps: u32) -> PlotResult {
+    let evals = &run.evals;
     laps(&dir.join("laps.png"), evals, eval_laps)?;
-    losses(&dir.join("losses.png"), state)?;
-    lap_times(&dir.join("lap_times.png"), evals, &state.expert_lap_times)?;
-    if let Some(report) = last_eval {
+    losses(&dir.join("losses.png"), &run.rows)?;
+    lap_times(&dir.join("lap_times.png"), evals, &run.expert_lap_times)?;
+    if let Some(report) = &run.last_eval {
         line(&dir.join("line.png"), report)?;
     }
     Ok(())
@@ -117,10 +112,9 @@ fn laps(path: &Path, evals: &[EvalSummary], eval_laps: u32) -> PlotResult {
     })
 }
 
-fn losses(path: &Path, state: &LearnerState) -> PlotResult {
+fn losses(path: &Path, rows: &[Record]) -> PlotResult {
     crate::plots::png(path, SIZE, |root| {
         root.fill(&WHITE)?;
-        let rows = &state.rows;
         let max_e = rows.iter().map(Record::epoch).max().unwrap_or(1).max(1);
         let positive = |v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -339,7 +333,7 @@ mod tests {
             steps: 60,
             line: (0..60).map(|i| [i as f32 * 0.05, 0.0]).collect(),
         };
-        let mut state = LearnerState {
+        let run = History {
             rows: (0..3)
                 .map(|e| {
                     let mut r = Record::new(e);
@@ -349,10 +343,10 @@ mod tests {
                 })
                 .collect(),
             expert_lap_times: vec![4.8, 4.9],
-            ..Default::default()
+            evals: vec![EvalSummary::of(&report)],
+            last_eval: Some(report),
         };
-        state.evaluations.evals.push(EvalSummary::of(&report));
-        draw_all(dir.path(), &state, Some(&report), 50).unwrap();
+        draw_all(dir.path(), &run, 50).unwrap();
         for f in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
             let len = std::fs::metadata(dir.path().join(f)).unwrap().len();
             assert!(len > 1000, "{f} is {len} bytes");

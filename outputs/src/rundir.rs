@@ -4,7 +4,9 @@
 //! [`cabc_learning::checkpoint`], which also says how a crash mid-write leaves the previous checkpoint intact.
 
 use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
-use cabc_learning::state::{LearnerState, CHECKPOINT};
+use cabc_learning::evaluations::EvalSummary;
+use cabc_learning::record::Record;
+use cabc_learning::state::CHECKPOINT;
 use cabc_proto::config::RunConfig;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -94,15 +96,16 @@ impl RunDir {
         Ok(Checkpoint::remove(&self.checkpoint())?)
     }
 
-    /// Rewrites `metrics.csv` and `evals.csv` from the state (so a resumed run's files stay consistent).
-    pub fn write_tables(&self, state: &LearnerState) -> Result<(), RunDirError> {
+    /// Rewrites `metrics.csv` and `evals.csv` from every record and evaluation (so a resumed run's files stay
+    /// consistent).
+    pub fn write_tables(&self, rows: &[Record], evals: &[EvalSummary]) -> Result<(), RunDirError> {
         let path = self.root.join("metrics.csv");
-        write_atomic(&path, cabc_learning::record::table(&state.rows).as_bytes())?;
+        write_atomic(&path, cabc_learning::record::table(rows).as_bytes())?;
         let path = self.root.join("evals.csv");
         let mut text =
             String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
         let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
-        for e in &state.evaluations.evals {
+        for e in evals {
             text.push_str(&format!(
                 "{},{},{},{},{},{},{},{}\n",
                 e.version,
@@ -141,8 +144,6 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cabc_learning::evaluations::EvalSummary;
-    use cabc_learning::record::Record;
     use cabc_proto::messages::{EndReason, EvalReport};
 
     #[test]
@@ -158,12 +159,8 @@ mod tests {
             steps: 130,
             line: vec![],
         };
-        let mut state = LearnerState {
-            rows: vec![Record::new(0)],
-            ..Default::default()
-        };
-        state.evaluations.evals.push(EvalSummary::of(&report));
-        run.write_tables(&state).unwrap();
+        run.write_tables(&[Record::new(0)], &[EvalSummary::of(&report)])
+            .unwrap();
         let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
         assert_eq!(metrics.lines().count(), 2);
         let header_cols = metrics.lines().next().unwrap().split(',').count();

@@ -10,8 +10,7 @@ use crate::video::{eval_gif, CameraView};
 use cabc_learning::evaluations::Taken;
 use cabc_learning::learner::{Learner, LearnerError};
 use cabc_learning::record::Record;
-use cabc_learning::sink::{Sink, SinkError, Sinks};
-use cabc_learning::state::LearnerState;
+use cabc_learning::sink::{History, Sink, SinkError, Sinks};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -43,6 +42,8 @@ pub struct RunFolder {
     eval_laps: u32,
     /// A camera run's camera, drawn beside the track in the videos.
     camera: Option<CameraView>,
+    /// What the tables and plots are drawn from, kept from the sink's events.
+    history: History,
 }
 
 impl RunFolder {
@@ -51,15 +52,16 @@ impl RunFolder {
             run_dir,
             eval_laps: config.collection.eval_laps,
             camera: CameraView::of(&config.observation),
+            history: History::default(),
         }
     }
 
-    fn tables_and_plots(&self, run: &LearnerState) -> Result<(), SinkError> {
+    fn tables_and_plots(&self) -> Result<(), SinkError> {
+        let run = &self.history;
         self.run_dir
-            .write_tables(run)
+            .write_tables(&run.rows, &run.evals)
             .map_err(|e| failed("the tables", e))?;
-        let last = run.evaluations.last();
-        if let Err(e) = plots::draw_all(&self.run_dir.plots(), run, last, self.eval_laps) {
+        if let Err(e) = plots::draw_all(&self.run_dir.plots(), run, self.eval_laps) {
             tracing::warn!("drawing plots: {e}");
         }
         Ok(())
@@ -86,11 +88,21 @@ impl RunFolder {
 }
 
 impl Sink for RunFolder {
-    fn write(&mut self, _record: &Record, run: &LearnerState) -> Result<(), SinkError> {
-        self.tables_and_plots(run)
+    fn open(&mut self, history: &History) {
+        self.history = history.clone();
+    }
+
+    fn expert_lap(&mut self, seconds: f64) {
+        self.history.expert_lap(seconds);
+    }
+
+    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
+        self.history.record(record);
+        self.tables_and_plots()
     }
 
     fn evaluation(&mut self, taken: &Taken<'_>) {
+        self.history.evaluation(taken);
         if taken.completed {
             self.video(taken.report, taken.best);
         }
@@ -103,12 +115,11 @@ impl Sink for RunFolder {
 
     fn close(
         &mut self,
-        run: &LearnerState,
         summary: &serde_json::Value,
         final_policy: Option<&[u8]>,
     ) -> Result<(), SinkError> {
         if let Some(weights) = final_policy {
-            self.tables_and_plots(run)?;
+            self.tables_and_plots()?;
             self.run_dir
                 .write_file("final-policy.safetensors", weights)
                 .map_err(|e| failed("the final policy", e))?;
@@ -151,13 +162,13 @@ impl Tensorboard {
 }
 
 impl Sink for Tensorboard {
-    fn open(&mut self, _run: &LearnerState) {
+    fn open(&mut self, _history: &History) {
         self.events = EventWriter::create(&self.dir)
             .map_err(|e| tracing::warn!("no TensorBoard events: {e}"))
             .ok();
     }
 
-    fn write(&mut self, record: &Record, _run: &LearnerState) -> Result<(), SinkError> {
+    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
         let scalars = record
             .iter()
             .map(|(name, v)| (name.to_string(), v.as_f64()));
@@ -201,15 +212,15 @@ impl Progress {
 }
 
 impl Sink for Progress {
-    fn open(&mut self, run: &LearnerState) {
-        self.bar.set_position(run.next_epoch);
+    fn open(&mut self, history: &History) {
+        self.bar.set_position(history.next_epoch());
     }
 
     fn phase(&mut self, _epoch: u64, phase: &str) {
         self.bar.set_message(format!("{phase}{}", self.last));
     }
 
-    fn write(&mut self, r: &Record, run: &LearnerState) -> Result<(), SinkError> {
+    fn write(&mut self, r: &Record) -> Result<(), SinkError> {
         let n = |name| r.u64(name).unwrap_or(0);
         let eval = match (r.u64("eval_version"), r.u64("eval_laps")) {
             (Some(v), Some(laps)) => format!("v{v}: {laps} laps"),
@@ -222,17 +233,86 @@ impl Sink for Progress {
             n("d_uncertain"),
             n("d_minus")
         );
-        self.bar.set_position(run.next_epoch);
+        self.bar.set_position(r.epoch() + 1);
         Ok(())
     }
 
-    fn close(
-        &mut self,
-        _: &LearnerState,
-        _: &serde_json::Value,
-        _: Option<&[u8]>,
-    ) -> Result<(), SinkError> {
+    fn close(&mut self, _: &serde_json::Value, _: Option<&[u8]>) -> Result<(), SinkError> {
         self.bar.finish_and_clear();
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cabc_learning::evaluations::EvalSummary;
+    use cabc_proto::messages::EndReason;
+
+    fn report(version: u64, laps: u32) -> EvalReport {
+        EvalReport {
+            actor: "eval".into(),
+            version,
+            laps,
+            lap_times: vec![5.0; laps as usize],
+            end_reason: EndReason::OutOfTrack,
+            steps: 40,
+            line: (0..40).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+        }
+    }
+
+    fn record(epoch: u64) -> Record {
+        let mut r = Record::new(epoch);
+        r.real("imitation_loss", 0.5, 6);
+        r
+    }
+
+    /// The run folder keeps what its tables and plots need from the events alone: a resumed run's history, then
+    /// the evaluations and records that follow, in metrics.csv, evals.csv and the plots.
+    #[test]
+    fn the_run_folder_draws_from_its_events() {
+        let dir = tempfile::tempdir().unwrap();
+        let run_dir = RunDir::create(dir.path()).unwrap();
+        let config = RunConfig::load("smoke").unwrap();
+        let mut folder = RunFolder::new(run_dir.clone(), &config);
+        let before = report(1, 0);
+        folder.open(&History {
+            rows: vec![record(0), record(1)],
+            evals: vec![EvalSummary::of(&before)],
+            last_eval: Some(before),
+            expert_lap_times: vec![4.8],
+        });
+        folder.expert_lap(4.9);
+        let after = report(2, 1);
+        folder.evaluation(&Taken {
+            report: &after,
+            summary: &EvalSummary::of(&after),
+            best: true,
+            completed: false,
+            weights: None,
+        });
+        folder.write(&record(2)).unwrap();
+        let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+        let epochs: Vec<&str> = metrics
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').next().unwrap())
+            .collect();
+        assert_eq!(epochs, ["0", "1", "2"], "{metrics}");
+        let evals = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
+        let versions: Vec<&str> = evals
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').next().unwrap())
+            .collect();
+        assert_eq!(versions, ["1", "2"], "{evals}");
+        assert_eq!(folder.history.expert_lap_times, [4.8, 4.9]);
+        assert_eq!(
+            folder.history.last_eval.as_ref().map(|r| r.version),
+            Some(2)
+        );
+        for plot in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
+            assert!(run_dir.plots().join(plot).is_file(), "{plot}");
+        }
     }
 }

@@ -20,7 +20,8 @@ fn fixture(name: &str) -> Vec<u8> {
 fn tables(state: &LearnerState) -> (String, String) {
     let dir = tempfile::tempdir().unwrap();
     let run = RunDir::create(dir.path()).unwrap();
-    run.write_tables(state).unwrap();
+    run.write_tables(&state.rows, &state.evaluations.evals)
+        .unwrap();
     let read = |name| std::fs::read_to_string(dir.path().join(name)).unwrap();
     (read("metrics.csv"), read("evals.csv"))
 }
