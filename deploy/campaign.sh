@@ -3,11 +3,12 @@
 # (crate campaign/). The plans are data, deploy/campaign/<plan>.toml, with the commentary on their slices' results.
 # Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--plan recipe|issue-18] [--pin [REV]] [--list] [--status] [--only N] [--lane I/N]
+#   deploy/campaign.sh [--plan recipe|cost|issue-18] [--pin [REV]] [--list] [--status] [--only N] [--lane I/N]
 #                      [--snapshot] [--tables]
 #
 # --plan picks the plan: `recipe` (the default, issue 30: the V-B recipe over seeds 42-51, its baseline and its keys
-# one at a time) or `issue-18` (the reference's protocol against ours; ended), or a TOML file's path.
+# one at a time), `cost` (the recipe's wall clock, run alone on one lane), `issue-18` (the reference's protocol
+# against ours; ended), or a TOML file's path.
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
 # repo, sharing target/), copies them (learner, actor, expert-server, cabc) to .deps/campaign-bin/<commit>/, and
 # exits (it starts no lane); every later run of a lane uses them, so that the campaign's runs come from one code
@@ -52,7 +53,7 @@ while [ $# -gt 0 ]; do
     --snapshot) snapshot=1 ;;
     --tables) tables=1 ;;
     --plan) plan=$2; shift ;;
-    -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,32p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
