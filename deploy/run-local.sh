@@ -6,9 +6,10 @@
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
 # eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
 # With CABC_BIN=DIR the binaries in DIR are used and nothing is built.
-# Default preset: the binaries' (cabc_proto::config::DEFAULT_PRESET: v-b-ref, experiment V-B under the reference
-# implementation's protocol, under which the paper's claims hold best here; docs/REPRODUCTION.md). --baseline runs
-# the same with lambda = 0.
+# Default preset: the binaries' (cabc_proto::config::DEFAULT_PRESET: v-b, experiment V-B under its recipe, the
+# reference implementation's protocol with DAgger's aggregate, lambda's warm-up and D- as the critic's negatives,
+# which reached the early stop on every seed of its campaign; docs/REPRODUCTION.md). --baseline runs the same with
+# lambda = 0; v-b-ref is the reference's protocol alone.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
 set -euo pipefail
@@ -25,7 +26,7 @@ while [ $# -gt 0 ]; do
     --resume) learner_args+=(--resume) ;;
     --fresh) learner_args+=(--fresh) ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;

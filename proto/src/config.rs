@@ -61,9 +61,11 @@ pub enum ConfigError {
     Override { setting: String, why: String },
 }
 
-/// The preset the binaries and `deploy/run-local.sh` use when none is named: V-B under the reference's protocol
-/// (docs/REPRODUCTION.md, issue 18) until the recipe `v-b` (issue 30) has shown over seeds that it does better.
-pub const DEFAULT_PRESET: &str = "v-b-ref";
+/// The preset the binaries and `deploy/run-local.sh` use when none is named: V-B's recipe (issue 30), the
+/// reference's protocol with DAgger's aggregate, lambda's warm-up and D- as the critic's negatives, which reached the
+/// early stop on every seed of the campaign (docs/REPRODUCTION.md, "The V-B recipe"); `v-b-ref` is the reference's
+/// protocol alone.
+pub const DEFAULT_PRESET: &str = "v-b";
 
 /// The presets of deploy/configs/, embedded.
 pub const PRESETS: &[(&str, &str)] = &[

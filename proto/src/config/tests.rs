@@ -265,8 +265,9 @@ fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
     assert!(recipe.training.clone_uncertain);
     assert_eq!((a.lambda_start, a.lambda_growth), (Some(1.0), 1.007));
     assert_eq!(a.critic_negatives, CriticNegatives::DMinus);
+    // The main job's default is the recipe.
     let default = RunConfig::load(DEFAULT_PRESET).unwrap();
-    assert_eq!(default.run.experiment, recipe.run.experiment);
+    assert_eq!(default.to_toml(), recipe.to_toml());
 }
 
 #[test]
