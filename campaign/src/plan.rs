@@ -64,6 +64,18 @@ impl Method {
     }
 }
 
+impl std::str::FromStr for Method {
+    type Err = String;
+
+    /// `proposed` or `baseline`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Method::Proposed, Method::Baseline]
+            .into_iter()
+            .find(|m| m.as_str() == s)
+            .ok_or_else(|| format!("--methods: proposed and/or baseline, not {s}"))
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct PlanFile {

@@ -68,7 +68,6 @@ pub struct Reproduce {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct PlannedRun {
     pub name: RunName,
-    pub preset: String,
     pub args: Vec<String>,
 }
 
@@ -106,11 +105,7 @@ impl Reproduce {
                         args.extend(["--set".into(), format!("run.max_epochs={e}")]);
                     }
                     args.push(preset.clone());
-                    runs.push(PlannedRun {
-                        name,
-                        preset: preset.clone(),
-                        args,
-                    });
+                    runs.push(PlannedRun { name, args });
                 }
             }
         }
@@ -121,93 +116,90 @@ impl Reproduce {
     /// them as `CABC_BIN`). Progress goes to stderr, each group's table to stdout.
     pub fn run(&self, root: &Path, bin: &Path) -> Result<()> {
         let runs = self.runs()?;
-        let results = root.join(RESULTS_DIR);
-        let mut groups: Vec<String> = vec![];
-        for run in &runs {
-            let group = run.name.group().to_string();
-            if groups.last() != Some(&group) {
-                if let Some(done) = groups.last() {
-                    self.draw(root, bin, done);
-                }
-                groups.push(group);
+        for group in runs.chunk_by(|a, b| a.name.group() == b.name.group()) {
+            for run in group {
+                self.run_one(root, bin, run)?;
             }
-            let dir = root.join("runs").join(run.name.to_string());
-            match run_state(root, &run.name) {
-                RunState::Ended(how) => eprintln!("[reproduce] {}: done (ended {how})", run.name),
-                state => {
-                    let mode = match state {
-                        RunState::InProgress(_) => "--resume",
-                        _ => "--fresh",
-                    };
-                    eprintln!(
-                        "[reproduce] {}: run-local.sh {mode} {}",
-                        run.name,
-                        run.args.join(" ")
-                    );
-                    if !self.dry_run {
-                        let script = root.join("deploy/run-local.sh");
-                        let status = Command::new(&script)
-                            .arg(mode)
-                            .args(&run.args)
-                            .env("CABC_BIN", bin)
-                            .current_dir(root)
-                            .status()
-                            .with_context(|| format!("starting {}", script.display()))?;
-                        if !status.success() {
-                            bail!("{}: run-local.sh failed ({status})", run.name);
-                        }
-                    }
-                }
+            if !self.dry_run {
+                draw(root, bin, group[0].name.group());
             }
-            if !self.dry_run && dir.is_dir() {
-                copy_results(&dir, &results.join(run.name.to_string()))
-                    .with_context(|| format!("copying {}'s results", run.name))?;
-            }
-        }
-        if let Some(last) = groups.last() {
-            self.draw(root, bin, last);
         }
         eprintln!("[reproduce] done; results in {RESULTS_DIR}/");
         Ok(())
     }
 
-    /// Redraws a group's figures and table (`cabc compare` over its result folders with a metrics.csv); a failure
-    /// is reported, not returned.
-    fn draw(&self, root: &Path, bin: &Path, group: &str) {
-        if self.dry_run {
+    /// One run: skipped when it ended, else resumed or started; then its results copied.
+    fn run_one(&self, root: &Path, bin: &Path, run: &PlannedRun) -> Result<()> {
+        let mode = match run_state(root, &run.name) {
+            RunState::Ended(how) => {
+                eprintln!("[reproduce] {}: done (ended {how})", run.name);
+                None
+            }
+            RunState::InProgress(_) => Some("--resume"),
+            RunState::NotStarted => Some("--fresh"),
+        };
+        if let Some(mode) = mode {
+            eprintln!(
+                "[reproduce] {}: run-local.sh {mode} {}",
+                run.name,
+                run.args.join(" ")
+            );
+            if !self.dry_run {
+                let script = root.join("deploy/run-local.sh");
+                let status = Command::new(&script)
+                    .arg(mode)
+                    .args(&run.args)
+                    .env("CABC_BIN", bin)
+                    .current_dir(root)
+                    .status()
+                    .with_context(|| format!("starting {}", script.display()))?;
+                if !status.success() {
+                    bail!("{}: run-local.sh failed ({status})", run.name);
+                }
+            }
+        }
+        let dir = root.join("runs").join(run.name.to_string());
+        if !self.dry_run && dir.is_dir() {
+            let to = root.join(RESULTS_DIR).join(run.name.to_string());
+            copy_results(&dir, &to).with_context(|| format!("copying {}'s results", run.name))?;
+        }
+        Ok(())
+    }
+}
+
+/// Redraws a group's figures and table (`cabc compare` over its result folders with a metrics.csv); a failure is
+/// reported, not returned.
+fn draw(root: &Path, bin: &Path, group: &str) {
+    let results = root.join(RESULTS_DIR);
+    let folders = match group_folders(&results, group) {
+        Ok(folders) if !folders.is_empty() => folders,
+        Ok(_) => return,
+        Err(e) => {
+            eprintln!("[reproduce] compare {group} failed: {e:#}");
             return;
         }
-        let results = root.join(RESULTS_DIR);
-        let folders = match group_folders(&results, group) {
-            Ok(folders) if !folders.is_empty() => folders,
-            Ok(_) => return,
-            Err(e) => {
-                eprintln!("[reproduce] compare {group} failed: {e:#}");
-                return;
+    };
+    let out = Command::new(bin.join("cabc"))
+        .arg("compare")
+        .arg("--out")
+        .arg(results.join(group))
+        .args(&folders)
+        .current_dir(root)
+        .output();
+    match out {
+        Ok(out) if out.status.success() => {
+            let table = results.join(format!("{group}-table.md"));
+            if let Err(e) = std::fs::write(&table, &out.stdout) {
+                eprintln!("[reproduce] writing {}: {e}", table.display());
             }
-        };
-        let out = Command::new(bin.join("cabc"))
-            .arg("compare")
-            .arg("--out")
-            .arg(results.join(group))
-            .args(&folders)
-            .current_dir(root)
-            .output();
-        match out {
-            Ok(out) if out.status.success() => {
-                let table = results.join(format!("{group}-table.md"));
-                if let Err(e) = std::fs::write(&table, &out.stdout) {
-                    eprintln!("[reproduce] writing {}: {e}", table.display());
-                }
-                print!("{}", String::from_utf8_lossy(&out.stdout));
-            }
-            Ok(out) => eprintln!(
-                "[reproduce] compare {group} failed ({}): {}",
-                out.status,
-                String::from_utf8_lossy(&out.stderr).trim_end()
-            ),
-            Err(e) => eprintln!("[reproduce] compare {group} failed: {e}"),
+            print!("{}", String::from_utf8_lossy(&out.stdout));
         }
+        Ok(out) => eprintln!(
+            "[reproduce] compare {group} failed ({}): {}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr).trim_end()
+        ),
+        Err(e) => eprintln!("[reproduce] compare {group} failed: {e}"),
     }
 }
 

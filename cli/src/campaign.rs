@@ -157,14 +157,13 @@ pub struct ReproduceArgs {
 }
 
 pub fn reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
-    let mut methods = vec![];
-    for word in args.methods.iter().flat_map(|m| m.split_whitespace()) {
-        methods.push(match word {
-            "proposed" => Method::Proposed,
-            "baseline" => Method::Baseline,
-            other => bail!("--methods: proposed and/or baseline, not {other}"),
-        });
-    }
+    let methods = args
+        .methods
+        .iter()
+        .flat_map(|m| m.split_whitespace())
+        .map(str::parse::<Method>)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(anyhow::Error::msg)?;
     if let Some(set) = args.sets.iter().find(|s| !s.contains('=')) {
         bail!("--set needs KEY=VALUE, not {set:?}");
     }
