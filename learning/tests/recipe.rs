@@ -10,7 +10,7 @@ use cabc_learning::replay::Replay;
 use cabc_learning::train::Trainer;
 use cabc_models::Network;
 use cabc_proto::config::{RunConfig, ScheduleKind};
-use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
+use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::{train, Resumed};
@@ -232,7 +232,63 @@ fn cloning_on_d_uncertain_takes_its_labelled_steps() {
         passes * (1024 + 256),
         "D?'s 256 labelled steps"
     );
-    let mut camera = RunConfig::load("v-c-ref").unwrap();
-    camera.training.clone_uncertain = true;
-    assert!(camera.validate("t").is_err(), "D? keeps no images");
+}
+
+/// `training.clone_uncertain` on a camera policy (V-A, V-C): D? keeps its images, and L_clone fits D?'s labelled
+/// steps each through its own image (a change to D?'s images changes the fit; without the key it changes nothing).
+#[test]
+fn a_camera_policy_clones_d_uncertain_through_its_images() {
+    let mut c = RunConfig::load("v-c-ref").unwrap();
+    c.training.device = "cpu".into();
+    c.training.schedule = ScheduleKind::EveryEpoch;
+    c.training.initial_passes = 1;
+    c.training.clone_uncertain = true;
+    c.validate("t").unwrap();
+    assert!(c.uncertain_images());
+    let side = c.observation.width as usize;
+    assert_eq!(c.observation.height as usize, side);
+    let replay = |uncertain_fill: u8| {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let with_image = |mut steps: Vec<Step>, fill: &dyn Fn(usize) -> u8| {
+            for (i, s) in steps.iter_mut().enumerate() {
+                s.image = Some(Image {
+                    width: side as u16,
+                    height: side as u16,
+                    rgb: (0..side * side * 3)
+                        .map(|k| fill(i).wrapping_add(k as u8))
+                        .collect(),
+                });
+            }
+            steps
+        };
+        let mut r = Replay::from_config(&c);
+        let lap = with_image(steps(256, &mut rng, 0.0), &|i| i as u8);
+        r.add_segment(&Segment::of("t", Outcome::Lap, lap)).unwrap();
+        let mut failed = with_image(steps(96, &mut rng, 5.0), &|i| uncertain_fill ^ i as u8);
+        for s in failed.iter_mut().take(32) {
+            s.expert_ok = false;
+            s.expert_action = [0.0, 0.0];
+        }
+        let failure = Outcome::Failure(EndReason::OutOfTrack);
+        r.add_segment(&Segment::of("t", failure, failed)).unwrap();
+        r.apply_labels(&[]);
+        r
+    };
+    let (r, other) = (replay(0), replay(77));
+    let images = r.uncertain.images.as_ref().expect("D? keeps its images");
+    assert_eq!(images.bytes.len(), 96 * side * side * 3);
+    assert_eq!(images.get(40)[0], 40, "step 40's own image");
+    let fit = |clone_uncertain: bool, r: &Replay| {
+        let mut c = c.clone();
+        c.training.clone_uncertain = clone_uncertain;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        let l = train(&mut t, 0, r);
+        (l.policy_samples, l.imitation)
+    };
+    let (samples, imitation) = fit(true, &r);
+    assert_eq!(samples, 256 + 64, "D?'s 64 labelled steps");
+    assert_ne!(fit(true, &other).1, imitation, "D?'s images are read");
+    let (samples, imitation) = fit(false, &r);
+    assert_eq!(samples, 256);
+    assert_eq!(fit(false, &other), (256, imitation), "D?'s images unread");
 }

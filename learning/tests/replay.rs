@@ -313,3 +313,84 @@ fn without_a_dynamics_only_store_nothing_is_kept_for_f_hat_alone() {
     );
     assert_eq!(r.uncertain.states[0][0], 4.0);
 }
+
+/// A camera policy that clones D? too (`training.clone_uncertain`): D? keeps its images within the byte budget
+/// (D+ gives up the room), auto-labelling keeps each image with its step (the points it moves to the dynamics-only
+/// store leave theirs behind), and D+'s and D?'s images share the image log: checkpointed, compacted, resumed.
+#[test]
+fn d_uncertain_keeps_its_images_for_a_camera_policy_that_clones_it() {
+    use cabc_proto::config::{ObservationKind, RunConfig, REPLAY_STEP_BYTES};
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.observation.kind = ObservationKind::Camera;
+    (config.observation.width, config.observation.height) = (16, 16);
+    config.training.clone_uncertain = true;
+    config.replay.capacity = 100;
+    let len = 16 * 16 * 3;
+    let reserve = 2 * 100 * REPLAY_STEP_BYTES + 100 * 24 + 100 * len as u64;
+    config.replay.max_bytes = reserve + 100 * (REPLAY_STEP_BYTES + len as u64);
+    config.validate("test").unwrap();
+    assert_eq!(config.plus_capacity(), 100, "D?'s images set aside");
+    config.replay.max_bytes -= 50 * (REPLAY_STEP_BYTES + len as u64);
+    assert_eq!(config.plus_capacity(), 50);
+    let mut r = Replay::from_config(&config);
+    // Step v carries an image filled with v % 256: D+ gets laps, D? failures.
+    let run = |outcome: Outcome, from: u32, n: u32| {
+        let steps = (from..from + n)
+            .map(|v| step(v as f32, true, Some(image(16, 16, v as u8))))
+            .collect();
+        segment(outcome, steps)
+    };
+    let failure = || Outcome::Failure(EndReason::OutOfTrack);
+    r.add_segment(&run(Outcome::Lap, 0, 30)).unwrap();
+    r.add_segment(&run(failure(), 100, 40)).unwrap();
+    let images = r.uncertain.images.as_ref().expect("D? keeps images");
+    assert!(images.get(7).iter().all(|&b| b == 107));
+    // Auto-labelling removes D? entries 0-9: each remaining image stays with its step.
+    r.apply_labels(&(0..10).collect::<Vec<_>>());
+    assert_eq!(r.len_uncertain(), 30);
+    let images = r.uncertain.images.as_ref().unwrap();
+    for (i, s) in r.uncertain.states.iter().enumerate() {
+        assert_eq!(images.get(i)[0], s[0] as u8, "entry {i}");
+    }
+    assert_eq!(r.len_dynamics_only(), 10);
+    assert!(r.dynamics_only.images.is_none(), "no images for f_hat");
+    // One log for both stores.
+    let tmp = tempfile::tempdir().unwrap();
+    let log_len = || {
+        std::fs::read_dir(tmp.path())
+            .unwrap()
+            .map(|e| e.unwrap().metadata().unwrap().len())
+            .sum::<u64>()
+    };
+    let mut log = None;
+    let bytes = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    assert_eq!(log_len(), (30 + 30) * len as u64);
+    let (back, _) = Replay::from_checkpoint(&bytes, tmp.path()).unwrap();
+    assert_eq!(back.uncertain, r.uncertain);
+    assert_eq!(back.plus, r.plus);
+    // Evictions in both stores until the log is compacted; the compacted log reads back both.
+    for k in 0..30 {
+        r.add_segment(&run(Outcome::Lap, 1000 + 60 * k, 30))
+            .unwrap();
+        r.add_segment(&run(failure(), 1030 + 60 * k, 30)).unwrap();
+        r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    }
+    assert_eq!((r.len_plus(), r.len_uncertain()), (50, 100));
+    let log = log.unwrap();
+    assert!(log.generation() >= 1, "no compaction");
+    log.prune().unwrap();
+    let mut log = Some(log);
+    let bytes = r.checkpoint_bytes(tmp.path(), &mut log).unwrap();
+    let (back, _) = Replay::from_checkpoint(&bytes, tmp.path()).unwrap();
+    assert_eq!(back.plus, r.plus);
+    assert_eq!(back.uncertain, r.uncertain);
+    let images = back.uncertain.images.as_ref().unwrap();
+    for (i, s) in back.uncertain.states.iter().enumerate() {
+        assert_eq!(images.get(i)[0], s[0] as u32 as u8, "entry {i}");
+    }
+    assert!(
+        r.bytes() as u64 <= config.replay.max_bytes,
+        "{} bytes",
+        r.bytes()
+    );
+}

@@ -169,11 +169,22 @@ impl RunConfig {
         }
     }
 
-    /// What the replay sets aside for D?, the dynamics-only store (steps without images) and D- (states), at
-    /// full capacity.
+    /// Whether D? keeps its steps' images: a camera policy that clones D? too (`training.clone_uncertain`) reads
+    /// them; otherwise only D+'s images are read.
+    pub fn uncertain_images(&self) -> bool {
+        self.training.clone_uncertain && self.observation.kind == ObservationKind::Camera
+    }
+
+    /// What the replay sets aside for D? (with its images when [`RunConfig::uncertain_images`]), the
+    /// dynamics-only store (steps without images) and D- (states), at full capacity.
     fn replay_reserve(&self) -> u64 {
         let capacity = self.replay.capacity as u64;
-        2 * capacity * REPLAY_STEP_BYTES + capacity * 6 * 4
+        let uncertain_images = if self.uncertain_images() {
+            capacity * self.image_bytes()
+        } else {
+            0
+        };
+        2 * capacity * REPLAY_STEP_BYTES + capacity * 6 * 4 + uncertain_images
     }
 
     /// D+'s capacity in steps: `replay.capacity`, or fewer when `replay.max_bytes` cannot hold that many steps

@@ -11,7 +11,8 @@
 //!   removed from D? (still good (x, u, x') samples for f_hat).
 //!
 //! Each store is a structure of arrays with a fixed capacity (`replay.capacity`); once full, a new step overwrites a
-//! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store.
+//! uniformly drawn entry (random eviction, seeded). Camera images sit in one contiguous u8 array per store: D+'s
+//! always, D?'s when a camera policy clones D? too (`training.clone_uncertain`); both go to the same image log.
 
 mod log;
 mod read;
@@ -184,7 +185,7 @@ impl Replay {
     }
 
     /// Empty buffers: D+ of `plus` steps, the others of `capacity` steps. Only D+ keeps images (only the policy's
-    /// training reads them).
+    /// training reads them), unless [`Replay::with_uncertain_images`].
     pub fn with_capacities(plus: usize, capacity: usize, seed: u64) -> Self {
         Replay {
             frames: Frames::Any,
@@ -199,12 +200,23 @@ impl Replay {
     }
 
     /// Capacity `replay.capacity` (D+: within `replay.max_bytes`, [`RunConfig::plus_capacity`]), seed derived
-    /// from `run.seed`, images of `observation` ([`Frames::of`]).
+    /// from `run.seed`, images of `observation` ([`Frames::of`]), D?'s too where the policy reads them
+    /// ([`RunConfig::uncertain_images`]).
     pub fn from_config(config: &RunConfig) -> Self {
         let seed = config.run.seed ^ 0x5245_504c_4159;
         Replay::with_capacities(config.plus_capacity(), config.replay.capacity, seed)
             .with_frames(Frames::of(config))
             .with_dynamics_only(config.replay.dynamics_only)
+            .with_uncertain_images(config.uncertain_images())
+    }
+
+    /// The same replay (still empty), D? keeping its steps' images as D+ does, or dropping them: a camera policy
+    /// that clones D?'s states too (`training.clone_uncertain`) reads them. The points auto-labelling moves to the
+    /// dynamics-only store leave their images behind.
+    pub fn with_uncertain_images(mut self, keep: bool) -> Self {
+        debug_assert!(self.uncertain.is_empty(), "before any step is added");
+        self.uncertain = Store::new(self.uncertain.capacity(), keep);
+        self
     }
 
     /// The same replay, keeping a dynamics-only store (`replay.dynamics_only`, ours) or dropping what would go
@@ -366,33 +378,41 @@ impl Replay {
         self.minus = self.uncertain.states.clone();
     }
 
-    /// The replay as bytes for the checkpoint (magic, version, bincode), after appending D+'s images written since
-    /// the last checkpoint to the image log in `dir` (`log`: the one open, created on the first images; compacted
-    /// into a new generation first when mostly dead; see [`ImageLog`]). Nothing of the replay is copied.
+    /// The replay as bytes for the checkpoint (magic, version, bincode), after appending the images written since
+    /// the last checkpoint (D+'s, then D?'s when it keeps them) to the image log in `dir` (`log`: the one open,
+    /// created on the first images; compacted into a new generation first when mostly dead; see [`ImageLog`]).
+    /// Nothing of the replay is copied.
     pub fn checkpoint_bytes(
         &mut self,
         dir: &Path,
         log: &mut Option<ImageLog>,
     ) -> Result<Vec<u8>, ReplayError> {
-        let image_log = match self.plus.images.as_mut() {
+        let mut stores: Vec<&mut ImageStore> =
+            [self.plus.images.as_mut(), self.uncertain.images.as_mut()]
+                .into_iter()
+                .flatten()
+                .collect();
+        let image_log = match stores.first().map(|s| s.image_len()) {
             None => None,
-            Some(images) => {
-                let len = images.image_len();
+            Some(len) => {
+                if stores.iter().any(|s| s.image_len() != len) {
+                    return Err(ReplayError::Log(
+                        "D+ and D? hold images of different sizes".into(),
+                    ));
+                }
                 if log.is_none() {
                     *log = Some(ImageLog::create(dir, 0, len)?);
                 }
                 let log = log.as_mut().expect("set above");
-                let live = images.records.len() as u64;
-                if log.wants_compaction(live) {
+                let live: u64 = stores.iter().map(|s| s.records.len() as u64).sum();
+                let compact = log.wants_compaction(live);
+                if compact {
                     let dir = log.dir().to_path_buf();
-                    let mut fresh = ImageLog::create(&dir, log.generation() + 1, len)?;
+                    *log = ImageLog::create(&dir, log.generation() + 1, len)?;
+                }
+                for images in &mut stores {
                     for (i, record) in images.records.iter_mut().enumerate() {
-                        *record = fresh.append(&images.bytes[i * len..(i + 1) * len])?;
-                    }
-                    *log = fresh;
-                } else {
-                    for (i, record) in images.records.iter_mut().enumerate() {
-                        if *record == store::NOT_LOGGED {
+                        if compact || *record == store::NOT_LOGGED {
                             *record = log.append(&images.bytes[i * len..(i + 1) * len])?;
                         }
                     }
@@ -425,64 +445,73 @@ impl Replay {
 
     /// The bytes of a replay without images (tests, tools); see [`Replay::checkpoint_bytes`].
     pub fn to_bytes(&mut self) -> Result<Vec<u8>, ReplayError> {
-        if self.plus.images.is_some() {
+        if self.plus.images.is_some() || self.uncertain.images.is_some() {
             return Err(ReplayError::Log(
-                "D+ holds images: use checkpoint_bytes with a folder".into(),
+                "the replay holds images: use checkpoint_bytes with a folder".into(),
             ));
         }
         self.checkpoint_bytes(Path::new("."), &mut None)
     }
 
-    /// Reads what [`Replay::checkpoint_bytes`] wrote (or versions 1 and 2), with D+'s images from the image log in
-    /// `dir` (the run folder); returns the log to go on appending to.
+    /// Reads what [`Replay::checkpoint_bytes`] wrote (or versions 1 and 2), with D+'s (and D?'s) images from the
+    /// image log in `dir` (the run folder); returns the log to go on appending to.
     pub fn from_checkpoint(
         bytes: &[u8],
         dir: &Path,
     ) -> Result<(Self, Option<ImageLog>), ReplayError> {
         let mut saved = Saved::decode(bytes)?;
+        for (name, store) in [("D+", &saved.plus), ("D?", &saved.uncertain)] {
+            if store
+                .images
+                .as_ref()
+                .is_some_and(|i| i.records.len() != store.len())
+            {
+                return Err(ReplayError::Decode(format!(
+                    "{name} slots and image records differ"
+                )));
+            }
+        }
         let plus_empty = saved.plus.is_empty();
-        let log = match (saved.image_log, saved.plus.images.as_mut()) {
-            (Some(at), Some(images)) => {
-                let log = ImageLog::open(dir, at.generation, at.records, at.record_len)?;
-                if images.image_len() != at.record_len {
-                    return Err(ReplayError::Log(format!(
-                        "records of {} bytes for {}x{} images",
-                        at.record_len, images.width, images.height
-                    )));
-                }
-                images.bytes = vec![0; images.records.len() * at.record_len];
-                for (i, &record) in images.records.iter().enumerate() {
-                    log.read(
-                        record,
-                        &mut images.bytes[i * at.record_len..(i + 1) * at.record_len],
-                    )?;
-                }
-                Some(log)
-            }
-            (None, Some(images)) if images.records.iter().any(|&r| r != store::NOT_LOGGED) => {
-                return Err(ReplayError::Decode("D+ images without an image log".into()))
-            }
-            // Versions 1 and 2: the images came inline; they go to a new log at the next checkpoint.
-            (None, Some(_)) => None,
-            (Some(_), None) if plus_empty => None,
-            (Some(_), None) => {
+        let mut stores: Vec<&mut ImageStore> =
+            [saved.plus.images.as_mut(), saved.uncertain.images.as_mut()]
+                .into_iter()
+                .flatten()
+                .collect();
+        let log = match saved.image_log {
+            Some(_) if stores.is_empty() && plus_empty => None,
+            Some(_) if stores.is_empty() => {
                 return Err(ReplayError::Decode(
                     "an image log for D+ without images".into(),
                 ))
             }
-            (None, None) => None,
+            Some(at) => {
+                let log = ImageLog::open(dir, at.generation, at.records, at.record_len)?;
+                for images in &mut stores {
+                    if images.image_len() != at.record_len {
+                        return Err(ReplayError::Log(format!(
+                            "records of {} bytes for {}x{} images",
+                            at.record_len, images.width, images.height
+                        )));
+                    }
+                    images.bytes = vec![0; images.records.len() * at.record_len];
+                    for (i, &record) in images.records.iter().enumerate() {
+                        log.read(
+                            record,
+                            &mut images.bytes[i * at.record_len..(i + 1) * at.record_len],
+                        )?;
+                    }
+                }
+                Some(log)
+            }
+            None if stores
+                .iter()
+                .any(|i| i.records.iter().any(|&r| r != store::NOT_LOGGED)) =>
+            {
+                return Err(ReplayError::Decode("images without an image log".into()))
+            }
+            // Versions 1 and 2: D+'s images came inline; they go to a new log at the next checkpoint.
+            None => None,
         };
-        if saved.plus.len()
-            != saved
-                .plus
-                .images
-                .as_ref()
-                .map_or(saved.plus.len(), |i| i.records.len())
-        {
-            return Err(ReplayError::Decode(
-                "D+ slots and image records differ".into(),
-            ));
-        }
         let mut rng = ChaCha8Rng::from_seed(saved.rng_seed);
         rng.set_stream(saved.rng_stream);
         rng.set_word_pos(saved.rng_word_pos);

@@ -48,11 +48,17 @@ impl ReplaySnapshot {
                         at.record_len, images.width, images.height
                     )));
                 }
-                if let Some(&r) = images.records.iter().find(|&&r| r >= at.records) {
-                    return Err(ReplayError::Log(format!(
-                        "a D+ slot names record {r} of a log of {} committed records",
-                        at.records
-                    )));
+                for (name, store) in [
+                    ("D+", Some(images)),
+                    ("D?", saved.uncertain.images.as_ref()),
+                ] {
+                    let Some(store) = store else { continue };
+                    if let Some(&r) = store.records.iter().find(|&&r| r >= at.records) {
+                        return Err(ReplayError::Log(format!(
+                            "a {name} slot names record {r} of a log of {} committed records",
+                            at.records
+                        )));
+                    }
                 }
                 let path = ImageLog::path(dir, at.generation);
                 let io = |e: std::io::Error| ReplayError::Log(format!("{}: {e}", path.display()));

@@ -57,8 +57,8 @@ pub enum TrainError {
     Checkpoint(#[from] CheckpointError),
     #[error("{path}: {message}")]
     State { path: String, message: String },
-    #[error("the camera policy needs images, and D+ holds none")]
-    NoImages,
+    #[error("the camera policy needs images, and {0} holds none")]
+    NoImages(&'static str),
 }
 
 /// The three networks, their optimisers, the epoch counter and the batch-shuffling RNG.

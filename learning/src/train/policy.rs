@@ -49,33 +49,40 @@ struct Pass {
 }
 
 impl Trainer {
-    /// The states and expert labels L_clone fits: D+ (Algorithm 1, the reference), then with
-    /// `training.clone_uncertain` D?'s states (L_safety stays on the D+ rows) whose label is the expert's (the actor labels a step where the expert
-    /// failed with [0, 0], `cabc_actor::collect`; an exact zero from MPCC has measure zero), for a full-state policy.
-    fn clone_set(&self, data: &Uploaded, camera: bool) -> (Tensor, Tensor) {
+    /// D?'s rows that L_clone fits besides D+ (Algorithm 1 and the reference: none): with
+    /// `training.clone_uncertain`, the D? steps whose label is the expert's (the actor labels a step where the
+    /// expert failed with [0, 0], `cabc_actor::collect`; an exact zero from MPCC has measure zero), in D?'s order.
+    fn cloned_uncertain(&self, replay: &Replay) -> Vec<i64> {
+        if !self.config.training.clone_uncertain {
+            return Vec::new();
+        }
+        let labelled = |a: &[f32; 2]| a.iter().map(|v| v.abs()).sum::<f32>() > 0.0;
+        (0..replay.uncertain.len() as i64)
+            .filter(|&i| labelled(&replay.uncertain.expert_actions[i as usize]))
+            .collect()
+    }
+
+    /// The states and expert labels L_clone fits: D+, then D?'s `cloned` rows ([`Trainer::cloned_uncertain`];
+    /// L_safety stays on the D+ rows).
+    fn clone_set(&self, data: &Uploaded, cloned: &[i64]) -> (Tensor, Tensor) {
         let plus = (
             data.plus.states.shallow_clone(),
             data.plus.expert_actions.shallow_clone(),
         );
-        if !self.config.training.clone_uncertain || camera || data.uncertain.len == 0 {
+        if cloned.is_empty() {
             return plus;
         }
         let u = &data.uncertain;
-        let labelled = u
-            .expert_actions
-            .abs()
-            .sum_dim_intlist(&[1i64][..], false, Kind::Float)
-            .gt(0.0)
-            .nonzero()
-            .squeeze_dim(1);
+        let rows = Tensor::from_slice(cloned).to_device(self.device);
         (
-            Tensor::cat(&[&plus.0, &u.states.index_select(0, &labelled)], 0),
-            Tensor::cat(&[&plus.1, &u.expert_actions.index_select(0, &labelled)], 0),
+            Tensor::cat(&[&plus.0, &u.states.index_select(0, &rows)], 0),
+            Tensor::cat(&[&plus.1, &u.expert_actions.index_select(0, &rows)], 0),
         )
     }
 
     /// One fit call of pi_theta on D+, eq. (14), at lambda_j of the next epoch ([`RunConfig::lambda`]). With fewer than `batch_size` steps in D+ nothing trains (the rng and
-    /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images.
+    /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images (and
+    /// D?'s, when it clones D? too).
     pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
         let data = self.upload(replay);
         let lambda = self.config.lambda(self.epochs_trained);
@@ -96,13 +103,17 @@ impl Trainer {
             return Ok(PolicyFit::default());
         }
         let safety_active = lambda > 0.0 && self.critic_trained;
-        let images = match (self.policy.arch(), &plus.images) {
-            (PolicyArch::Camera { .. }, None) => return Err(TrainError::NoImages),
-            (PolicyArch::Camera { .. }, Some(images)) => Some(images),
-            (PolicyArch::State { .. }, _) => None,
+        let cloned = self.cloned_uncertain(replay);
+        let images = match (self.policy.arch(), &plus.images, &replay.uncertain.images) {
+            (PolicyArch::Camera { .. }, None, _) => return Err(TrainError::NoImages("D+")),
+            (PolicyArch::Camera { .. }, Some(_), None) if !cloned.is_empty() => {
+                return Err(TrainError::NoImages("D?"))
+            }
+            (PolicyArch::Camera { .. }, Some(plus), uncertain) => Some((plus, uncertain)),
+            (PolicyArch::State { .. }, ..) => None,
         };
         let dev = self.device;
-        let (x_all, label_all) = self.clone_set(data, images.is_some());
+        let (x_all, label_all) = self.clone_set(data, &cloned);
         let (x_all, label_all) = (&x_all, &label_all);
         let n_plus = plus.len();
         // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
@@ -135,12 +146,18 @@ impl Trainer {
             |b, pass: &mut Pass| {
                 let x = x_all.index_select(0, &b.idx);
                 let input = match images {
-                    Some(images) => PolicyInput::camera(
+                    Some((images, uncertain_images)) => PolicyInput::camera(
                         images.width,
                         images.height,
                         b.rows.iter().map(|&i| {
                             let i = i as usize;
-                            (images.get(i), velocity_of(&plus.states[i]))
+                            match uncertain_images {
+                                Some(u) if i >= n_plus => {
+                                    let j = cloned[i - n_plus] as usize;
+                                    (u.get(j), velocity_of(&replay.uncertain.states[j]))
+                                }
+                                _ => (images.get(i), velocity_of(&plus.states[i])),
+                            }
                         }),
                     )?,
                     None => PolicyInput::State(x.shallow_clone()),

@@ -301,8 +301,8 @@ pub struct TrainingSection {
     /// L_clone also on D?'s states, with the expert's labels (the steps where the expert failed excepted): DAgger's
     /// aggregate, where the reference and Algorithm 1's diagram clone D+ alone. The states where the policy left the
     /// track, and the expert's corrections there, are then in the policy's training set; L_safety stays on D+'s
-    /// states (at a D? state every action may lead out of the safe set). Full-state policies only (D? keeps no
-    /// images). false (the reference): D+ alone.
+    /// states (at a D? state every action may lead out of the safe set). A camera policy reads D?'s images, which
+    /// D? then keeps (within `replay.max_bytes`, [`super::RunConfig::uncertain_images`]). false (the reference): D+ alone.
     pub clone_uncertain: bool,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.

@@ -53,13 +53,6 @@ impl RunConfig {
                 "must lie in [0, 1): the share of the old average kept each epoch (0: no average)",
             );
         }
-        if self.training.clone_uncertain && self.observation.kind == ObservationKind::Camera {
-            return invalid(
-                "training.clone_uncertain",
-                "true".into(),
-                "needs a full-state policy: D? keeps no images",
-            );
-        }
         if !(self.training.lr_min >= 0.0 && self.training.lr_min.is_finite()) {
             return invalid(
                 "training.lr_min",
