@@ -9,7 +9,7 @@ use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
 use cabc_proto::config::ClipScope;
 #[allow(unused_imports)] // the doc link
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::velocity_of;
+use cabc_proto::messages::{velocity_of, ACTION_DIM};
 use tch::{Kind, Reduction, Tensor};
 
 /// L_clone, eq. (6) and the first term of eq. (14): || pi_theta(y) - pi_beta(x) ||^2, mean over batch and action.
@@ -56,7 +56,7 @@ impl Trainer {
         if !self.config.training.clone_uncertain {
             return Vec::new();
         }
-        let labelled = |a: &[f32; 2]| a.iter().map(|v| v.abs()).sum::<f32>() > 0.0;
+        let labelled = |a: &[f32; ACTION_DIM]| a.iter().map(|v| v.abs()).sum::<f32>() > 0.0;
         (0..replay.uncertain.len() as i64)
             .filter(|&i| labelled(&replay.uncertain.expert_actions[i as usize]))
             .collect()
