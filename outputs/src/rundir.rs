@@ -2,14 +2,23 @@
 //!
 //! The checkpoint (`checkpoint/`) is the learner's ([`cabc_learning::state::LearnerState::save`]), written by the one writer,
 //! [`cabc_learning::checkpoint`], which also says how a crash mid-write leaves the previous checkpoint intact.
+//!
+//! One run at a time in a folder: a [`RunDir`] holds an exclusive lock on `<run>/lock` (the process's id written
+//! in it) for as long as it lives, so a second launch of the same run (a second lane of a one-lane campaign, a
+//! second `deploy/run-local.sh`) stops at once with [`RunDirError::InUse`], before it rewrites `config.toml`,
+//! discards the checkpoint or starts an actor whose trajectories would go to the first run's learner. The lock is
+//! the operating system's (`flock` on Unix, opened close-on-exec so that no child keeps it), so it goes with the
+//! process that held it, a crash included.
 
 use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
 use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::Record;
 use cabc_learning::state::CHECKPOINT;
 use cabc_proto::config::RunConfig;
-use std::io::Write;
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Errors of the run folder.
 #[derive(Debug, thiserror::Error)]
@@ -23,6 +32,10 @@ pub enum RunDirError {
     Format { path: PathBuf, message: String },
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    #[error(
+        "{path} is in use by another run (process {holder} holds {path}/lock): one run at a time in a run folder"
+    )]
+    InUse { path: PathBuf, holder: String },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
@@ -32,21 +45,28 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
     }
 }
 
-/// A run folder.
+/// A run folder, locked for this process while the value (or a clone of it) lives.
 #[derive(Clone, Debug)]
 pub struct RunDir {
     root: PathBuf,
+    /// `<run>/lock`, locked exclusively; the lock goes when the last clone is dropped.
+    _lock: Arc<File>,
 }
 
 impl RunDir {
-    /// `runs_dir/<name>`, created with `logs/` and `plots/`.
+    /// `runs_dir/<name>`, created with `logs/` and `plots/`, and locked: [`RunDirError::InUse`] when another
+    /// [`RunDir`] of the same folder lives, in this process or another.
     pub fn create(root: impl Into<PathBuf>) -> Result<Self, RunDirError> {
         let root = root.into();
         for sub in ["logs", "plots"] {
             let p = root.join(sub);
             std::fs::create_dir_all(&p).map_err(io(&p))?;
         }
-        Ok(RunDir { root })
+        let lock = lock(&root)?;
+        Ok(RunDir {
+            root,
+            _lock: Arc::new(lock),
+        })
     }
 
     /// The run folder of `config` (`<runs_dir>/<run name>`, or `dir`), created, with `config.toml` written into it.
@@ -133,6 +153,59 @@ impl RunDir {
     }
 }
 
+/// Takes `<root>/lock` exclusively and writes this process's id into it.
+fn lock(root: &Path) -> Result<File, RunDirError> {
+    let path = root.join("lock");
+    let mut file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(io(&path))?;
+    if !try_lock_exclusive(&file).map_err(io(&path))? {
+        // The holder's id, for the message: at most 32 bytes of it (a file on disk, so believed no further).
+        let mut holder = String::new();
+        let _ = (&file).take(32).read_to_string(&mut holder);
+        let holder = holder.trim();
+        return Err(RunDirError::InUse {
+            path: root.to_path_buf(),
+            holder: if holder.is_empty() {
+                "unknown".into()
+            } else {
+                holder.into()
+            },
+        });
+    }
+    file.set_len(0).map_err(io(&path))?;
+    file.rewind().map_err(io(&path))?;
+    writeln!(file, "{}", std::process::id()).map_err(io(&path))?;
+    Ok(file)
+}
+
+/// `flock(LOCK_EX | LOCK_NB)`: whether the lock was taken (false: another open file holds it). The workspace's
+/// Rust (1.85) predates `File::try_lock`.
+#[cfg(unix)]
+fn try_lock_exclusive(file: &File) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: flock takes a descriptor that `file` owns and keeps open for the call; no memory crosses.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+/// Elsewhere a run folder is not locked.
+#[cfg(not(unix))]
+fn try_lock_exclusive(_file: &File) -> std::io::Result<bool> {
+    Ok(true)
+}
+
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
     let tmp = path.with_extension("tmp");
     let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
@@ -145,6 +218,42 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
 mod tests {
     use super::*;
     use cabc_proto::messages::{EndReason, EvalReport};
+
+    #[test]
+    fn a_run_folder_holds_one_run_at_a_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let first = RunDir::create(dir.path()).unwrap();
+        let held = std::fs::read_to_string(dir.path().join("lock")).unwrap();
+        assert_eq!(held.trim(), std::process::id().to_string());
+        // A second launch of the run stops before it touches the folder: no config written, no checkpoint removed.
+        let config = RunConfig::load("smoke").unwrap();
+        for second in [
+            RunDir::create(dir.path()),
+            RunDir::prepare(&config, Some(dir.path().to_path_buf()), true),
+        ] {
+            match second {
+                Err(RunDirError::InUse { path, holder }) => {
+                    assert_eq!(path, dir.path());
+                    assert_eq!(holder, std::process::id().to_string());
+                }
+                other => panic!("a second run in the folder: {other:?}"),
+            }
+        }
+        assert!(!dir.path().join("config.toml").exists());
+        // A clone shares the lock; the folder is free once the last one is dropped.
+        let clone = first.clone();
+        drop(first);
+        assert!(matches!(
+            RunDir::create(dir.path()),
+            Err(RunDirError::InUse { .. })
+        ));
+        drop(clone);
+        let again = RunDir::create(dir.path()).unwrap();
+        assert_eq!(again.path(), dir.path());
+        // Another folder is another lock.
+        let other = tempfile::tempdir().unwrap();
+        RunDir::create(other.path()).unwrap();
+    }
 
     #[test]
     fn tables_are_written() {
