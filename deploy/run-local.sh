@@ -58,6 +58,28 @@ actors=$("$bin/cabc" show --config "$cfg" actors.count)
 evaluators=$("$bin/cabc" show --config "$cfg" actors.evaluators)
 echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s); logs in $logs" >&2
 
+# The learner hosts the run's bus on its TCP endpoints (bus.listen: tcp/ or tls/ HOST:PORT). One that already
+# accepts connections belongs to another run on this machine: this run's learner could not open it, and this run's
+# actors would join the other run's bus. Refused here, before any process starts.
+listen_ports=()
+for endpoint in $(grep -oE '(tcp|tls)/[^",]+' <<<"$("$bin/cabc" show --config "$cfg" bus.listen)"); do
+  address=${endpoint#*/}
+  address=${address%%[#?]*}
+  host=${address%:*}
+  host=${host#[}
+  host=${host%]}
+  case "$host" in 0.0.0.0 | "") host=127.0.0.1 ;; "::") host=::1 ;; esac
+  listen_ports+=("$host/${address##*:}")
+done
+accepting() { (exec 3<>"/dev/tcp/$1") 2>/dev/null; }
+for hp in "${listen_ports[@]}"; do
+  if accepting "$hp"; then
+    echo "[run-local] error: ${hp/\//:} (bus.listen) is in use: another run on this machine? Give this run its own port:" \
+      "--set 'bus.listen=[\"tcp/127.0.0.1:PORT\"]' --set 'bus.connect=[\"tcp/127.0.0.1:PORT\"]'" >&2
+    exit 1
+  fi
+done
+
 # This script writes each process's stderr into its log (panics included): the binaries' own log files would be a
 # second copy.
 export CABC_NO_LOG_FILE=1
@@ -77,7 +99,24 @@ trap cleanup INT TERM EXIT
 "$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee -a "$logs/learner.log" >&2) &
 learner_pid=$!
 pids+=("$learner_pid")
-sleep 1
+# The others start once the learner's bus accepts connections (up to 60 s; without a TCP endpoint, after 1 s); a
+# learner that ends before that (a run folder in use, a bad configuration) ends the run here.
+for _ in $(seq 1 600); do
+  if ! kill -0 "$learner_pid" 2>/dev/null; then
+    status=0
+    wait "$learner_pid" || status=$?
+    echo "[run-local] error: the learner ended (exit $status) before its bus opened; see $logs/learner.log" >&2
+    exit $((status == 0 ? 1 : status))
+  fi
+  if [ ${#listen_ports[@]} -eq 0 ]; then
+    sleep 1
+    break
+  fi
+  ready=1
+  for hp in "${listen_ports[@]}"; do accepting "$hp" || ready=0; done
+  [ "$ready" = 1 ] && break
+  sleep 0.1
+done
 "$bin/expert-server" serve --config "$cfg" --id 0 2>> "$logs/expert-server-0.log" &
 pids+=($!)
 for i in $(seq 0 $((actors - 1))); do

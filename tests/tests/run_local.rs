@@ -1,0 +1,109 @@
+//! `deploy/run-local.sh`, the README's first command, on the release binaries (`CABC_BIN`: nothing is built): it
+//! trains a run to its summary with every process's log in the run folder, and a bus endpoint that another run
+//! already holds stops it before any of its processes starts.
+
+use std::net::TcpListener;
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// `deploy/run-local.sh smoke ARGS` for a run named `name` in `runs` on loopback port `port`, to its end (at most
+/// 300 s).
+fn run_local(runs: &Path, name: &str, port: u16, args: &[&str]) -> Output {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/run-local.sh");
+    let endpoint = format!("[\"tcp/127.0.0.1:{port}\"]");
+    let mut command = Command::new("bash");
+    command
+        .arg(&script)
+        .env("CABC_BIN", cabc_tests::bin_dir())
+        .args(["--set", &format!("bus.listen={endpoint}")])
+        .args(["--set", &format!("bus.connect={endpoint}")])
+        .args([
+            "--set",
+            &format!("run.runs_dir={:?}", runs.display().to_string()),
+        ])
+        .args(["--set", &format!("run.name=\"{name}\"")])
+        .args(["--set", "training.device=\"cpu\""])
+        .arg("smoke")
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let mut child = command.spawn().expect("bash deploy/run-local.sh");
+    let start = Instant::now();
+    while child
+        .try_wait()
+        .expect("waiting for run-local.sh")
+        .is_none()
+    {
+        if start.elapsed() > Duration::from_secs(300) {
+            let _ = child.kill();
+            panic!("run-local.sh ran past 300 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    child.wait_with_output().expect("run-local.sh's output")
+}
+
+#[test]
+fn run_local_trains_a_run_to_its_summary() {
+    let tmp = cabc_tests::test_dir();
+    let out = run_local(
+        tmp.path(),
+        "local",
+        cabc_tests::free_port(),
+        &["--set", "run.max_epochs=2"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let run = tmp.path().join("local");
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["epochs"], 2, "{summary:#}");
+    // The smoke preset: two actors, one evaluator, one expert server, each with its log.
+    for log in ["learner", "expert-server-0", "actor-0", "actor-1", "eval"] {
+        let path = run.join("logs").join(format!("{log}.log"));
+        assert!(path.exists(), "{} missing; {stderr}", path.display());
+    }
+}
+
+#[test]
+fn run_local_refuses_a_bus_endpoint_another_run_holds() {
+    let tmp = cabc_tests::test_dir();
+    let held = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = held.local_addr().unwrap().port();
+    let out = run_local(tmp.path(), "second", port, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!("127.0.0.1:{port} (bus.listen) is in use")),
+        "{stderr}"
+    );
+    // Refused before any process started: no process's log, and no checkpoint.
+    let run = tmp.path().join("second");
+    let logs: Vec<_> = std::fs::read_dir(run.join("logs"))
+        .map(|d| d.map(|e| e.unwrap().file_name()).collect())
+        .unwrap_or_default();
+    assert!(logs.is_empty(), "{logs:?}");
+    assert!(!run.join("checkpoint").exists());
+}
+
+#[test]
+fn run_local_stops_when_the_learner_ends_before_its_bus_opens() {
+    let tmp = cabc_tests::test_dir();
+    // An argument the learner refuses: it exits (2) at once.
+    let out = run_local(
+        tmp.path(),
+        "refused",
+        cabc_tests::free_port(),
+        &["--", "--no-such-flag"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("the learner ended (exit 2) before its bus opened"),
+        "{stderr}"
+    );
+    let logs = tmp.path().join("refused").join("logs");
+    assert!(logs.join("learner.log").exists());
+    assert!(!logs.join("actor-0.log").exists(), "no actor started");
+}
