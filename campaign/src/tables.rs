@@ -71,6 +71,8 @@ fn draw(root: &Path, compare: &[String], args: &[String], folders: &[PathBuf]) -
 
 /// Puts a table's rows (its lines starting with '|') after the line starting with `<!-- NAME-table` in `doc`, in
 /// place of what was there up to the line starting with `<!-- end NAME-table -->`; `doc` unchanged without markers.
+/// Where the table file holds several tables (a view's per-seed table, then its statistics over seeds), a blank
+/// line keeps them apart: Markdown would read the second one's rows as the first one's.
 pub fn splice(doc: &str, name: &str, table: &str) -> String {
     let (start, end) = (
         format!("<!-- {name}-table"),
@@ -87,9 +89,19 @@ pub fn splice(doc: &str, name: &str, table: &str) -> String {
             out.push('\n');
         }
         if line.starts_with(&start) {
-            for row in table.lines().filter(|l| l.starts_with('|')) {
+            let (mut rows, mut gap) = (0, false);
+            for row in table.lines() {
+                if !row.starts_with('|') {
+                    gap = rows > 0;
+                    continue;
+                }
+                if gap {
+                    out.push('\n');
+                    gap = false;
+                }
                 out.push_str(row);
                 out.push('\n');
+                rows += 1;
             }
             skip = true;
         }
@@ -151,6 +163,13 @@ mod tests {
             "a\n<!-- v-table: refreshed -->\n| new |\n|---|\n| 1 |\n<!-- end v-table -->\nb\n<!-- w-table -->\n| w |\n"
         );
         assert_eq!(splice(doc, "x", table), doc);
+        // A view's two tables stay two tables.
+        let two =
+            "Per seed.\n\n| a |\n|---|\n| 1 |\n\nOver seeds.\n\n| b | c |\n|---|---|\n| 2 | 3 |\n";
+        assert_eq!(
+            splice(doc, "v", two),
+            "a\n<!-- v-table: refreshed -->\n| a |\n|---|\n| 1 |\n\n| b | c |\n|---|---|\n| 2 | 3 |\n<!-- end v-table -->\nb\n<!-- w-table -->\n| w |\n"
+        );
     }
 
     #[test]
