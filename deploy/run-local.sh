@@ -101,16 +101,13 @@ learner_pid=$!
 pids+=("$learner_pid")
 # The others start once the learner's bus accepts connections (up to 60 s; without a TCP endpoint, after 1 s); a
 # learner that ends before that (a run folder in use, a bad configuration) ends the run here.
+[ ${#listen_ports[@]} -eq 0 ] && sleep 1
 for _ in $(seq 1 600); do
   if ! kill -0 "$learner_pid" 2>/dev/null; then
     status=0
     wait "$learner_pid" || status=$?
     echo "[run-local] error: the learner ended (exit $status) before its bus opened; see $logs/learner.log" >&2
     exit $((status == 0 ? 1 : status))
-  fi
-  if [ ${#listen_ports[@]} -eq 0 ]; then
-    sleep 1
-    break
   fi
   ready=1
   for hp in "${listen_ports[@]}"; do accepting "$hp" || ready=0; done

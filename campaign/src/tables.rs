@@ -89,10 +89,10 @@ pub fn splice(doc: &str, name: &str, table: &str) -> String {
             out.push('\n');
         }
         if line.starts_with(&start) {
-            let (mut rows, mut gap) = (0, false);
+            let (mut seen, mut gap) = (false, false);
             for row in table.lines() {
                 if !row.starts_with('|') {
-                    gap = rows > 0;
+                    gap = seen;
                     continue;
                 }
                 if gap {
@@ -101,7 +101,7 @@ pub fn splice(doc: &str, name: &str, table: &str) -> String {
                 }
                 out.push_str(row);
                 out.push('\n');
-                rows += 1;
+                seen = true;
             }
             skip = true;
         }
