@@ -28,11 +28,12 @@ pub struct CompareOptions {
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
     /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png (with --by-group:
-    /// <OUT>-groups.png).
+    /// <OUT>-groups.png and <OUT>-first50.png).
     #[arg(long, default_value = "compare")]
     pub out: PathBuf,
     /// The ablation view: the runs grouped by name less `-s<k>`, a row per group and a column per seed
-    /// ([`crate::groups`]), and the late evaluations' steps per group in <OUT>-groups.png.
+    /// ([`crate::groups`]), the late evaluations' steps per group in <OUT>-groups.png and the first 50-lap version
+    /// per group in <OUT>-first50.png.
     #[arg(long)]
     pub by_group: bool,
 }
@@ -45,12 +46,14 @@ pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
         .map(|dir| RunRecord::read(dir))
         .collect::<Result<Vec<_>, _>>()?;
     if options.by_group {
-        let figure =
+        let figures =
             crate::groups::draw(&records, &options.out).map_err(|e| CompareError::Draw {
                 path: options.out.clone(),
                 why: e.to_string(),
             })?;
-        tracing::info!("wrote {}", figure.display());
+        for figure in figures {
+            tracing::info!("wrote {}", figure.display());
+        }
         return Ok(crate::groups::table(&records));
     }
     for figure in draw(&records, &options.out)? {

@@ -3,10 +3,12 @@
 //! appear on the command line; per group and seed one cell says the first 50-lap version (and the early stop), the
 //! laps completed over all evaluations and the late evaluations' steps ([`RunRecord::late_steps`]), a second table
 //! gives the statistics over seeds ([`crate::intervals`]), and `<out>-groups.png` draws the late steps per group, a
-//! dot per seed, filled where the run reached `eval_laps` laps, with the group's IQM and its bootstrap 95 % interval.
+//! dot per seed, filled where the run reached `eval_laps` laps, with the group's IQM and its bootstrap 95 % interval
+//! (`<out>-first50.png` the same for the first 50-lap version).
 
 use crate::runs::{RunRecord, LATE_VERSIONS};
 use crate::stats::{bootstrap_95, iqm};
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -119,100 +121,156 @@ const SEED_COLOURS: [RGBColor; 10] = [
     RGBColor(23, 190, 207),
 ];
 
-/// Draws `<out>-groups.png`: per group (a row), each seed's late evaluation steps (a dot, filled where the run
-/// reached the laps), the group's interquartile mean (a black bar) and its bootstrap 95 % interval (a line). Returns
-/// its path.
-pub fn draw(runs: &[RunRecord], out: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
+/// One number per run, drawn per group by [`draw`]: the file's suffix, the caption, the x axis's name, the value
+/// (none: the run has no dot) and whether the axis is logarithmic.
+struct Figure {
+    suffix: &'static str,
+    caption: String,
+    x_desc: &'static str,
+    value: fn(&RunRecord) -> Option<f64>,
+    log: bool,
+}
+
+/// Draws the two figures of the ablation view and returns their paths:
+/// * `<out>-groups.png`: per group (a row), each seed's late evaluation steps (log axis);
+/// * `<out>-first50.png`: each seed's first 50-lap version, a run that never got there at its budget
+///   ([`crate::intervals::first_full_or_budget`], the statistic the interval table gives).
+///
+/// In each, a dot per seed (filled where the run reached the laps), the group's interquartile mean (a black bar)
+/// and its bootstrap 95 % interval (a line).
+pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    let figures = [
+        Figure {
+            suffix: "groups",
+            caption: format!(
+                "Late eval steps (median of the last {LATE_VERSIONS} versions): a dot per seed, filled: 50 laps; bar: IQM, line: its 95 % CI"
+            ),
+            x_desc: "steps",
+            value: RunRecord::late_steps,
+            log: true,
+        },
+        Figure {
+            suffix: "first50",
+            caption: "First 50-lap version (never: the budget): a dot per seed, filled: 50 laps; bar: IQM, line: its 95 % CI".into(),
+            x_desc: "policy version",
+            value: |r| Some(crate::intervals::first_full_or_budget(r)),
+            log: false,
+        },
+    ];
+    figures.iter().map(|f| draw_figure(runs, out, f)).collect()
+}
+
+/// Draws one [`Figure`] to `<out>-<suffix>.png`.
+fn draw_figure(
+    runs: &[RunRecord],
+    out: &Path,
+    figure: &Figure,
+) -> Result<PathBuf, Box<dyn std::error::Error>> {
     let name = out
         .file_name()
         .map(|n| n.to_string_lossy().to_string())
         .unwrap_or_default();
-    let path = out.with_file_name(format!("{name}-groups.png"));
+    let path = out.with_file_name(format!("{name}-{}.png", figure.suffix));
+    let values: Vec<f64> = runs.iter().filter_map(figure.value).collect();
+    let max = values.iter().copied().fold(10.0, f64::max);
+    let rows = grouped(runs).len().max(1);
+    let height = 140 + 44 * rows as u32;
+    cabc_outputs::plots::png(&path, (1000, height), |root| {
+        root.fill(&WHITE)?;
+        let chart = cabc_outputs::plots::chart(root, &figure.caption, 230);
+        // Room on the right for the legend.
+        if figure.log {
+            let lo = values
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min)
+                .min(10.0)
+                / 1.5;
+            rows_of_dots(chart, (lo..max * 3.0).log_scale(), runs, figure)
+        } else {
+            rows_of_dots(chart, 0.0..max * 1.45, runs, figure)
+        }
+    })?;
+    Ok(path)
+}
+
+/// The rows of a [`Figure`] on the x axis `x`.
+fn rows_of_dots<'a, 'b, X>(
+    mut builder: ChartBuilder<'a, 'static, BitMapBackend<'b>>,
+    x: X,
+    runs: &[RunRecord],
+    figure: &Figure,
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    X: AsRangedCoord<Value = f64>,
+    X::CoordDescType: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     let groups = grouped(runs);
     let seeds = seeds(runs);
-    let values: Vec<f64> = runs.iter().filter_map(|r| r.late_steps()).collect();
-    let lo = values
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min)
-        .min(10.0)
-        / 1.5;
-    // Room on the right for the legend.
-    let hi = values.iter().copied().fold(10.0, f64::max) * 3.0;
     let labels: Vec<String> = groups.iter().map(|(g, _)| g.clone()).collect();
     let rows = groups.len().max(1);
     // The first group on top.
     let row = |i: usize| SegmentValue::CenterOf(rows - 1 - i);
-    let height = 140 + 44 * rows as u32;
-    cabc_outputs::plots::png(&path, (1000, height), |root| {
-        root.fill(&WHITE)?;
-        let caption = format!(
-            "Late eval steps (median of the last {LATE_VERSIONS} versions): a dot per seed, filled: 50 laps; bar: IQM, line: its 95 % CI"
-        );
-        let mut chart = cabc_outputs::plots::chart(root, &caption, 230)
-            .build_cartesian_2d((lo..hi).log_scale(), (0..rows).into_segmented())?;
-        chart
-            .configure_mesh()
-            .x_desc("steps")
-            .y_labels(rows)
-            .y_label_formatter(&|v| match v {
-                SegmentValue::CenterOf(i) | SegmentValue::Exact(i) if *i < rows => {
-                    labels[rows - 1 - i].clone()
-                }
-                _ => String::new(),
+    let mut chart = builder.build_cartesian_2d(x, (0..rows).into_segmented())?;
+    chart
+        .configure_mesh()
+        .x_desc(figure.x_desc)
+        .y_labels(rows)
+        .y_label_formatter(&|v| match v {
+            SegmentValue::CenterOf(i) | SegmentValue::Exact(i) if *i < rows => {
+                labels[rows - 1 - i].clone()
+            }
+            _ => String::new(),
+        })
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .draw()?;
+    for (k, seed) in seeds.iter().enumerate() {
+        let c = SEED_COLOURS[k % SEED_COLOURS.len()];
+        // Each seed a few pixels apart, so that equal values stay visible, all within the row's 44 px.
+        let step = (36 / seeds.len().max(1) as i32).clamp(1, 5);
+        let dy = (k as i32 - seeds.len() as i32 / 2) * step;
+        let dots = groups.iter().enumerate().flat_map(|(i, (_, of))| {
+            of.iter().filter(|r| r.seed == *seed).filter_map(move |r| {
+                let style = if r.full().next().is_some() {
+                    c.filled()
+                } else {
+                    c.stroke_width(2)
+                };
+                Some(
+                    EmptyElement::at(((figure.value)(r)?, row(i))) + Circle::new((0, dy), 6, style),
+                )
             })
-            .x_label_formatter(&|v| format!("{v:.0}"))
-            .draw()?;
-        for (k, seed) in seeds.iter().enumerate() {
-            let c = SEED_COLOURS[k % SEED_COLOURS.len()];
-            // Each seed a few pixels apart, so that equal values stay visible.
-            let dy = (k as i32 - seeds.len() as i32 / 2) * 5;
-            let dots = groups.iter().enumerate().flat_map(|(i, (_, of))| {
-                of.iter().filter(|r| r.seed == *seed).filter_map(move |r| {
-                    let style = if r.full().next().is_some() {
-                        c.filled()
-                    } else {
-                        c.stroke_width(2)
-                    };
-                    Some(
-                        EmptyElement::at((r.late_steps()?, row(i)))
-                            + Circle::new((0, dy), 6, style),
-                    )
-                })
-            });
-            let seed_label = seed.map_or("seed ?".into(), |s| format!("seed {s}"));
-            chart
-                .draw_series(dots)?
-                .label(seed_label)
-                .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
-        }
-        let late =
-            |of: &[&RunRecord]| -> Vec<f64> { of.iter().filter_map(|r| r.late_steps()).collect() };
-        let iqms = groups.iter().enumerate().filter_map(|(i, (_, of))| {
-            Some(
-                EmptyElement::at((iqm(&late(of))?, row(i)))
-                    + Rectangle::new([(-1, -16), (1, 16)], BLACK.filled()),
-            )
         });
+        let seed_label = seed.map_or("seed ?".into(), |s| format!("seed {s}"));
         chart
-            .draw_series(iqms)?
-            .label("IQM")
-            .legend(|(x, y)| Rectangle::new([(x + 9, y - 6), (x + 11, y + 6)], BLACK.filled()));
-        let intervals = groups.iter().enumerate().filter_map(|(i, (_, of))| {
-            let (lo, hi) = bootstrap_95(&late(of), iqm)?;
-            Some(PathElement::new(
-                vec![(lo, row(i)), (hi, row(i))],
-                BLACK.stroke_width(2),
-            ))
-        });
-        chart
-            .draw_series(intervals)?
-            .label("IQM's 95 % CI (bootstrap)")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
-        cabc_outputs::plots::legend(&mut chart, SeriesLabelPosition::UpperRight)?;
-        Ok(())
-    })?;
-    Ok(path)
+            .draw_series(dots)?
+            .label(seed_label)
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
+    }
+    let values =
+        |of: &[&RunRecord]| -> Vec<f64> { of.iter().filter_map(|r| (figure.value)(r)).collect() };
+    let iqms = groups.iter().enumerate().filter_map(|(i, (_, of))| {
+        Some(
+            EmptyElement::at((iqm(&values(of))?, row(i)))
+                + Rectangle::new([(-1, -16), (1, 16)], BLACK.filled()),
+        )
+    });
+    chart
+        .draw_series(iqms)?
+        .label("IQM")
+        .legend(|(x, y)| Rectangle::new([(x + 9, y - 6), (x + 11, y + 6)], BLACK.filled()));
+    let intervals = groups.iter().enumerate().filter_map(|(i, (_, of))| {
+        let (lo, hi) = bootstrap_95(&values(of), iqm)?;
+        Some(PathElement::new(
+            vec![(lo, row(i)), (hi, row(i))],
+            BLACK.stroke_width(2),
+        ))
+    });
+    chart
+        .draw_series(intervals)?
+        .label("IQM's 95 % CI (bootstrap)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+    cabc_outputs::plots::legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 #[cfg(test)]
@@ -294,8 +352,11 @@ mod tests {
         );
         assert_eq!(rows[3], "| abl |  | none · 0 · 12 | 0 of 1 | 0 | 12 |");
         let tmp = tempfile::tempdir().unwrap();
-        let path = draw(&runs, &tmp.path().join("ablation")).unwrap();
-        assert!(path.ends_with("ablation-groups.png"));
-        assert!(std::fs::metadata(&path).unwrap().len() > 1000);
+        let paths = draw(&runs, &tmp.path().join("ablation")).unwrap();
+        assert!(paths[0].ends_with("ablation-groups.png"));
+        assert!(paths[1].ends_with("ablation-first50.png"));
+        for path in paths {
+            assert!(std::fs::metadata(&path).unwrap().len() > 1000);
+        }
     }
 }
