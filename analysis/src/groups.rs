@@ -314,6 +314,17 @@ mod tests {
         }
     }
 
+    /// A PNG's width and its RGB bytes.
+    fn pixels(path: &Path) -> (u32, Vec<u8>) {
+        let decoder = png::Decoder::new(std::fs::File::open(path).unwrap());
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!(info.color_type, png::ColorType::Rgb);
+        buf.truncate(info.buffer_size());
+        (info.width, buf)
+    }
+
     #[test]
     fn groups_are_names_less_their_seed() {
         assert_eq!(group_of("v-b-ref-abl-clip-s3"), "v-b-ref-abl-clip");
@@ -356,7 +367,19 @@ mod tests {
         assert!(paths[0].ends_with("ablation-groups.png"));
         assert!(paths[1].ends_with("ablation-first50.png"));
         for path in paths {
-            assert!(std::fs::metadata(&path).unwrap().len() > 1000);
+            let (width, rgb) = pixels(&path);
+            assert_eq!(
+                &rgb[..3],
+                &[255, 255, 255],
+                "{}: a white page",
+                path.display()
+            );
+            // Seed 42's dots (the first colour) and seed 43's are drawn.
+            for c in &SEED_COLOURS[..2] {
+                let drawn = rgb.chunks(3).filter(|p| *p == [c.0, c.1, c.2]).count();
+                assert!(drawn > 50, "{}: {drawn} pixels of {c:?}", path.display());
+            }
+            assert_eq!(width, 1000);
         }
     }
 }
