@@ -224,10 +224,10 @@ where
         })
         .x_label_formatter(&|v| format!("{v:.0}"))
         .draw()?;
+    // Each seed a few pixels apart, so that equal values stay visible, all within the row's 44 px.
+    let step = (36 / seeds.len().max(1) as i32).clamp(1, 5);
     for (k, seed) in seeds.iter().enumerate() {
         let c = SEED_COLOURS[k % SEED_COLOURS.len()];
-        // Each seed a few pixels apart, so that equal values stay visible, all within the row's 44 px.
-        let step = (36 / seeds.len().max(1) as i32).clamp(1, 5);
         let dy = (k as i32 - seeds.len() as i32 / 2) * step;
         let dots = groups.iter().enumerate().flat_map(|(i, (_, of))| {
             of.iter().filter(|r| r.seed == *seed).filter_map(move |r| {
