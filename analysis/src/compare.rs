@@ -118,9 +118,17 @@ mod tests {
         config.algorithm.lambda = lambda;
         config.collection.eval_laps = 3;
         std::fs::write(folder.join("config.toml"), config.to_toml()).unwrap();
-        let mut metrics = String::from("epoch,imitation_loss,epoch_s,incomplete_share\n");
+        let mut metrics = String::from(
+            "epoch,imitation_loss,epoch_s,incomplete_share,steps_collected,uncertain_failed_lap,uncertain_truncating\n",
+        );
         for e in 0..evals.len() {
-            metrics.push_str(&format!("{e},{},{},0.02\n", 0.1 / (e + 1) as f64, 30.0));
+            // Epoch e collects 100 steps, 10 e of them in failed laps and e truncating ones.
+            metrics.push_str(&format!(
+                "{e},{},{},0.02,100,{},{e}\n",
+                0.1 / (e + 1) as f64,
+                30.0,
+                10 * e
+            ));
         }
         std::fs::write(folder.join("metrics.csv"), metrics).unwrap();
         let mut text =
@@ -157,6 +165,10 @@ mod tests {
             [1, 3]
         );
         assert!(runs[1].is_baseline());
+        // Epochs 0-2 of p: (0 + 11 + 22) of 300 steps; b has 2 epochs only.
+        assert_eq!(runs[0].crashed_share(3), Some(0.11));
+        assert_eq!(runs[1].crashed_share(2), Some(0.055));
+        assert_eq!(runs[1].crashed_share(3), None);
         let table = table(&runs);
         assert!(
             table.contains(

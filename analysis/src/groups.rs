@@ -311,6 +311,7 @@ mod tests {
             expert_lap_time: None,
             ended: None,
             peak_mb: None,
+            collection: vec![],
         }
     }
 

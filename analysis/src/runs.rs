@@ -47,6 +47,9 @@ pub struct RunRecord {
     pub ended: Option<String>,
     /// The learner's peak resident memory (MB), when the summary has it.
     pub peak_mb: Option<f64>,
+    /// Per epoch in order, (steps of collected episodes that left the track or otherwise failed, steps collected):
+    /// empty for older folders without D?'s provenance columns.
+    pub collection: Vec<(f64, f64)>,
 }
 
 /// A CSV with a header, as the learner writes it (no quoting).
@@ -139,6 +142,22 @@ impl RunRecord {
             .column("incomplete_share")
             .map(|c| c.iter().filter_map(|v| number(v)).collect())
             .unwrap_or_default();
+        // The steps of D_new's failed episodes (not the expert's failures, nor an off-track spawn's single step).
+        let collection = match (
+            metrics.column("uncertain_failed_lap"),
+            metrics.column("uncertain_truncating"),
+            metrics.column("steps_collected"),
+        ) {
+            (Ok(failed_lap), Ok(truncating), Ok(collected)) => failed_lap
+                .iter()
+                .zip(truncating)
+                .zip(collected)
+                .filter_map(|((f, t), c)| {
+                    Some((number::<f64>(f)? + number::<f64>(t)?, number::<f64>(c)?))
+                })
+                .collect(),
+            _ => Vec::new(),
+        };
         let evals_table =
             Table::read(&dir.join("evals.csv")).map_err(|e| fail(format!("evals.csv: {e}")))?;
         let evals_column = |name| {
@@ -193,6 +212,7 @@ impl RunRecord {
             peak_mb: summary
                 .as_ref()
                 .and_then(|s| s["learner_peak_rss_mb"].as_f64()),
+            collection,
         })
     }
 
@@ -217,6 +237,17 @@ impl RunRecord {
             .filter_map(|e| e.steps.map(|s| s as f64))
             .collect();
         median(&late)
+    }
+
+    /// The share of the steps collected in the first `epochs` epochs that belonged to an episode that failed (left
+    /// the track, stalled or spun): how much of the training-time driving ended in a violation. None when the run
+    /// has fewer epochs with these columns, or collected nothing.
+    pub fn crashed_share(&self, epochs: u64) -> Option<f64> {
+        let first = self.collection.get(..usize::try_from(epochs).ok()?)?;
+        let (failed, collected) = first
+            .iter()
+            .fold((0.0, 0.0), |(f, c), &(ef, ec)| (f + ef, c + ec));
+        (collected > 0.0).then(|| failed / collected)
     }
 
     /// A baseline run: named so by `--baseline` (its name ends in `-baseline`, whatever lambda it has: the Fig. 6
