@@ -101,8 +101,24 @@ pub fn table(runs: &[RunRecord]) -> String {
         crate::stats::BOOTSTRAP_RESAMPLES,
         crate::intervals::interval_header("group")
     ));
-    for (group, of) in grouped(runs) {
-        out.push_str(&crate::intervals::interval_row(&group, &of));
+    let groups = grouped(runs);
+    for (group, of) in &groups {
+        out.push_str(&crate::intervals::interval_row(group, of));
+    }
+    // Each group with both methods: the proposed method against its own baseline.
+    let mut pairs = String::new();
+    for (group, proposed) in &groups {
+        let baseline = format!("{group} (baseline)");
+        if let Some((_, baselines)) = groups.iter().find(|(g, _)| *g == baseline) {
+            pairs.push_str(&format!(
+                "* {}",
+                crate::intervals::improvement_line(group, proposed, &baseline, baselines)
+            ));
+        }
+    }
+    if !pairs.is_empty() {
+        out.push('\n');
+        out.push_str(&pairs);
     }
     out
 }
@@ -363,6 +379,12 @@ mod tests {
             "| ref (baseline) | none · 0 · 15 |  | 0 of 1 | 0 | 15 |"
         );
         assert_eq!(rows[3], "| abl |  | none · 0 · 12 | 0 of 1 | 0 | 12 |");
+        // ref's 100 and 200 (never: the budget) against its baseline's 200: a win and a tie; abl has no baseline.
+        let pairs: Vec<&str> = table.lines().filter(|l| l.starts_with("* P(")).collect();
+        assert_eq!(
+            pairs,
+            ["* P(ref reaches its first 50-lap version before ref (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.50, 1.00] (95 % CI)"]
+        );
         let tmp = tempfile::tempdir().unwrap();
         let paths = draw(&runs, &tmp.path().join("ablation")).unwrap();
         assert!(paths[0].ends_with("ablation-groups.png"));

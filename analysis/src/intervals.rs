@@ -4,11 +4,14 @@
 //! stratum per group and method), and the share of runs that reach the early stop with its Wilson score interval (a
 //! bootstrap of a share of 10 of 10 would be the point [1, 1]).
 //!
+//! Between two methods over the same seeds, rliable's probability of improvement of the first 50-lap version, with
+//! the same bootstrap (each method one stratum).
+//!
 //! The figures: the first version whose evaluation completes `eval_laps` laps (a run that never gets there counts at
 //! its budget, the epochs it ran), and the late evaluations' steps ([`RunRecord::late_steps`]).
 
 use crate::runs::{RunRecord, LATE_VERSIONS};
-use crate::stats::{bootstrap_95, iqm, wilson_95};
+use crate::stats::{bootstrap_95, bootstrap_95_lower, iqm, probability_lower, wilson_95};
 
 /// The first version with `eval_laps` laps, or the run's budget (the epochs it ran) when it never got there.
 pub fn first_full_or_budget(r: &RunRecord) -> f64 {
@@ -53,6 +56,23 @@ pub fn interval_row(label: &str, of: &[&RunRecord]) -> String {
     )
 }
 
+/// The sentence that compares `a` (named `a_name`) with `b` on the first 50-lap version (never: the budget):
+/// rliable's probability of improvement, P(a's version < b's) with ties half, and its 95 % interval.
+pub fn improvement_line(a_name: &str, a: &[&RunRecord], b_name: &str, b: &[&RunRecord]) -> String {
+    let first = |of: &[&RunRecord]| {
+        of.iter()
+            .map(|r| first_full_or_budget(r))
+            .collect::<Vec<_>>()
+    };
+    let (a, b) = (first(a), first(b));
+    match (probability_lower(&a, &b), bootstrap_95_lower(&a, &b)) {
+        (Some(p), Some((lo, hi))) => format!(
+            "P({a_name} reaches its first 50-lap version before {b_name}), rliable's probability of improvement over every pair of runs: {p:.2} [{lo:.2}, {hi:.2}] (95 % CI)\n"
+        ),
+        _ => String::new(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,6 +97,28 @@ mod tests {
         assert_eq!(bootstrap_95(&spread, iqm), Some((lo, hi)), "seeded");
         assert_eq!(bootstrap_95(&[7.0; 6], iqm), Some((7.0, 7.0)));
         assert_eq!(bootstrap_95(&[], iqm), None);
+    }
+
+    #[test]
+    fn the_probability_of_improvement_counts_pairs_and_half_ties() {
+        // Pairs (1,2) (1,3) (2,2) (2,3): three wins and a tie of four.
+        assert_eq!(probability_lower(&[1.0, 2.0], &[2.0, 3.0]), Some(0.875));
+        assert_eq!(probability_lower(&[5.0], &[1.0, 2.0]), Some(0.0));
+        assert_eq!(probability_lower(&[], &[1.0]), None);
+        assert_eq!(
+            bootstrap_95_lower(&[1.0, 1.0, 1.0], &[2.0, 3.0]),
+            Some((1.0, 1.0)),
+            "no resample can reverse a clean separation"
+        );
+        let a: Vec<f64> = (0..10).map(|i| 40.0 + 10.0 * i as f64).collect();
+        let b: Vec<f64> = (0..10).map(|i| 60.0 + 10.0 * i as f64).collect();
+        let p = probability_lower(&a, &b).unwrap();
+        let (lo, hi) = bootstrap_95_lower(&a, &b).unwrap();
+        assert!(lo < p && p < hi && lo > 0.3 && hi <= 1.0, "{lo} {p} {hi}");
+        assert_eq!(
+            bootstrap_95_lower(&b, &a).map(|(lo, _)| lo < 1.0 - p),
+            Some(true)
+        );
     }
 
     #[test]

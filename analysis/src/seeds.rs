@@ -77,14 +77,17 @@ pub fn methods_table(runs: &[RunRecord]) -> String {
     }
     out.push('\n');
     out.push_str(&crate::intervals::interval_header("method"));
-    for (method, baseline) in [("proposed", false), ("baseline", true)] {
-        let of: Vec<&RunRecord> = runs
-            .iter()
-            .filter(|r| r.is_baseline() == baseline)
-            .collect();
+    let [proposed, baseline]: [Vec<&RunRecord>; 2] =
+        [false, true].map(|b| runs.iter().filter(|r| r.is_baseline() == b).collect());
+    for (method, of) in [("proposed", &proposed), ("baseline", &baseline)] {
         if !of.is_empty() {
-            out.push_str(&crate::intervals::interval_row(method, &of));
+            out.push_str(&crate::intervals::interval_row(method, of));
         }
+    }
+    let line = crate::intervals::improvement_line("proposed", &proposed, "baseline", &baseline);
+    if !line.is_empty() {
+        out.push('\n');
+        out.push_str(&line);
     }
     out
 }
@@ -159,6 +162,11 @@ mod tests {
             table.contains(
                 "| baseline | 1 | 0 of 1 | none by 200 | none by 200 | - | 0 | - | 0.100 | 11.7 | 60.0 |"
             ),
+            "{table}"
+        );
+        // The baseline's one run never got there (200): the proposed runs' 100 and 150 beat it, 200 ties.
+        assert!(
+            table.contains("P(proposed reaches its first 50-lap version before baseline), rliable's probability of improvement over every pair of runs: 0.83 [0.50, 1.00] (95 % CI)"),
             "{table}"
         );
         // Over seeds: p1 stopped (two full evaluations); first 50-lap versions 100, 200 (never: its budget), 150.

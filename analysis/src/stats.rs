@@ -1,5 +1,6 @@
 //! The numerics of the statistics over seeds, on plain numbers: the median (and "median [min–max]"), the
-//! interquartile mean, the stratified bootstrap's 95 % interval and the Wilson score interval of a share.
+//! interquartile mean, the stratified bootstrap's 95 % interval, the Wilson score interval of a share and the
+//! probability of improvement of one group over another.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -65,7 +66,7 @@ pub fn bootstrap_95(values: &[f64], statistic: fn(&[f64]) -> Option<f64>) -> Opt
     }
     let mut rng = ChaCha8Rng::seed_from_u64(BOOTSTRAP_SEED);
     let mut resample = vec![0.0; values.len()];
-    let mut stats: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
+    let stats: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
         .filter_map(|_| {
             for x in resample.iter_mut() {
                 *x = values[rng.gen_range(0..values.len())];
@@ -73,9 +74,57 @@ pub fn bootstrap_95(values: &[f64], statistic: fn(&[f64]) -> Option<f64>) -> Opt
             statistic(&resample)
         })
         .collect();
+    percentiles_95(stats)
+}
+
+/// The 2.5th and 97.5th percentiles of the bootstrap's statistics; None when there are none.
+fn percentiles_95(mut stats: Vec<f64>) -> Option<(f64, f64)> {
+    if stats.is_empty() {
+        return None;
+    }
     stats.sort_by(f64::total_cmp);
     let at = |q: f64| stats[((q * (stats.len() - 1) as f64).round() as usize).min(stats.len() - 1)];
     Some((at(0.025), at(0.975)))
+}
+
+/// rliable's probability of improvement where lower is better: over every pair (x of `a`, y of `b`), the share with
+/// x < y, ties counted half (the Mann-Whitney U statistic over the pairs); None when either is empty.
+pub fn probability_lower(a: &[f64], b: &[f64]) -> Option<f64> {
+    if a.is_empty() || b.is_empty() {
+        return None;
+    }
+    let wins: f64 = a
+        .iter()
+        .flat_map(|x| {
+            b.iter().map(move |y| match x.total_cmp(y) {
+                std::cmp::Ordering::Less => 1.0,
+                std::cmp::Ordering::Equal => 0.5,
+                std::cmp::Ordering::Greater => 0.0,
+            })
+        })
+        .sum();
+    Some(wins / (a.len() * b.len()) as f64)
+}
+
+/// The 95 % percentile bootstrap interval of [`probability_lower`]: each of `a` and `b` resampled with
+/// replacement on its own (two strata), [`BOOTSTRAP_RESAMPLES`] times, seeded; None when either is empty.
+pub fn bootstrap_95_lower(a: &[f64], b: &[f64]) -> Option<(f64, f64)> {
+    if a.is_empty() || b.is_empty() {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(BOOTSTRAP_SEED);
+    let (mut ra, mut rb) = (vec![0.0; a.len()], vec![0.0; b.len()]);
+    let stats = (0..BOOTSTRAP_RESAMPLES)
+        .filter_map(|_| {
+            for (resample, values) in [(&mut ra, a), (&mut rb, b)] {
+                for x in resample.iter_mut() {
+                    *x = values[rng.gen_range(0..values.len())];
+                }
+            }
+            probability_lower(&ra, &rb)
+        })
+        .collect();
+    percentiles_95(stats)
 }
 
 /// The Wilson score 95 % interval of a share of `k` successes in `n` trials; None when n = 0.
