@@ -6,6 +6,8 @@
 //!   the expert's;
 //! * `<out>-steps.png`: how long each evaluation stayed on the track (its steps, a running median), which tells
 //!   runs apart that never complete a lap;
+//! * `<out>-crashed.png`: per epoch, the share of the collected steps in episodes that failed (over 9 epochs), the
+//!   training-time safety that the paper's claim is about;
 //! * a Markdown table on stdout: per run, the versions of the first and second full evaluation, the early stop,
 //!   lap times, the laps completed over all evaluations, the late evaluations' steps ([`RunRecord::late_steps`]),
 //!   the incomplete share and the wall clock; then per method, the median and range over its runs
@@ -27,8 +29,8 @@ pub struct CompareOptions {
     /// Run folders (runs/<run>, or copies holding config.toml, metrics.csv, evals.csv, summary.json).
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
-    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png (with --by-group:
-    /// <OUT>-groups.png and <OUT>-first50.png).
+    /// Figures go to <OUT>-laps.png, <OUT>-imitation.png, <OUT>-lap-times.png, <OUT>-steps.png, <OUT>-crashed.png
+    /// (with --by-group: <OUT>-groups.png and <OUT>-first50.png).
     #[arg(long, default_value = "compare")]
     pub out: PathBuf,
     /// The ablation view: the runs grouped by name less `-s<k>`, a row per group and a column per seed
@@ -195,7 +197,7 @@ mod tests {
         // 100 versions would give 145).
         assert_eq!(long.late_steps(), Some(220.0));
         let figures = draw(&runs, &tmp.path().join("cmp")).unwrap();
-        assert_eq!(figures.len(), 4);
+        assert_eq!(figures.len(), 5);
         for f in figures {
             assert!(
                 std::fs::metadata(&f).unwrap().len() > 1000,

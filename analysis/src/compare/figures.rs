@@ -1,12 +1,12 @@
-//! `cabc compare`'s figures: laps, imitation loss, lap times and evaluation steps per policy version, the
-//! proposed runs in blues and the baselines in oranges, a shade per seed.
+//! `cabc compare`'s figures: laps, imitation loss, lap times and evaluation steps per policy version, and the share
+//! of the collection that failed per epoch, the proposed runs in blues and the baselines in oranges, a shade per seed.
 
 use crate::runs::{CompareError, RunRecord};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
-/// Draws the four figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`, `<out>-steps.png`;
-/// returns their paths.
+/// Draws the five figures to `<out>-laps.png`, `<out>-imitation.png`, `<out>-lap-times.png`, `<out>-steps.png`,
+/// `<out>-crashed.png`; returns their paths.
 pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError> {
     let path = |suffix: &str| {
         let name = out
@@ -20,12 +20,14 @@ pub fn draw(runs: &[RunRecord], out: &Path) -> Result<Vec<PathBuf>, CompareError
         path("imitation"),
         path("lap-times"),
         path("steps"),
+        path("crashed"),
     ];
     let drawn = [
         laps(&figures[0], runs),
         imitation(&figures[1], runs),
         lap_times(&figures[2], runs),
         steps(&figures[3], runs),
+        crashed(&figures[4], runs),
     ];
     for (result, path) in drawn.into_iter().zip(&figures) {
         result.map_err(|e| CompareError::Draw {
@@ -242,6 +244,63 @@ fn steps(path: &Path, runs: &[RunRecord]) -> Drawn {
                 .draw_series(LineSeries::new(points.iter().copied(), style))?
                 .label(label(r))
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+        }
+        cabc_outputs::plots::legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
+        Ok(())
+    })
+}
+
+/// Per epoch, the share of the collected steps that belonged to an episode which failed, over the last
+/// `CRASHED_WINDOW` epochs ([`RunRecord::crashed_share`]'s numbers): how much of the training-time driving ended in
+/// a violation. Runs without the columns draw no line.
+fn crashed(path: &Path, runs: &[RunRecord]) -> Drawn {
+    const CRASHED_WINDOW: usize = 9;
+    cabc_outputs::plots::png(path, SIZE, |root| {
+        root.fill(&WHITE)?;
+        let max_e = runs
+            .iter()
+            .map(|r| r.collection.len() as u64)
+            .max()
+            .unwrap_or(1)
+            .max(1);
+        let caption =
+            format!("Collected steps in failed episodes, % (over {CRASHED_WINDOW} epochs)");
+        // Many runs: one legend entry per method, not one per run over the lines.
+        let compact = runs.len() > 10;
+        // Room above 100 % for the legend.
+        let top = if compact { 115.0 } else { 140.0 };
+        let mut chart = cabc_outputs::plots::chart(root, &caption, 60)
+            .build_cartesian_2d(0u64..max_e, 0f64..top)?;
+        chart
+            .configure_mesh()
+            .x_desc("epoch")
+            .y_desc("% of the steps collected")
+            .y_label_formatter(&|v| match *v {
+                v if v <= 100.0 => format!("{v:.0}"),
+                _ => String::new(),
+            })
+            .draw()?;
+        for (i, r) in runs.iter().enumerate() {
+            let points = (0..r.collection.len()).filter_map(|e| {
+                let window = &r.collection[e.saturating_sub(CRASHED_WINDOW - 1)..=e];
+                let (failed, collected) = window
+                    .iter()
+                    .fold((0.0, 0.0), |(f, c), &(ef, ec)| (f + ef, c + ec));
+                (collected > 0.0).then(|| (e as u64, 100.0 * failed / collected))
+            });
+            let style = series_style(r, colour(runs, i));
+            let drawn = chart.draw_series(LineSeries::new(points, style))?;
+            let first_of_method = !runs[..i].iter().any(|o| o.is_baseline() == r.is_baseline());
+            if !compact || first_of_method {
+                let text = match (compact, r.is_baseline()) {
+                    (false, _) => label(r),
+                    (true, true) => format!("baselines (λ = {}), a shade per seed", r.lambda),
+                    (true, false) => format!("proposed (λ = {}), a shade per seed", r.lambda),
+                };
+                drawn
+                    .label(text)
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+            }
         }
         cabc_outputs::plots::legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         Ok(())
