@@ -210,13 +210,8 @@ impl Cluster {
         servers: &[&str],
         actors_in: &[&str],
     ) -> Result<()> {
+        self.start_learner_in("learner", servers, resume)?;
         let config = self.config.display().to_string();
-        let run_dir = self.dir.display().to_string();
-        let mut learner = vec!["run", "--config", &config, "--run-dir", &run_dir];
-        if resume {
-            learner.push("--resume");
-        }
-        self.start_in("learner", servers, "learner", &learner)?;
         let serve = ["--config", &config, "serve", "--id", "0"];
         self.start_in("expert-server", servers, "expert-server", &serve)?;
         for i in 0..actors {
@@ -225,6 +220,23 @@ impl Cluster {
         }
         let eval = ["--config", &config, "--id", "eval", "--eval"];
         self.start_in("eval", actors_in, "actor", &eval)
+    }
+
+    /// The learner of this run as `label`, resuming its run folder with `resume` (a fresh label for each restart,
+    /// so that each process keeps its own log).
+    pub fn start_learner(&mut self, label: &str, resume: bool) -> Result<()> {
+        self.start_learner_in(label, &[], resume)
+    }
+
+    /// [`Cluster::start_learner`] under a wrapper (as in [`Cluster::start_in`]).
+    pub fn start_learner_in(&mut self, label: &str, wrapper: &[&str], resume: bool) -> Result<()> {
+        let config = self.config.display().to_string();
+        let run_dir = self.dir.display().to_string();
+        let mut args = vec!["run", "--config", &config, "--run-dir", &run_dir];
+        if resume {
+            args.push("--resume");
+        }
+        self.start_in(label, wrapper, "learner", &args)
     }
 
     /// Kills one child (as a crash would).

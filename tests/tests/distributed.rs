@@ -155,22 +155,8 @@ fn a_smoke_run_completes_survives_faults_and_resumes() {
     std::fs::write(&cluster.config, text).unwrap();
     let d_plus_before: u64 = column(&metrics, "d_plus").last().unwrap().parse().unwrap();
     let config = cluster.config.display().to_string();
-    let run_dir = dir.display().to_string();
     // The surviving actors and the expert server were stopped with the run; start fresh ones.
-    cluster
-        .start(
-            "learner-resumed",
-            "learner",
-            &[
-                "run",
-                "--config",
-                &config,
-                "--run-dir",
-                &run_dir,
-                "--resume",
-            ],
-        )
-        .unwrap();
+    cluster.start_learner("learner-resumed", true).unwrap();
     cluster
         .start(
             "expert-server-2",

@@ -96,8 +96,6 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
     let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "resume", 10, "").unwrap();
     cluster.start_all(2, false).unwrap();
-    let config = cluster.config.display().to_string();
-    let run_dir = cluster.dir.display().to_string();
     wait_for_epochs(&cluster, 3);
     cluster.kill("learner").unwrap();
     let checkpointed = std::fs::read_to_string(cluster.dir.join("metrics.csv"))
@@ -105,20 +103,7 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
         .lines()
         .count()
         - 1;
-    cluster
-        .start(
-            "learner-resumed",
-            "learner",
-            &[
-                "run",
-                "--config",
-                &config,
-                "--run-dir",
-                &run_dir,
-                "--resume",
-            ],
-        )
-        .unwrap();
+    cluster.start_learner("learner-resumed", true).unwrap();
     let summary = finish(&mut cluster, "learner-resumed", 10);
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     let metrics = cluster.dir.join("metrics.csv");
@@ -144,22 +129,7 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
 fn resume_without_a_checkpoint_refuses() {
     let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "nothing", 2, "").unwrap();
-    let config = cluster.config.display().to_string();
-    let run_dir = cluster.dir.display().to_string();
-    cluster
-        .start(
-            "learner",
-            "learner",
-            &[
-                "run",
-                "--config",
-                &config,
-                "--run-dir",
-                &run_dir,
-                "--resume",
-            ],
-        )
-        .unwrap();
+    cluster.start_learner("learner", true).unwrap();
     let (status, _) = cluster.wait("learner", Duration::from_secs(60)).unwrap();
     assert!(!status.success());
     let log = std::fs::read_to_string(cluster.dir.join("learner.log")).unwrap();
@@ -175,8 +145,6 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
     let tmp = cabc_tests::test_dir();
     let mut cluster = Cluster::new(tmp.path(), "kills", 14, "").unwrap();
     cluster.start_all(2, false).unwrap();
-    let config = cluster.config.display().to_string();
-    let run_dir = cluster.dir.display().to_string();
     let mut label = "learner".to_string();
     let mut during_commit = 0;
     for kill in 0..5u64 {
@@ -191,20 +159,7 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
             during_commit += 1;
         }
         label = format!("learner-{kill}");
-        cluster
-            .start(
-                &label,
-                "learner",
-                &[
-                    "run",
-                    "--config",
-                    &config,
-                    "--run-dir",
-                    &run_dir,
-                    "--resume",
-                ],
-            )
-            .unwrap();
+        cluster.start_learner(&label, true).unwrap();
     }
     let summary = finish(&mut cluster, &label, 14);
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
