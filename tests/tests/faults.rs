@@ -41,6 +41,24 @@ fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Valu
     summary
 }
 
+/// After a learner restart with the actors up: no epoch stored less than the actors published, and every epoch
+/// closed with both actors' markers (its full budget). Returns (stored, published) per epoch.
+fn assert_nothing_lost(cluster: &Cluster) -> (Vec<u64>, Vec<u64>) {
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    let taken = csv_column(&metrics, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| t == 256),
+        "every epoch closed with both actors' markers: {taken:?}"
+    );
+    (stored, published)
+}
+
 /// An actor and the expert server are killed mid-run and started again under the same names: the restarted
 /// actor's segments are stored (a new incarnation, not duplicates of its first life's), and the run loses nothing.
 #[test]
@@ -106,18 +124,7 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
     cluster.start_learner("learner-resumed", true).unwrap();
     let summary = finish(&mut cluster, "learner-resumed", 10);
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t == 256),
-        "every epoch closed with both actors' markers: {taken:?}"
-    );
+    let (stored, published) = assert_nothing_lost(&cluster);
     println!(
         "faults: learner killed (SIGKILL) after {checkpointed} recorded epochs and resumed with actors up; \
          stored {stored:?}, published {published:?}"
@@ -163,15 +170,7 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
     }
     let summary = finish(&mut cluster, &label, 14);
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(taken.iter().all(|&t| t == 256), "{taken:?}");
+    let (stored, published) = assert_nothing_lost(&cluster);
     println!(
         "faults: learner killed 5 times (SIGKILL), {during_commit} of them during a checkpoint commit; \
          stored {stored:?}, published {published:?}"
@@ -225,15 +224,7 @@ fn the_learner_killed_during_a_checkpoint_resumes_from_the_previous_one() {
         .unwrap();
     let summary = finish(&mut cluster, "learner-resumed", 8);
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(taken.iter().all(|&t| t == 256), "{taken:?}");
+    let (stored, published) = assert_nothing_lost(&cluster);
     assert!(
         !cluster.dir.join("checkpoint.old").exists(),
         "the next commit clears it"
