@@ -51,34 +51,109 @@ pub fn run_state(root: &Path, run: &RunName) -> RunState {
     RunState::NotStarted
 }
 
-/// The report of `cabc campaign status`: per slice its runs and their states, then the counts.
+/// The wall clock of a run folder's epochs in minutes (the sum of its metrics.csv's `epoch_s`); None without it.
+fn wall_minutes(dir: &Path) -> Option<f64> {
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).ok()?;
+    let mut lines = text.lines();
+    let column = lines.next()?.split(',').position(|h| h == "epoch_s")?;
+    let seconds: f64 = lines
+        .filter_map(|l| l.split(',').nth(column)?.parse::<f64>().ok())
+        .sum();
+    Some(seconds / 60.0)
+}
+
+/// An ended run's wall clock, with what the estimate of a run left matches it on.
+struct Took {
+    group: String,
+    method: &'static str,
+    preset: String,
+    epochs: Option<u32>,
+    minutes: f64,
+}
+
+/// The median of `values`; None when empty.
+fn median(mut values: Vec<f64>) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some((values[n / 2 - 1] + values[n / 2]) / 2.0),
+    }
+}
+
+/// The report of `cabc campaign status`: per slice its runs and their states, then the counts and about how long
+/// what is left takes one lane: each run left is estimated by the median wall clock of the ended runs of its group
+/// and method, else of those of its preset, epoch cap and method, else of all; a run in progress less what it ran.
 pub fn status(root: &Path, plan: &Plan) -> String {
     let mut out = String::new();
     let (mut ended_n, mut progress_n, mut not_n) = (0, 0, 0);
+    let mut took: Vec<Took> = Vec::new();
+    // Each run left: its slice, its name and the minutes it has run.
+    let mut left: Vec<(&crate::plan::Slice, RunName, f64)> = Vec::new();
     for (i, slice) in plan.slices.iter().enumerate() {
         writeln!(out, "slice {i}: {slice}").unwrap();
         for run in slice.runs() {
+            let name = run.to_string();
+            let here = root.join("runs").join(&name);
             let what = match run_state(root, &run) {
                 RunState::Ended(how) => {
                     ended_n += 1;
+                    let minutes = wall_minutes(&here)
+                        .or_else(|| wall_minutes(&root.join(RESULTS_DIR).join(&name)));
+                    took.extend(minutes.map(|minutes| Took {
+                        group: run.group().to_string(),
+                        method: run.method(),
+                        preset: slice.preset.clone(),
+                        epochs: slice.epochs,
+                        minutes,
+                    }));
                     format!("ended, {how}")
                 }
                 RunState::InProgress(epochs) => {
                     progress_n += 1;
+                    left.push((slice, run.clone(), wall_minutes(&here).unwrap_or(0.0)));
                     format!("in progress, {epochs} epochs")
                 }
                 RunState::NotStarted => {
                     not_n += 1;
+                    left.push((slice, run.clone(), 0.0));
                     "not started".into()
                 }
             };
             writeln!(out, "  {run}: {what}").unwrap();
         }
     }
-    writeln!(
+    write!(
         out,
         "runs: {ended_n} ended, {progress_n} in progress, {not_n} not started"
     )
+    .unwrap();
+    let estimate = |slice: &crate::plan::Slice, run: &RunName| {
+        let like = |same: &dyn Fn(&Took) -> bool| {
+            median(took.iter().filter(|t| same(t)).map(|t| t.minutes).collect())
+        };
+        like(&|t| t.group == run.group() && t.method == run.method())
+            .or_else(|| {
+                like(&|t| {
+                    t.preset == slice.preset && t.epochs == slice.epochs && t.method == run.method()
+                })
+            })
+            .or_else(|| like(&|_| true))
+    };
+    let minutes: Option<f64> = left
+        .iter()
+        .map(|(slice, run, ran)| estimate(slice, run).map(|m| (m - ran).max(0.0)))
+        .sum();
+    match minutes {
+        Some(minutes) if !left.is_empty() => writeln!(
+            out,
+            "; what is left takes about {:.1} h of one lane (each run as the ended runs of its group, else of its \
+             preset and epochs: the median of their wall clock)",
+            minutes / 60.0
+        ),
+        _ => writeln!(out),
+    }
     .unwrap();
     out
 }
@@ -103,11 +178,20 @@ mod tests {
             "{\n  \"ended\": \"early-stop\"\n}",
         );
         write("runs/g-s2/summary.json", "{\"ended\": \"interrupted\"}");
-        write("runs/g-s2/metrics.csv", "epoch\n1\n2\n3\n");
+        write(
+            "runs/g-s2/metrics.csv",
+            "epoch,epoch_s\n1,120\n2,120\n3,120\n",
+        );
         std::fs::create_dir_all(root.join("runs/g-s2/checkpoint.old")).unwrap();
         write(
             "docs/reproduction/g-s3/summary.json",
             "{\"ended\": \"max-epochs\"}",
+        );
+        // The ended runs' epochs: s1's 30 minutes here, s3's 90 in docs/reproduction (its runs/ copy is empty).
+        write("runs/g-s1/metrics.csv", "epoch_s,epoch\n900,0\n900,1\n");
+        write(
+            "docs/reproduction/g-s3/metrics.csv",
+            "epoch,epoch_s\n0,5400\n",
         );
         write("runs/g-s3/metrics.csv", "epoch\n");
         write("runs/g-s4/summary.json", "{\"ended\": \"interrupted\"}");
@@ -124,7 +208,43 @@ mod tests {
              slice 2: --seeds 3-3 --methods proposed g\n  g-s3: ended, max-epochs\n\
              slice 3: --seeds 4-4 --methods proposed g\n  g-s4: not started\n\
              slice 4: --seeds 5-5 --methods proposed g\n  g-s5: not started\n\
-             runs: 2 ended, 1 in progress, 2 not started\n"
+             runs: 2 ended, 1 in progress, 2 not started; what is left takes about 2.9 h of one lane (each run as \
+             the ended runs of its group, else of its preset and epochs: the median of their wall clock)\n"
+        );
+    }
+
+    /// A run whose group has not ended a run yet is estimated by the ended runs of its preset and epoch cap.
+    #[test]
+    fn a_new_group_is_estimated_by_its_preset_and_epochs() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path();
+        let write = |path: &str, text: &str| {
+            let path = root.join(path);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, text).unwrap();
+        };
+        // g-a-s1 (epochs 10) took 6 minutes, g-s1 (epochs 20) 30: g-b-s1 (epochs 20) is estimated at 30.
+        for (run, seconds) in [("g-a-s1", 360), ("g-s1", 1800)] {
+            write(
+                &format!("runs/{run}/summary.json"),
+                "{\"ended\": \"max-epochs\"}",
+            );
+            write(
+                &format!("runs/{run}/metrics.csv"),
+                &format!("epoch,epoch_s\n0,{seconds}\n"),
+            );
+        }
+        let plan = Plan::parse(
+            "[[block]]\nseeds = [1]\nslices = [\
+             { preset = \"g\", methods = [\"proposed\"], tag = \"a\", epochs = 10 },\
+             { preset = \"g\", methods = [\"proposed\"], epochs = 20 },\
+             { preset = \"g\", methods = [\"proposed\"], tag = \"b\", epochs = 20 }]",
+        )
+        .unwrap();
+        let report = status(root, &plan);
+        assert!(
+            report.ends_with("runs: 2 ended, 0 in progress, 1 not started; what is left takes about 0.5 h of one lane (each run as the ended runs of its group, else of its preset and epochs: the median of their wall clock)\n"),
+            "{report}"
         );
     }
 }
