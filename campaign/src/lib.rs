@@ -5,8 +5,8 @@
 //! as TOML comments beside them), and one typed command over it:
 //!
 //! * `cabc campaign list`: the slices, as `deploy/reproduce.sh` arguments ([`list`]);
-//! * `cabc campaign status`: each slice's runs ended (and how), in progress (at which epoch) or not started, and about how long what is left takes one lane
-//!   ([`status`]);
+//! * `cabc campaign status`: each slice's runs ended (and how), in progress (at which epoch) or not started, and
+//!   about how long what is left takes one lane ([`status`]);
 //! * `cabc campaign run --lane I/N [--only N]`: a lane; lanes share the slices through claims ([`claims`], the lock
 //!   that deploy/claim.sh was, compatible with its claims) and run each with the per-run step ([`lane`]);
 //! * `cabc campaign tables`: the groups' tables and figures, and the plans' views over groups ([`tables`]);
