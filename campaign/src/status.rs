@@ -162,15 +162,18 @@ pub fn status(root: &Path, plan: &Plan) -> String {
 mod tests {
     use super::*;
 
+    /// Writes `text` to `path` under `root`, with its folders.
+    fn write_under(root: &Path, path: &str, text: &str) {
+        let path = root.join(path);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, text).unwrap();
+    }
+
     #[test]
     fn states_from_the_folders() {
         let tmp = tempfile::tempdir().unwrap();
         let root = tmp.path();
-        let write = |path: &str, text: &str| {
-            let path = root.join(path);
-            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-            std::fs::write(path, text).unwrap();
-        };
+        let write = |path: &str, text: &str| write_under(root, path, text);
         // s1: ended here; s2: its summary says interrupted, with a checkpoint and 3 epochs; s3: ended on another
         // machine (docs/reproduction); s4: interrupted in both, no checkpoint; s5: nothing.
         write(
@@ -218,11 +221,7 @@ mod tests {
     fn a_new_group_is_estimated_by_its_preset_and_epochs() {
         let tmp = tempfile::tempdir().unwrap();
         let root = tmp.path();
-        let write = |path: &str, text: &str| {
-            let path = root.join(path);
-            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-            std::fs::write(path, text).unwrap();
-        };
+        let write = |path: &str, text: &str| write_under(root, path, text);
         // g-a-s1 (epochs 10) took 6 minutes, g-s1 (epochs 20) 30: g-b-s1 (epochs 20) is estimated at 30.
         for (run, seconds) in [("g-a-s1", 360), ("g-s1", 1800)] {
             write(
