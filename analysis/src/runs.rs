@@ -243,8 +243,15 @@ impl RunRecord {
     /// the track, stalled or spun): how much of the training-time driving ended in a violation. None when the run
     /// has fewer epochs with these columns, or collected nothing.
     pub fn crashed_share(&self, epochs: u64) -> Option<f64> {
-        let first = self.collection.get(..usize::try_from(epochs).ok()?)?;
-        let (failed, collected) = first
+        self.crashed_share_over(0..usize::try_from(epochs).ok()?)
+    }
+
+    /// [`RunRecord::crashed_share`] over the epochs `epochs` (indices of `collection`); None when the run lacks
+    /// some of them or collected nothing there.
+    pub fn crashed_share_over(&self, epochs: std::ops::Range<usize>) -> Option<f64> {
+        let (failed, collected) = self
+            .collection
+            .get(epochs)?
             .iter()
             .fold((0.0, 0.0), |(f, c), &(ef, ec)| (f + ef, c + ec));
         (collected > 0.0).then(|| failed / collected)

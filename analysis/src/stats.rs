@@ -17,14 +17,7 @@ fn sorted(values: &[f64]) -> Vec<f64> {
     v
 }
 
-fn median_of_sorted(v: &[f64]) -> Option<f64> {
-    let n = v.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(v[n / 2]),
-        _ => Some((v[n / 2 - 1] + v[n / 2]) / 2.0),
-    }
-}
+use cabc_proto::stats::median_of_middles_sorted as median_of_sorted;
 
 /// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
 pub fn median_range(values: &[f64], digits: usize) -> String {

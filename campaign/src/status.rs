@@ -71,15 +71,10 @@ struct Took {
     minutes: f64,
 }
 
-/// The median of `values`; None when empty.
+/// The median of `values` (the mean of the two middles for an even count); None when empty.
 fn median(mut values: Vec<f64>) -> Option<f64> {
     values.sort_by(f64::total_cmp);
-    let n = values.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(values[n / 2]),
-        _ => Some((values[n / 2 - 1] + values[n / 2]) / 2.0),
-    }
+    cabc_proto::stats::median_of_middles_sorted(&values)
 }
 
 /// The report of `cabc campaign status`: per slice its runs and their states, then the counts and about how long

@@ -35,6 +35,17 @@ pub fn median(xs: &mut [f64]) -> Option<f64> {
     percentile(xs, 0.5)
 }
 
+/// The median of an already sorted sample with the mean of the two middles for an even count (not nearest-rank: a
+/// median over two seeds' versions or run times lies between them); `None` when it is empty.
+pub fn median_of_middles_sorted(sorted: &[f64]) -> Option<f64> {
+    let n = sorted.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(sorted[n / 2]),
+        _ => Some((sorted[n / 2 - 1] + sorted[n / 2]) / 2.0),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

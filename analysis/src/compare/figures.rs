@@ -282,11 +282,8 @@ fn crashed(path: &Path, runs: &[RunRecord]) -> Drawn {
             .draw()?;
         for (i, r) in runs.iter().enumerate() {
             let points = (0..r.collection.len()).filter_map(|e| {
-                let window = &r.collection[e.saturating_sub(CRASHED_WINDOW - 1)..=e];
-                let (failed, collected) = window
-                    .iter()
-                    .fold((0.0, 0.0), |(f, c), &(ef, ec)| (f + ef, c + ec));
-                (collected > 0.0).then(|| (e as u64, 100.0 * failed / collected))
+                let share = r.crashed_share_over(e.saturating_sub(CRASHED_WINDOW - 1)..e + 1)?;
+                Some((e as u64, 100.0 * share))
             });
             let style = series_style(r, colour(runs, i));
             let drawn = chart.draw_series(LineSeries::new(points, style))?;
