@@ -59,6 +59,33 @@ struct KeyPoint {
     curvature: f64,
 }
 
+/// The circle of an arc piece that starts at `start` with curvature `curvature` (non-zero): its centre, its
+/// radius and its turning direction (1 left, -1 right).
+struct Arc {
+    centre: (f64, f64),
+    radius: f64,
+    dir: f64,
+}
+
+impl Arc {
+    fn of(start: &KeyPoint, curvature: f64) -> Arc {
+        let r = 1.0 / curvature;
+        let dir = if r >= 0.0 { 1.0 } else { -1.0 };
+        let radius = r.abs();
+        let normal = start.psi + dir * FRAC_PI_2;
+        Arc {
+            centre: (start.x + radius * normal.cos(), start.y + radius * normal.sin()),
+            radius,
+            dir,
+        }
+    }
+
+    /// The signed angle the piece of length `len` turns through (positive left).
+    fn span(&self, len: f64) -> f64 {
+        self.dir * len / self.radius
+    }
+}
+
 /// A closed track with a constant half-width (the constraint) and a slack band (Frenet validity).
 #[derive(Clone, Debug)]
 pub struct Track {
@@ -320,11 +347,8 @@ impl Track {
                 psi: wrap(kf.psi + e_psi),
             }
         } else {
-            let r = 1.0 / kf.curvature;
-            let dir = if r >= 0.0 { 1.0 } else { -1.0 };
-            let ar = r.abs();
-            let cx = ki.x + ar * (ki.psi + dir * FRAC_PI_2).cos();
-            let cy = ki.y + ar * (ki.psi + dir * FRAC_PI_2).sin();
+            let arc = Arc::of(&ki, kf.curvature);
+            let (dir, ar, (cx, cy)) = (arc.dir, arc.radius, arc.centre);
             let span = d / ar;
             let psi_d = wrap(ki.psi + dir * span);
             let ang_n = wrap(ki.psi + dir * FRAC_PI_2);
@@ -377,14 +401,9 @@ impl Track {
                     });
                 }
             } else {
-                let r = 1.0 / k1.curvature;
-                let dir = if r >= 0.0 { 1.0 } else { -1.0 };
-                let ar = r.abs();
-                let c = (
-                    k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(),
-                    k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin(),
-                );
-                let span = k1.len / r;
+                let arc = Arc::of(&k0, k1.curvature);
+                let (dir, ar, c) = (arc.dir, arc.radius, arc.centre);
+                let span = arc.span(k1.len);
                 let cur = angle(c, p0, p);
                 if sign(span) != sign(cur) || span.abs() < cur.abs() {
                     continue;
@@ -420,14 +439,9 @@ impl Track {
                 let t = (((x - k0.x) * dx + (y - k0.y) * dy) / l2).clamp(0.0, 1.0);
                 (x - k0.x - t * dx).hypot(y - k0.y - t * dy)
             } else {
-                let r = 1.0 / k1.curvature;
-                let dir = if r >= 0.0 { 1.0 } else { -1.0 };
-                let ar = r.abs();
-                let c = (
-                    k0.x + ar * (k0.psi + dir * FRAC_PI_2).cos(),
-                    k0.y + ar * (k0.psi + dir * FRAC_PI_2).sin(),
-                );
-                let span = k1.len / r;
+                let arc = Arc::of(&k0, k1.curvature);
+                let (dir, ar, c) = (arc.dir, arc.radius, arc.centre);
+                let span = arc.span(k1.len);
                 let cur = angle(c, (k0.x, k0.y), (x, y));
                 let inside = if span > 0.0 {
                     cur >= 0.0 && cur <= span
