@@ -24,12 +24,7 @@ fn main() -> anyhow::Result<()> {
             local,
             set,
         } => {
-            let mut config = load(&config, false)?
-                .with_overrides(&set)
-                .context("applying --set")?;
-            if baseline {
-                config.make_baseline();
-            }
+            let mut config = resolve(&config, &set, baseline)?;
             if !listen.is_empty() {
                 config.bus.listen = listen;
             }
@@ -47,13 +42,7 @@ fn main() -> anyhow::Result<()> {
             baseline,
             set,
         } => {
-            // --set first, so that it can change what --baseline makes (algorithm.baseline_lambda, baseline_rho).
-            let mut config = load(&config, false)?
-                .with_overrides(&set)
-                .context("applying --set")?;
-            if baseline {
-                config.make_baseline();
-            }
+            let config = resolve(&config, &set, baseline)?;
             let run_dir =
                 RunDir::prepare(&config, None, false).context("preparing the run folder")?;
             println!("{}", run_dir.path().display());
@@ -62,6 +51,15 @@ fn main() -> anyhow::Result<()> {
     }
 }
 
-fn load(name: &str, baseline: bool) -> anyhow::Result<RunConfig> {
-    RunConfig::load_variant(name, baseline).with_context(|| format!("loading configuration {name}"))
+/// The run's configuration: the preset or file `name`, then `--set`, then `--baseline` (--set first, so that it can
+/// change what --baseline makes: algorithm.baseline_lambda, baseline_rho).
+fn resolve(name: &str, set: &[String], baseline: bool) -> anyhow::Result<RunConfig> {
+    let mut config = RunConfig::load_variant(name, false)
+        .with_context(|| format!("loading configuration {name}"))?
+        .with_overrides(set)
+        .context("applying --set")?;
+    if baseline {
+        config.make_baseline();
+    }
+    Ok(config)
 }

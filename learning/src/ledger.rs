@@ -81,32 +81,10 @@ mod tests {
         new
     }
 
-    #[test]
-    fn the_ledger_admits_each_segment_once() {
-        let seg = |actor: &str, seq| Segment {
+    /// An empty segment of `actor`'s incarnation `incarnation`, number `seq`.
+    fn seg(actor: &str, incarnation: u64, seq: u64) -> Segment {
+        Segment {
             actor: actor.into(),
-            env: 0,
-            episode: 0,
-            incarnation: 0,
-            seq,
-            policy_version: 0,
-            outcome: Outcome::Lap,
-            steps: vec![],
-        };
-        let mut l = Ledger::default();
-        let mut offer = |s: Segment| offer(&mut l, &s);
-        assert!(offer(seg("a", 0)));
-        assert!(offer(seg("a", 1)));
-        assert!(offer(seg("b", 0)));
-        assert!(!offer(seg("a", 1)));
-        assert_eq!((l.stored_segments, l.duplicates), (3, 1));
-        assert_eq!(l.segments_of("a"), 2);
-    }
-
-    #[test]
-    fn a_restarted_actor_is_not_a_duplicate() {
-        let seg = |incarnation, seq| Segment {
-            actor: "a".into(),
             env: 0,
             episode: 0,
             incarnation,
@@ -114,13 +92,29 @@ mod tests {
             policy_version: 0,
             outcome: Outcome::Lap,
             steps: vec![],
-        };
+        }
+    }
+
+    #[test]
+    fn the_ledger_admits_each_segment_once() {
         let mut l = Ledger::default();
         let mut offer = |s: Segment| offer(&mut l, &s);
-        assert!(offer(seg(1, 0)));
-        assert!(offer(seg(1, 1)));
-        assert!(offer(seg(2, 0)), "the restart's first segment is new");
-        assert!(!offer(seg(2, 0)));
+        assert!(offer(seg("a", 0, 0)));
+        assert!(offer(seg("a", 0, 1)));
+        assert!(offer(seg("b", 0, 0)));
+        assert!(!offer(seg("a", 0, 1)));
+        assert_eq!((l.stored_segments, l.duplicates), (3, 1));
+        assert_eq!(l.segments_of("a"), 2);
+    }
+
+    #[test]
+    fn a_restarted_actor_is_not_a_duplicate() {
+        let mut l = Ledger::default();
+        let mut offer = |s: Segment| offer(&mut l, &s);
+        assert!(offer(seg("a", 1, 0)));
+        assert!(offer(seg("a", 1, 1)));
+        assert!(offer(seg("a", 2, 0)), "the restart's first segment is new");
+        assert!(!offer(seg("a", 2, 0)));
         assert_eq!((l.stored_segments, l.duplicates), (3, 1));
         assert_eq!((l.segments_of("a"), l.incarnations_of("a")), (3, 2));
     }

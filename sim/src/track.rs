@@ -440,7 +440,7 @@ impl Track {
                 (x - k0.x - t * dx).hypot(y - k0.y - t * dy)
             } else {
                 let arc = Arc::of(&k0, k1.curvature);
-                let (dir, ar, c) = (arc.dir, arc.radius, arc.centre);
+                let (ar, c) = (arc.radius, arc.centre);
                 let span = arc.span(k1.len);
                 let cur = angle(c, (k0.x, k0.y), (x, y));
                 let inside = if span > 0.0 {
