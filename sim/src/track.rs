@@ -74,7 +74,10 @@ impl Arc {
         let radius = r.abs();
         let normal = start.psi + dir * FRAC_PI_2;
         Arc {
-            centre: (start.x + radius * normal.cos(), start.y + radius * normal.sin()),
+            centre: (
+                start.x + radius * normal.cos(),
+                start.y + radius * normal.sin(),
+            ),
             radius,
             dir,
         }
