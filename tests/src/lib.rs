@@ -291,22 +291,29 @@ impl Cluster {
         }
     }
 
-    /// The last lines of a child's log (for failure messages).
-    /// Waits for the learner `label` to end (400 s at most), checks that it succeeded and returns its
-    /// `summary.json` as printed on its stdout; panics with its log otherwise.
-    pub fn summary(&mut self, label: &str) -> serde_json::Value {
+    /// Waits for the child `label` to end (`timeout` at most) and checks that it succeeded; returns its stdout.
+    /// Panics with its log otherwise.
+    pub fn wait_success(&mut self, label: &str, timeout: Duration) -> String {
         let (status, stdout) = self
-            .wait(label, std::time::Duration::from_secs(400))
+            .wait(label, timeout)
             .unwrap_or_else(|e| panic!("{e}\n--- {label} log ---\n{}", self.log_tail(label)));
         assert!(
             status.success(),
             "{label} failed:\n{}",
             self.log_tail(label)
         );
+        stdout
+    }
+
+    /// Waits for the learner `label` to end (400 s at most), checks that it succeeded and returns its
+    /// `summary.json` as printed on its stdout; panics with its log otherwise.
+    pub fn summary(&mut self, label: &str) -> serde_json::Value {
+        let stdout = self.wait_success(label, Duration::from_secs(400));
         serde_json::from_str(&stdout)
             .unwrap_or_else(|e| panic!("{label}'s stdout is not the summary ({e}): {stdout}"))
     }
 
+    /// The last lines of a child's log (for failure messages).
     pub fn log_tail(&self, label: &str) -> String {
         let text =
             std::fs::read_to_string(self.dir.join(format!("{label}.log"))).unwrap_or_default();

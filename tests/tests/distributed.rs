@@ -371,14 +371,7 @@ fn a_camera_smoke_run_completes() {
         .iter()
         .all(|s| s.parse::<u64>().unwrap() > 0));
     for label in ["actor-0", "actor-1", "eval", "expert-server"] {
-        let (status, _) = cluster
-            .wait(label, Duration::from_secs(60))
-            .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(label)));
-        assert!(
-            status.success(),
-            "{label} failed:\n{}",
-            cluster.log_tail(label)
-        );
+        cluster.wait_success(label, Duration::from_secs(60));
     }
     let actor = std::fs::read_to_string(dir.join("actor-0.log")).unwrap_or_default();
     assert!(!actor.contains("ERROR"), "{actor}");
@@ -427,14 +420,7 @@ fn two_evaluators_share_every_version() {
     assert!(missing.iter().all(|&v| v + 3 >= epochs), "{missing:?}");
     assert!(versions.iter().any(|v| v % 2 == 0) && versions.iter().any(|v| v % 2 == 1));
     for label in ["eval", "eval-1"] {
-        let (status, _) = cluster
-            .wait(label, Duration::from_secs(60))
-            .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(label)));
-        assert!(
-            status.success(),
-            "{label} failed:\n{}",
-            cluster.log_tail(label)
-        );
+        cluster.wait_success(label, Duration::from_secs(60));
     }
     // eval-1's log: "evaluated version=<v> ..." for odd versions only (ANSI colours stripped).
     let odd = std::fs::read_to_string(cluster.dir.join("eval-1.log")).unwrap();

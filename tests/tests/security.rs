@@ -62,14 +62,7 @@ fn check_run(cluster: &mut Cluster, epochs: u64) -> serde_json::Value {
     let timeouts = csv_column(&metrics, "closed_by_timeout");
     assert!(timeouts.iter().all(|t| t == "false"), "{timeouts:?}");
     for label in ["actor-0", "actor-1", "eval", "expert-server"] {
-        let (status, _) = cluster
-            .wait(label, Duration::from_secs(60))
-            .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail(label)));
-        assert!(
-            status.success(),
-            "{label} failed:\n{}",
-            cluster.log_tail(label)
-        );
+        cluster.wait_success(label, Duration::from_secs(60));
         let log = std::fs::read_to_string(cluster.dir.join(format!("{label}.log"))).unwrap();
         assert!(
             !log.contains("forged"),
