@@ -2,13 +2,14 @@
 //! interquartile mean, the stratified bootstrap's 95 % interval, the Wilson score interval of a share and the
 //! probability of improvement of one group over another.
 
+use cabc_proto::stats::median_of_middles_sorted as median_of_sorted;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// The median of `values` (the mean of the middle two for an even count, unlike `cabc_proto::stats::median`'s
 /// nearest rank: a median of versions over two seeds lies between them); None when empty.
 pub fn median(values: &[f64]) -> Option<f64> {
-    median_of_sorted(&sorted(values))
+    cabc_proto::stats::median_of_middles(values)
 }
 
 fn sorted(values: &[f64]) -> Vec<f64> {
@@ -16,8 +17,6 @@ fn sorted(values: &[f64]) -> Vec<f64> {
     v.sort_by(f64::total_cmp);
     v
 }
-
-use cabc_proto::stats::median_of_middles_sorted as median_of_sorted;
 
 /// "median [min–max]" of `values` with `digits` decimals; "-" when empty.
 pub fn median_range(values: &[f64], digits: usize) -> String {

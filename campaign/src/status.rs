@@ -71,12 +71,6 @@ struct Took {
     minutes: f64,
 }
 
-/// The median of `values` (the mean of the two middles for an even count); None when empty.
-fn median(mut values: Vec<f64>) -> Option<f64> {
-    values.sort_by(f64::total_cmp);
-    cabc_proto::stats::median_of_middles_sorted(&values)
-}
-
 /// The report of `cabc campaign status`: per slice its runs and their states, then the counts and about how long
 /// what is left takes one lane: each run left is estimated by the median wall clock of the ended runs of its group
 /// and method, else of those of its preset, epoch cap and method, else of all; a run in progress less what it ran.
@@ -126,7 +120,8 @@ pub fn status(root: &Path, plan: &Plan) -> String {
     .unwrap();
     let estimate = |slice: &crate::plan::Slice, run: &RunName| {
         let like = |same: &dyn Fn(&Took) -> bool| {
-            median(took.iter().filter(|t| same(t)).map(|t| t.minutes).collect())
+            let minutes: Vec<f64> = took.iter().filter(|t| same(t)).map(|t| t.minutes).collect();
+            cabc_proto::stats::median_of_middles(&minutes)
         };
         like(&|t| t.group == run.group() && t.method == run.method())
             .or_else(|| {

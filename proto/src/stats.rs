@@ -35,6 +35,14 @@ pub fn median(xs: &mut [f64]) -> Option<f64> {
     percentile(xs, 0.5)
 }
 
+/// The median of `values` with the mean of the two middles for an even count (see
+/// [`median_of_middles_sorted`]); `None` when it is empty.
+pub fn median_of_middles(values: &[f64]) -> Option<f64> {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    median_of_middles_sorted(&sorted)
+}
+
 /// The median of an already sorted sample with the mean of the two middles for an even count (not nearest-rank: a
 /// median over two seeds' versions or run times lies between them); `None` when it is empty.
 pub fn median_of_middles_sorted(sorted: &[f64]) -> Option<f64> {

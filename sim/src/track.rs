@@ -60,11 +60,12 @@ struct KeyPoint {
 }
 
 /// The circle of an arc piece that starts at `start` with curvature `curvature` (non-zero): its centre, its
-/// radius and its turning direction (1 left, -1 right).
+/// radius, its turning direction (1 left, -1 right) and the heading from the start to the centre (not wrapped).
 struct Arc {
     centre: (f64, f64),
     radius: f64,
     dir: f64,
+    normal: f64,
 }
 
 impl Arc {
@@ -80,6 +81,7 @@ impl Arc {
             ),
             radius,
             dir,
+            normal,
         }
     }
 
@@ -354,7 +356,7 @@ impl Track {
             let (dir, ar, (cx, cy)) = (arc.dir, arc.radius, arc.centre);
             let span = d / ar;
             let psi_d = wrap(ki.psi + dir * span);
-            let ang_n = wrap(ki.psi + dir * FRAC_PI_2);
+            let ang_n = wrap(arc.normal);
             let sgn = if ang_n >= 0.0 { 1.0 } else { -1.0 };
             let ang = -sgn * (PI - ang_n.abs());
             let rr = ar - dir * x_tran;
