@@ -99,7 +99,15 @@ if [ "$pin" = 1 ]; then
     [ -d "$src" ] || git worktree add --detach "$src" "$commit" >&2
     ln -sfn "$root/.deps" "$src/.deps"
   fi
+  # target/ is shared, and cargo names a workspace crate's artifacts by its path relative to the workspace, so the
+  # worktree's crates and this checkout's land on the same files, judged fresh by time alone: whichever sources
+  # are older than the other's build would be taken as built (the pinned binaries HEAD's code, or HEAD's build the
+  # pinned commit's). Touching the sources of the side about to build, and afterwards this checkout's, makes each
+  # build compile its own crates (the dependencies stay shared).
+  touch_sources() { git -C "$1" ls-files -z -- '*.rs' '*.toml' | (cd "$1" && xargs -0 touch); }
+  [ "$src" = "$root" ] || touch_sources "$src"
   (cd "$src" && CARGO_TARGET_DIR="$root/target" cargo build --release --quiet --bins)
+  [ "$src" = "$root" ] || touch_sources "$root"
   dest="$root/.deps/campaign-bin/$commit"
   mkdir -p "$dest"
   cp "$root/target/release/learner" "$root/target/release/actor" "$root/target/release/expert-server" "$dest/"
