@@ -6,29 +6,12 @@
 
 use cabc_models::{Network, Policy, PolicyArch, PolicyCheck};
 use cabc_proto::config::MlpSize;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 use std::io::Write;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::{Duration, Instant};
 use tch::Device;
-
-/// SplitMix64: seeded, reproducible, no crate needed.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn byte(&mut self) -> u8 {
-        self.next() as u8
-    }
-}
 
 fn arch() -> PolicyArch {
     PolicyArch::State {
@@ -48,7 +31,7 @@ fn safetensors(header: &str, data: &[u8]) -> Vec<u8> {
 }
 
 /// Headers a hostile sender might write.
-fn crafted(rng: &mut Rng, name: &str) -> Vec<u8> {
+fn crafted(rng: &mut StdRng, name: &str) -> Vec<u8> {
     let meta = format!(r#""__metadata__":{{"architecture":"{name}"}}"#);
     let dims = [
         "[8,6]".to_string(),
@@ -57,7 +40,7 @@ fn crafted(rng: &mut Rng, name: &str) -> Vec<u8> {
         "[9223372036854775807,9223372036854775807]".into(),
         "[0]".into(),
         "[]".into(),
-        format!("[{}]", rng.next() as i64),
+        format!("[{}]", rng.gen::<i64>()),
         "\"eight\"".into(),
     ];
     let dtypes = ["F32", "F16", "I64", "BOOL", "", "f32"];
@@ -66,68 +49,70 @@ fn crafted(rng: &mut Rng, name: &str) -> Vec<u8> {
         "[192,0]".into(),
         "[0,18446744073709551615]".into(),
         "[18446744073709551615,18446744073709551615]".into(),
-        format!("[{},{}]", rng.next() % 400, rng.next() % 400),
+        format!("[{},{}]", rng.gen::<u64>() % 400, rng.gen::<u64>() % 400),
         "[0]".into(),
         "null".into(),
     ];
-    let tensor = |rng: &mut Rng| {
+    let tensor = |rng: &mut StdRng| {
         format!(
             r#""mlp.0.weight":{{"dtype":"{}","shape":{},"data_offsets":{}}}"#,
-            dtypes[rng.below(dtypes.len())],
-            dims[rng.below(dims.len())],
-            offsets[rng.below(offsets.len())]
+            dtypes[rng.gen_range(0..dtypes.len())],
+            dims[rng.gen_range(0..dims.len())],
+            offsets[rng.gen_range(0..offsets.len())]
         )
     };
-    let header = match rng.below(4) {
+    let header = match rng.gen_range(0..4) {
         0 => format!("{{{meta},{}}}", tensor(rng)),
         1 => format!("{{{},{meta},{}}}", tensor(rng), tensor(rng)),
         2 => format!("{{{}}}", tensor(rng)),
         _ => format!("[{meta}]"),
     };
-    let data: Vec<u8> = (0..rng.below(400)).map(|_| rng.byte()).collect();
+    let data: Vec<u8> = (0..rng.gen_range(0..400))
+        .map(|_| rng.gen::<u8>())
+        .collect();
     let mut bytes = safetensors(&header, &data);
-    if rng.below(8) == 0 {
+    if rng.gen_range(0..8) == 0 {
         // A header length past the end, or near u64::MAX.
-        let n = [u64::MAX, u64::MAX - 7, bytes.len() as u64, 1 << 40][rng.below(4)];
+        let n = [u64::MAX, u64::MAX - 7, bytes.len() as u64, 1 << 40][rng.gen_range(0..4)];
         bytes[..8].copy_from_slice(&n.to_le_bytes());
     }
     bytes
 }
 
 /// One mutation of valid weights.
-fn mutate(good: &[u8], rng: &mut Rng) -> Vec<u8> {
+fn mutate(good: &[u8], rng: &mut StdRng) -> Vec<u8> {
     let mut b = good.to_vec();
     let header_end = 8 + u64::from_le_bytes(good[..8].try_into().unwrap()) as usize;
-    for _ in 0..1 + rng.below(3) {
+    for _ in 0..1 + rng.gen_range(0..3) {
         let len = b.len();
-        match rng.below(7) {
+        match rng.gen_range(0..7) {
             // The header length.
             0 if len >= 8 => {
-                let i = rng.below(8);
-                b[i] = rng.byte();
+                let i = rng.gen_range(0..8);
+                b[i] = rng.gen::<u8>();
             }
             // A byte of the JSON header (names, shapes, offsets, dtype, metadata).
             1 | 2 if header_end <= len => {
-                let i = 8 + rng.below(header_end - 8);
-                b[i] = if rng.below(2) == 0 {
-                    rng.byte()
+                let i = 8 + rng.gen_range(0..header_end - 8);
+                b[i] = if rng.gen_range(0..2) == 0 {
+                    rng.gen::<u8>()
                 } else {
-                    b"0123456789-[]{}\",:.eE"[rng.below(21)]
+                    b"0123456789-[]{}\",:.eE"[rng.gen_range(0..21)]
                 };
             }
             // A byte of the data (NaN and garbage are numbers to the parser).
             3 if len > 0 => {
-                let i = rng.below(len);
-                b[i] = rng.byte();
+                let i = rng.gen_range(0..len);
+                b[i] = rng.gen::<u8>();
             }
-            4 => b.truncate(rng.below(len + 1)),
-            5 => (0..1 + rng.below(64)).for_each(|_| b.push(rng.byte())),
+            4 => b.truncate(rng.gen_range(0..len + 1)),
+            5 => (0..1 + rng.gen_range(0..64)).for_each(|_| b.push(rng.gen::<u8>())),
             _ if len > 9 => {
-                let a = 8 + rng.below(len - 8);
-                let e = (a + 1 + rng.below(16)).min(len);
+                let a = 8 + rng.gen_range(0..len - 8);
+                let e = (a + 1 + rng.gen_range(0..16)).min(len);
                 b.drain(a..e);
             }
-            _ => b.push(rng.byte()),
+            _ => b.push(rng.gen::<u8>()),
         }
     }
     b
@@ -165,7 +150,7 @@ fn mutated_weights_never_panic() {
     let name = arch().to_string();
     let good = Policy::new(arch(), Device::Cpu, 5).to_bytes();
     assert_eq!(run_all(&check, &name, &good), (false, true));
-    let mut rng = Rng(0x00c0_ffee_0013_5afe);
+    let mut rng = StdRng::seed_from_u64(0x00c0_ffee_0013_5afe);
     let started = Instant::now();
     let (mut panics, mut accepted) = (0, 0);
     for _ in 0..MUTATIONS {
@@ -199,7 +184,7 @@ fn crafted_headers_never_panic_or_allocate_their_declared_size() {
         "critic-mlp-2x8".into(),
         String::new(),
     ];
-    let mut rng = Rng(0x0bad_cafe_0013);
+    let mut rng = StdRng::seed_from_u64(0x0bad_cafe_0013);
     let started = Instant::now();
     let (mut panics, mut accepted) = (0, 0);
     for i in 0..CRAFTED {

@@ -5,40 +5,23 @@
 
 use cabc_proto::codec::{self, Message, HEADER_LEN};
 use cabc_proto::messages::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 use std::io::Write;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::{Duration, Instant};
 
-/// SplitMix64: seeded, reproducible, no crate needed.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn byte(&mut self) -> u8 {
-        self.next() as u8
-    }
-}
-
 /// Bytes that bincode reads as a length or an integer: small, at each varint marker, and huge.
-fn length_prefix(rng: &mut Rng) -> Vec<u8> {
-    match rng.below(6) {
-        0 => vec![rng.byte() % 251],
-        1 => [vec![251], (rng.next() as u16).to_le_bytes().to_vec()].concat(),
-        2 => [vec![252], (rng.next() as u32).to_le_bytes().to_vec()].concat(),
-        3 => [vec![253], rng.next().to_le_bytes().to_vec()].concat(),
+fn length_prefix(rng: &mut StdRng) -> Vec<u8> {
+    match rng.gen_range(0..6) {
+        0 => vec![rng.gen::<u8>() % 251],
+        1 => [vec![251], rng.gen::<u16>().to_le_bytes().to_vec()].concat(),
+        2 => [vec![252], rng.gen::<u32>().to_le_bytes().to_vec()].concat(),
+        3 => [vec![253], rng.gen::<u64>().to_le_bytes().to_vec()].concat(),
         4 => [
             vec![254],
-            rng.next().to_le_bytes().to_vec(),
-            rng.next().to_le_bytes().to_vec(),
+            rng.gen::<u64>().to_le_bytes().to_vec(),
+            rng.gen::<u64>().to_le_bytes().to_vec(),
         ]
         .concat(),
         _ => vec![255],
@@ -46,49 +29,49 @@ fn length_prefix(rng: &mut Rng) -> Vec<u8> {
 }
 
 /// One mutation of a valid encoding.
-fn mutate(good: &[u8], rng: &mut Rng) -> Vec<u8> {
+fn mutate(good: &[u8], rng: &mut StdRng) -> Vec<u8> {
     let mut b = good.to_vec();
-    let rounds = 1 + rng.below(4);
+    let rounds = 1 + rng.gen_range(0..4);
     for _ in 0..rounds {
         let len = b.len();
-        match rng.below(9) {
+        match rng.gen_range(0..9) {
             // Flip bits of a byte.
             0 if len > 0 => {
-                let i = rng.below(len);
-                b[i] ^= 1 << rng.below(8);
+                let i = rng.gen_range(0..len);
+                b[i] ^= 1 << rng.gen_range(0..8);
             }
             // Overwrite a byte.
             1 if len > 0 => {
-                let i = rng.below(len);
-                b[i] = rng.byte();
+                let i = rng.gen_range(0..len);
+                b[i] = rng.gen::<u8>();
             }
             // Truncate.
-            2 => b.truncate(rng.below(len + 1)),
+            2 => b.truncate(rng.gen_range(0..len + 1)),
             // Extend with random bytes.
-            3 => (0..1 + rng.below(16)).for_each(|_| b.push(rng.byte())),
+            3 => (0..1 + rng.gen_range(0..16)).for_each(|_| b.push(rng.gen::<u8>())),
             // Corrupt the header: magic, schema version or kind.
             4 if len >= HEADER_LEN => {
-                let i = rng.below(HEADER_LEN);
-                b[i] = rng.byte();
+                let i = rng.gen_range(0..HEADER_LEN);
+                b[i] = rng.gen::<u8>();
             }
             // Replace what follows the header (or a later byte) by a length prefix of any size.
             5 if len > HEADER_LEN => {
-                let at = HEADER_LEN + rng.below(len - HEADER_LEN);
+                let at = HEADER_LEN + rng.gen_range(0..len - HEADER_LEN);
                 let prefix = length_prefix(rng);
                 let end = (at + prefix.len()).min(len);
                 b.splice(at..end, prefix);
             }
             // Insert a length prefix.
             6 if len > HEADER_LEN => {
-                let at = HEADER_LEN + rng.below(len - HEADER_LEN + 1);
+                let at = HEADER_LEN + rng.gen_range(0..len - HEADER_LEN + 1);
                 let prefix = length_prefix(rng);
                 b.splice(at..at, prefix);
             }
             // Duplicate or drop a run of bytes.
             7 if len > 1 => {
-                let a = rng.below(len);
-                let e = (a + 1 + rng.below(32)).min(len);
-                if rng.below(2) == 0 {
+                let a = rng.gen_range(0..len);
+                let e = (a + 1 + rng.gen_range(0..32)).min(len);
+                if rng.gen_range(0..2) == 0 {
                     let run = b[a..e].to_vec();
                     b.splice(e..e, run);
                 } else {
@@ -97,11 +80,12 @@ fn mutate(good: &[u8], rng: &mut Rng) -> Vec<u8> {
             }
             // NaN / inf bit patterns where floats sit.
             _ if len >= HEADER_LEN + 4 => {
-                let i = HEADER_LEN + rng.below(len - HEADER_LEN - 3);
-                let bits = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.below(3)].to_le_bytes();
+                let i = HEADER_LEN + rng.gen_range(0..len - HEADER_LEN - 3);
+                let bits =
+                    [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.gen_range(0..3)].to_le_bytes();
                 b[i..i + 4].copy_from_slice(&bits);
             }
-            _ => b.push(rng.byte()),
+            _ => b.push(rng.gen::<u8>()),
         }
     }
     b
@@ -280,7 +264,7 @@ const RANDOM_CASES: usize = 25_000;
 
 #[test]
 fn mutated_encodings_of_every_message_decode_without_panic() {
-    let mut rng = Rng(0x00c0_ffee_cabc_0013);
+    let mut rng = StdRng::seed_from_u64(0x00c0_ffee_cabc_0013);
     let (mut total, mut total_panics) = (0, 0);
     let started = Instant::now();
     for (name, good) in corpus() {
@@ -325,17 +309,17 @@ fn mutated_encodings_of_every_message_decode_without_panic() {
 
 #[test]
 fn random_bytes_decode_without_panic() {
-    let mut rng = Rng(0x5eed_0013);
+    let mut rng = StdRng::seed_from_u64(0x5eed_0013);
     let started = Instant::now();
     let mut panics = 0;
     for i in 0..RANDOM_CASES {
-        let len = rng.below(if i % 4 == 0 { 16 } else { 512 });
-        let mut bytes: Vec<u8> = (0..len).map(|_| rng.byte()).collect();
+        let len = rng.gen_range(0..if i % 4 == 0 { 16 } else { 512 });
+        let mut bytes: Vec<u8> = (0..len).map(|_| rng.gen::<u8>()).collect();
         // Half of them behind a valid header of a random kind, so the bodies are reached.
         if i % 2 == 0 {
             let mut header = codec::MAGIC.to_vec();
             header.extend_from_slice(&codec::SCHEMA_VERSION.to_le_bytes());
-            header.push(1 + rng.below(6) as u8);
+            header.push(1 + rng.gen_range(0..6) as u8);
             bytes.splice(0..0, header);
         }
         if !decode_all(&bytes) {
