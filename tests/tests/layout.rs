@@ -151,16 +151,27 @@ fn no_crate_has_an_import_circle_between_its_modules() {
     }
 }
 
-/// Each workspace package's dependencies, direct and not, by package name (`cargo metadata`, offline).
+/// The triple of the machine that builds (`cargo -vV`'s `host:`).
+fn host_triple() -> String {
+    let out = std::process::Command::new(env!("CARGO"))
+        .arg("-vV")
+        .output()
+        .expect("cargo -vV");
+    let text = String::from_utf8_lossy(&out.stdout);
+    text.lines()
+        .find_map(|line| line.strip_prefix("host: "))
+        .unwrap_or_else(|| panic!("cargo -vV names no host:\n{text}"))
+        .to_string()
+}
+
+/// Each workspace package's dependencies, direct and not, by package name (`cargo metadata`, offline), on the
+/// machine's own platform: a fresh machine's registry holds only the packages its build downloaded, and offline
+/// `cargo metadata` over every platform wants the others' too (android_system_properties, windows-sys...).
 fn dependency_closure() -> HashMap<String, BTreeSet<String>> {
     let out = std::process::Command::new(env!("CARGO"))
-        .args([
-            "metadata",
-            "--format-version",
-            "1",
-            "--offline",
-            "--manifest-path",
-        ])
+        .args(["metadata", "--format-version", "1", "--offline"])
+        .args(["--filter-platform", &host_triple()])
+        .arg("--manifest-path")
         .arg(root().join("Cargo.toml"))
         .output()
         .expect("cargo metadata");
