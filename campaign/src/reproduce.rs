@@ -112,16 +112,18 @@ impl Reproduce {
         Ok(runs)
     }
 
-    /// Runs them under the repository's `root` with the binaries in `bin` (they hold `cabc`; run-local.sh is given
-    /// them as `CABC_BIN`). Progress goes to stderr, each group's table to stdout.
-    pub fn run(&self, root: &Path, bin: &Path) -> Result<()> {
+    /// Runs them under the repository's `root` with the binaries in `bin` (run-local.sh is given them as
+    /// `CABC_BIN`) and draws each group with `compare`'s `compare` subcommand: a `cabc` that may be newer than the
+    /// runs' (a campaign's pinned binaries predate a column or a figure; the numbers are the runs' whichever draws
+    /// them). Progress goes to stderr, each group's table to stdout.
+    pub fn run(&self, root: &Path, bin: &Path, compare: &Path) -> Result<()> {
         let runs = self.runs()?;
         for group in runs.chunk_by(|a, b| a.name.group() == b.name.group()) {
             for run in group {
                 self.run_one(root, bin, run)?;
             }
             if !self.dry_run {
-                draw(root, bin, group[0].name.group());
+                draw(root, compare, group[0].name.group());
             }
         }
         eprintln!("[reproduce] done; results in {RESULTS_DIR}/");
@@ -167,9 +169,9 @@ impl Reproduce {
     }
 }
 
-/// Redraws a group's figures and table (`cabc compare` over its result folders with a metrics.csv); a failure is
-/// reported, not returned.
-fn draw(root: &Path, bin: &Path, group: &str) {
+/// Redraws a group's figures and table (`<cabc> compare` over its result folders with a metrics.csv); a failure
+/// is reported, not returned.
+fn draw(root: &Path, cabc: &Path, group: &str) {
     let results = root.join(RESULTS_DIR);
     let folders = match group_folders(&results, group) {
         Ok(folders) if !folders.is_empty() => folders,
@@ -179,7 +181,7 @@ fn draw(root: &Path, bin: &Path, group: &str) {
             return;
         }
     };
-    let out = Command::new(bin.join("cabc"))
+    let out = Command::new(cabc)
         .arg("compare")
         .arg("--out")
         .arg(results.join(group))

@@ -149,6 +149,10 @@ pub struct ReproduceArgs {
     /// folder).
     #[arg(long)]
     bin: Option<PathBuf>,
+    /// The `cabc` whose `compare` draws each group's figures and table (default: this program, which may be newer
+    /// than --bin's: a campaign's pinned binaries run, this checkout's tools draw).
+    #[arg(long)]
+    compare: Option<PathBuf>,
     /// The repository's root: deploy/run-local.sh, runs/ and docs/reproduction/ are under it.
     #[arg(long, default_value = ".")]
     root: PathBuf,
@@ -177,16 +181,17 @@ pub fn reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
         dry_run: args.dry_run,
     };
     let root = absolute(&args.root)?;
+    let this = std::env::current_exe().context("this program's path")?;
     let bin = match (&args.bin, std::env::var_os("CABC_BIN")) {
         (Some(bin), _) => root.join(bin),
         (None, Some(bin)) if !bin.is_empty() => root.join(bin),
-        _ => std::env::current_exe()
-            .context("this program's path")?
+        _ => this
             .parent()
             .context("this program's folder")?
             .to_path_buf(),
     };
-    call.run(&root, &bin)
+    let compare = args.compare.as_ref().map_or(this, |cabc| root.join(cabc));
+    call.run(&root, &bin, &compare)
 }
 
 /// The root as an absolute path (the runner and the drawing command run there, with paths under it).

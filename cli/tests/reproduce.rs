@@ -1,7 +1,8 @@
 //! `cabc reproduce`, the campaign's per-run step (what deploy/reproduce.sh did in bash): the runs' names, seeds and
 //! arguments reach deploy/run-local.sh, an ended run is skipped, one with a checkpoint resumed, a failure fails the
 //! step, the results are copied, and the group's table is drawn over its own folders only. deploy/run-local.sh and
-//! the binaries' `cabc compare` are fakes that record their calls.
+//! the drawing `cabc compare` (--compare, not the runs' binaries: a campaign's pinned ones predate a column) are
+//! fakes that record their calls.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -14,7 +15,8 @@ fn executable(path: &Path, text: &str) {
 }
 
 /// A root whose run-local.sh records `<mode> <args> (CABC_BIN)` and writes an ended run folder (failing for a run
-/// named in `FAIL`), and whose bin/cabc draws a "table" naming the folders it was given.
+/// named in `FAIL`), and whose tools/cabc draws a "table" naming the folders it was given (bin/, the runs' binaries,
+/// holds a cabc that fails: the drawing is --compare's).
 fn setup(dir: &Path) {
     executable(
         &dir.join("deploy/run-local.sh"),
@@ -30,8 +32,9 @@ echo "epoch" > "runs/$name/metrics.csv"
 echo "png" > "runs/$name/plots/sub/laps.png"
 "#,
     );
+    executable(&dir.join("bin/cabc"), "#!/usr/bin/env bash\nexit 8\n");
     executable(
-        &dir.join("bin/cabc"),
+        &dir.join("tools/cabc"),
         "#!/usr/bin/env bash\n[ \"$1\" = compare ] && [ \"$2\" = --out ] || exit 9\nshift 3\n\
          for f in \"$@\"; do echo \"| ${f##*/} |\"; done\n",
     );
@@ -40,7 +43,7 @@ echo "png" > "runs/$name/plots/sub/laps.png"
 fn reproduce(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_cabc"))
         .arg("reproduce")
-        .args(["--bin", "bin"])
+        .args(["--bin", "bin", "--compare", "tools/cabc"])
         .args(args)
         .current_dir(dir)
         .envs(env.iter().copied())
