@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# Issue 31's device checks as one prepared call, sized to the device tool's budget (15 minutes of device time a
+# session, 10 minutes a call): run on the lent GPU machine from the repository root, after `deploy/gpu-pack.sh` here,
+# with the device tool's `carry: [".gpu"]`:
+#
+#   bash deploy/gpu-session.sh --seconds 560          # the call's timeout_s 600
+#
+# In order, each step bounded so that the next always runs and the results always come back:
+#   1. nvidia-smi and the CUDA test (learning/tests/cuda.rs)                      -> $OUT/gpu.log
+#   2. `cabc bench-vision` fp32 and bf16, each set against PyTorch 2.11's anchor  -> $OUT/bench-{fp32,bf16}.json, gpu.log
+#   3. V-C at 224x224 with ResNet-18 (`v-c-ref` at the paper's size, bf16) for the seconds left, ended by SIGINT
+#      (the run's summary says "interrupted"; its checkpoint stays on the machine)
+#                                  -> $OUT/{metrics.csv,evals.csv,summary.json,laps.png,run.log}
+# --seconds is the whole script's budget (default 560); --side changes the image side of steps 2 and 3 (224; a
+# smaller one checks the script itself on a CPU), --bench-args replaces bench-vision's timing arguments. Anywhere
+# else than the device tool, OUT names the folder for the results (TORCH_LIB: see .gpu/run.sh).
+set -uo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+
+seconds=560
+side=224
+bench_args=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --seconds) seconds=$2; shift ;;
+    --side) side=$2; shift ;;
+    --bench-args) bench_args=$2; shift ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+[ -n "${OUT:-}" ] || { echo "OUT is unset: name the folder for the results" >&2; exit 2; }
+[ -x .gpu/run.sh ] || { echo "no .gpu/run.sh: run deploy/gpu-pack.sh here and carry .gpu" >&2; exit 2; }
+mkdir -p "$OUT"
+log=$OUT/gpu.log
+start=$(date +%s)
+left() { echo $(( seconds - ($(date +%s) - start) )); }
+step() { echo "== $* (at ${SECONDS}s, $(left)s left)" >> "$log"; }
+
+# The anchor: PyTorch 2.11 on the same kind of machine (issue 31): training images/s at batch 64.
+declare -A anchor=([fp32]=4256 [bf16]=5635)
+
+step "nvidia-smi"
+nvidia-smi >> "$log" 2>&1 || echo "nvidia-smi: rc $?" >> "$log"
+
+step "the CUDA test"
+timeout 150 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
+echo "cuda-test: rc $?" >> "$log"
+
+for precision in fp32 bf16; do
+  step "bench-vision $precision"
+  # shellcheck disable=SC2086 # bench_args is a list of words
+  timeout 90 .gpu/run.sh cabc bench-vision --side "$side" --precision "$precision" $bench_args \
+    > "$OUT/bench-$precision.json" 2>> "$log"
+  echo "bench-vision $precision: rc $?" >> "$log"
+  python3 - "$OUT/bench-$precision.json" "${anchor[$precision]}" >> "$log" 2>&1 <<'PY'
+import json, sys
+bench = json.load(open(sys.argv[1]))
+ours, theirs = bench["train_images_per_s"], float(sys.argv[2])
+print(f"{bench['precision']} on {bench['device']}: {ours:.0f} training images/s at batch {bench['batch']}, "
+      f"side {bench['side']}; PyTorch's {theirs:.0f}: {ours / theirs:.1%}; inference {bench['infer_images_per_s']}")
+PY
+done
+
+run=v-c-ref-$side
+budget=$(( $(left) - 25 ))
+step "V-C at ${side}x${side} for ${budget}s"
+if [ "$budget" -gt 30 ]; then
+  resume=()
+  [ -d "runs/$run/checkpoint" ] && resume=(--resume)
+  timeout -s INT -k 20 "$budget" .gpu/run.sh learner run --local --config v-c-ref \
+    --set observation.width="$side" --set observation.height="$side" --set 'observation.trunk="resnet18"' \
+    --set training.policy_max_batches=0 --set replay.max_bytes=16_000_000_000 --set 'training.precision="bf16"' \
+    --set run.name="$run" "${resume[@]}" > "$OUT/run.full.log" 2>&1
+  echo "learner: rc $? (124 or 130: ended by the budget)" >> "$log"
+  tail -n 400 "$OUT/run.full.log" > "$OUT/run.log"
+  rm -f "$OUT/run.full.log"
+  for f in metrics.csv evals.csv summary.json plots/laps.png; do
+    cp "runs/$run/$f" "$OUT/" 2>> "$log" || true
+  done
+else
+  echo "no time left for V-C" >> "$log"
+fi
+step "done"
+cat "$log"
