@@ -176,8 +176,10 @@ impl Learner {
         }
     }
 
-    /// Starts an epoch's counts (what the ledger stored so far, no incomplete steps, no D? steps).
+    /// Starts an epoch's counts (what the ledger stored so far, no incomplete steps, no D? steps) and marks where
+    /// the replay's rows of D_new will begin (the critic's held-out set, [`Replay::begin_epoch`]).
     pub fn begin_epoch(&mut self) {
+        self.replay.begin_epoch();
         let ledger = &self.state.ledger;
         self.tally = Tally {
             stored_before: (ledger.stored_steps, ledger.stored_segments),

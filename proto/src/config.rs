@@ -14,7 +14,7 @@ mod security;
 mod validate;
 pub use choices::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
-    Precision, ScheduleKind, Spawn, StoredAction, VisionTrunk,
+    Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};
 

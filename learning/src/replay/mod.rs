@@ -126,6 +126,25 @@ pub struct Replay {
     /// `replay.dynamics_only` (not saved: it is the configuration's): whether unfinished laps and the points
     /// auto-labelling removes are kept for f_hat, or dropped (the reference).
     keep_dynamics_only: bool,
+    /// Where this epoch's rows begin ([`Replay::begin_epoch`]; not saved: an epoch is never resumed halfway).
+    fresh: Fresh,
+}
+
+/// The stores at the start of an epoch, to find the rows D_new adds ([`Replay::fresh_plus`], [`Replay::fresh_minus`]):
+/// the rows the critic has not trained on yet, its held-out set.
+#[derive(Clone, Copy, Debug, Default)]
+struct Fresh {
+    /// D+'s length and its steps ever added.
+    plus: (usize, usize),
+    /// D?'s, likewise.
+    uncertain: (usize, usize),
+    /// D-'s first row from this epoch, once this epoch's labelling made D- anew.
+    minus_from: Option<usize>,
+}
+
+/// The first row a store gained since `(len, added)`, when it gained them at its end (no eviction since).
+fn appended_from(then: (usize, usize), len: usize, added: usize) -> Option<usize> {
+    (len.checked_sub(then.0) == added.checked_sub(then.1)).then_some(then.0)
 }
 
 /// Where D+'s images are in the run's image log (version 3).
@@ -196,6 +215,7 @@ impl Replay {
             rng: ChaCha8Rng::seed_from_u64(seed),
             added: AddCounts::default(),
             keep_dynamics_only: true,
+            fresh: Fresh::default(),
         }
     }
 
@@ -359,15 +379,46 @@ impl Replay {
         }
     }
 
+    /// Marks the start of an epoch: the rows added from here on are [`Replay::fresh_plus`] and, once labelled,
+    /// [`Replay::fresh_minus`].
+    pub fn begin_epoch(&mut self) {
+        self.fresh = Fresh {
+            plus: (self.plus.len(), self.added.plus),
+            uncertain: (self.uncertain.len(), self.added.uncertain),
+            minus_from: None,
+        };
+    }
+
+    /// D+'s rows added since [`Replay::begin_epoch`]; empty when eviction scattered them.
+    pub fn fresh_plus(&self) -> std::ops::Range<usize> {
+        let len = self.plus.len();
+        appended_from(self.fresh.plus, len, self.added.plus).map_or(0..0, |from| from..len)
+    }
+
+    /// D-'s rows from D? steps added since [`Replay::begin_epoch`], when this epoch's labelling made D- (the ones
+    /// it kept); empty before that labelling, or when eviction scattered them.
+    pub fn fresh_minus(&self) -> std::ops::Range<usize> {
+        self.fresh
+            .minus_from
+            .map_or(0..0, |from| from.min(self.minus.len())..self.minus.len())
+    }
+
     /// Applies an auto-labelling pass (eq. (19)), Algorithm 1's "remove x from D?": the D? entries at
     /// `removed` (an auto-labelling report's `removed`: indices into D? as it was labelled) leave D? (as in the reference they are not labelled
     /// safe; they stay available to the dynamics model unless `replay.dynamics_only` is off, where, as in the
     /// reference, they are deleted), and D- becomes what D? then holds, until the next labelling.
     pub fn apply_labels(&mut self, removed: &[usize]) {
         let mut keep = vec![true; self.uncertain.len()];
+        let fresh_from = appended_from(
+            self.fresh.uncertain,
+            self.uncertain.len(),
+            self.added.uncertain,
+        );
+        let mut removed_before_fresh = 0;
         for &i in removed {
             if i < keep.len() && keep[i] {
                 keep[i] = false;
+                removed_before_fresh += usize::from(fresh_from.is_some_and(|from| i < from));
                 if self.keep_dynamics_only {
                     self.uncertain
                         .copy_entry(i, &mut self.dynamics_only, &mut self.rng);
@@ -376,6 +427,8 @@ impl Replay {
         }
         self.uncertain.retain(&keep);
         self.minus = self.uncertain.states.clone();
+        // D? keeps its order, so what is left of this epoch's rows is its tail.
+        self.fresh.minus_from = fresh_from.map(|from| from - removed_before_fresh);
     }
 
     /// The replay as bytes for the checkpoint (magic, version, bincode), after appending the images written since
@@ -524,6 +577,7 @@ impl Replay {
             rng,
             added: saved.added,
             keep_dynamics_only: true,
+            fresh: Fresh::default(),
         };
         Ok((replay, log))
     }

@@ -160,6 +160,55 @@ fn fit_critic(
     }
 }
 
+/// The critic on rows it has not trained on: what [`heldout`] reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Heldout {
+    pub points: usize,
+    /// Of these, the positives (D+'s rows): the accuracy of always saying "safe" is `positives / points`.
+    pub positives: usize,
+    /// The share on the right side of p = 0.5.
+    pub accuracy: f64,
+    /// The Brier score, mean of (p - y)^2.
+    pub brier: f64,
+    /// The expected calibration error over `ECE_BINS` equal-width bins of p: sum over bins of
+    /// (points in bin / points) |mean p - mean y|.
+    pub ece: f64,
+}
+
+/// The bins of [`Heldout::ece`].
+pub const ECE_BINS: usize = 10;
+
+/// p_hat on `safe` rows (label 1) and `unsafe_` rows (label 0), states as the critic takes them; None without rows.
+pub fn heldout(critic: &Critic, safe: &Tensor, unsafe_: &Tensor) -> Option<Heldout> {
+    let (n_safe, n_unsafe) = (safe.size()[0] as usize, unsafe_.size()[0] as usize);
+    let points = n_safe + n_unsafe;
+    if points == 0 {
+        return None;
+    }
+    let p = tch::no_grad(|| critic.probability(&Tensor::cat(&[safe, unsafe_], 0)));
+    let p = Vec::<f32>::try_from(p.to_kind(Kind::Float).to_device(Device::Cpu).reshape([-1]))
+        .expect("a float tensor");
+    let label = |i: usize| if i < n_safe { 1.0 } else { 0.0 };
+    let (mut right, mut brier) = (0usize, 0.0f64);
+    let mut bins = [(0usize, 0.0f64, 0.0f64); ECE_BINS];
+    for (i, &p) in p.iter().enumerate() {
+        let (p, y) = (f64::from(p), label(i));
+        right += usize::from((p > 0.5) == (y > 0.5));
+        brier += (p - y) * (p - y);
+        let bin = &mut bins[((p * ECE_BINS as f64) as usize).min(ECE_BINS - 1)];
+        *bin = (bin.0 + 1, bin.1 + p, bin.2 + y);
+    }
+    let n = points as f64;
+    let ece = bins.iter().map(|&(_, p, y)| (p - y).abs() / n).sum();
+    Some(Heldout {
+        points,
+        positives: n_safe,
+        accuracy: right as f64 / n,
+        brier: brier / n,
+        ece,
+    })
+}
+
 /// A critic with its own optimiser, for uses outside the trainer (the Fig. 3 demo, benchmarks).
 pub struct CriticTrainer {
     pub critic: Critic,

@@ -30,9 +30,9 @@ mod policy;
 mod standardise;
 mod state;
 
-pub use critic::{critic_examples, CriticFit, CriticTrainer};
+pub use critic::{critic_examples, heldout, CriticFit, CriticTrainer, Heldout, ECE_BINS};
 pub use dynamics::Fit;
-pub use policy::{l_clone, l_safety, PolicyFit};
+pub use policy::{l_clone, l_safety, l_safety_hinged, PolicyFit};
 pub use standardise::{Standardiser, MIN_STD};
 
 use crate::checkpoint::CheckpointError;
@@ -307,6 +307,22 @@ impl Trainer {
             }
         }
         let data = self.upload(replay);
+        if self.critic_trained {
+            let rows = |t: &tch::Tensor, r: std::ops::Range<usize>| {
+                t.narrow(0, r.start as i64, r.len() as i64)
+            };
+            let safe = rows(&data.plus.states, replay.fresh_plus());
+            let unsafe_ = rows(&data.minus, replay.fresh_minus());
+            if let Some(h) = critic::heldout(&self.critic, &safe, &unsafe_) {
+                // p_hat as it stands before this epoch's fits, on D_new's rows of D+ and of D- (none of which it has
+                // trained on): accuracy, Brier score and calibration error (issue 45).
+                record.count("critic_heldout_points", h.points);
+                record.count("critic_heldout_positives", h.positives);
+                record.real("critic_heldout_accuracy", h.accuracy, 6);
+                record.real("critic_heldout_brier", h.brier, 6);
+                record.real("critic_heldout_ece", h.ece, 6);
+            }
+        }
         if schedule.dynamics_due(epoch) {
             if let Some(fit) = self.fit_dynamics_on(&data, schedule.aux_passes(epoch)) {
                 // Eq. (15)'s MSE, a mean over the fit call's last pass.

@@ -6,9 +6,9 @@ use super::fit::{fit, Budget, Mean};
 use super::{TrainError, Trainer};
 use crate::replay::Replay;
 use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
-use cabc_proto::config::ClipScope;
 #[allow(unused_imports)] // the doc link
 use cabc_proto::config::RunConfig;
+use cabc_proto::config::{ClipScope, SafetyStates, SafetyTerm};
 use cabc_proto::messages::{velocity_of, ACTION_DIM};
 use tch::{Kind, Reduction, Tensor};
 
@@ -25,7 +25,30 @@ pub fn l_safety(
     u: &Tensor,
     lambda: f64,
 ) -> Tensor {
-    (-critic.logits(&dynamics.forward(x, u)).log_sigmoid()).mean(Kind::Float) * lambda
+    (-log_safety(dynamics, critic, x, u)).mean(Kind::Float) * lambda
+}
+
+/// L_safety relative to the expert (`training.safety_term = "hinged"`, issue 45): lambda max(0, log p_hat(f_hat(x,
+/// u_expert)) - log p_hat(f_hat(x, u))), mean over the batch. The expert's side is a constant (no gradient reaches
+/// any network through it): an action predicted at least as safe as the expert's costs nothing.
+pub fn l_safety_hinged(
+    dynamics: &Dynamics,
+    critic: &Critic,
+    x: &Tensor,
+    u: &Tensor,
+    expert: &Tensor,
+    lambda: f64,
+) -> Tensor {
+    let bar = tch::no_grad(|| log_safety(dynamics, critic, x, expert));
+    (bar - log_safety(dynamics, critic, x, u))
+        .relu()
+        .mean(Kind::Float)
+        * lambda
+}
+
+/// log p_hat(f_hat(x, u)) per row.
+fn log_safety(dynamics: &Dynamics, critic: &Critic, x: &Tensor, u: &Tensor) -> Tensor {
+    critic.logits(&dynamics.forward(x, u)).log_sigmoid()
 }
 
 /// The result of a policy fit.
@@ -62,8 +85,7 @@ impl Trainer {
             .collect()
     }
 
-    /// The states and expert labels L_clone fits: D+, then D?'s `cloned` rows ([`Trainer::cloned_uncertain`];
-    /// L_safety stays on the D+ rows).
+    /// The states and expert labels L_clone fits: D+, then D?'s `cloned` rows ([`Trainer::cloned_uncertain`]).
     fn clone_set(&self, data: &Uploaded, cloned: &[i64]) -> (Tensor, Tensor) {
         let plus = (
             data.plus.states.shallow_clone(),
@@ -132,6 +154,10 @@ impl Trainer {
             }
         };
         let (policy, dynamics, critic) = (&self.policy, &self.dynamics, &self.critic);
+        let (safety_states, safety_term) = (
+            self.config.training.safety_states,
+            self.config.training.safety_term,
+        );
         let fitted = fit(
             &mut self.policy_opt,
             &self.config.training,
@@ -163,23 +189,29 @@ impl Trainer {
                     None => PolicyInput::State(x.shallow_clone()),
                 };
                 let u = policy.forward_t(&input, true);
-                let l_clone = l_clone(&u, &label_all.index_select(0, &b.idx));
+                let label = label_all.index_select(0, &b.idx);
+                let l_clone = l_clone(&u, &label);
                 pass.clone.add(&l_clone);
                 if !safety_active {
                     return Ok(l_clone);
                 }
-                // L_safety on the batch's D+ rows alone (the first `n_plus` of the clone set): at a D? state every
-                // action may lead out of the safe set, and -log p_hat there would outweigh L_clone.
-                let (x, u) = if x_all.size()[0] as usize > n_plus {
-                    let rows = b.idx.lt(n_plus as i64).nonzero().squeeze_dim(1);
-                    if rows.size()[0] == 0 {
-                        return Ok(l_clone);
-                    }
-                    (x.index_select(0, &rows), u.index_select(0, &rows))
-                } else {
-                    (x, u)
+                // L_safety's rows: every row of the batch (eq. (14), `safety_states = "clone"`), or its D+ rows alone
+                // (the first `n_plus` of the clone set; the recorded runs).
+                let (x, u, label) =
+                    if safety_states == SafetyStates::DPlus && x_all.size()[0] as usize > n_plus {
+                        let rows = b.idx.lt(n_plus as i64).nonzero().squeeze_dim(1);
+                        if rows.size()[0] == 0 {
+                            return Ok(l_clone);
+                        }
+                        let pick = |t: &Tensor| t.index_select(0, &rows);
+                        (pick(&x), pick(&u), pick(&label))
+                    } else {
+                        (x, u, label)
+                    };
+                let l_safety = match safety_term {
+                    SafetyTerm::Absolute => l_safety(dynamics, critic, &x, &u, lambda),
+                    SafetyTerm::Hinged => l_safety_hinged(dynamics, critic, &x, &u, &label, lambda),
                 };
-                let l_safety = l_safety(dynamics, critic, &x, &u, lambda);
                 pass.safety.add(&l_safety);
                 Ok(l_clone + l_safety)
             },

@@ -144,6 +144,30 @@ pub enum CriticNegatives {
     Uncertain,
 }
 
+/// Over which states L_safety, eq. (14)'s second term, takes its mean (`training.safety_states`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SafetyStates {
+    /// The recorded runs (issues 18 and 30): the batch's D+ rows alone, so that with `training.clone_uncertain`
+    /// the states near a failure (D?'s) give L_safety no gradient.
+    DPlus,
+    /// Eq. (14) as written: the expectation over the states L_clone sees (D+, and D?'s expert-labelled rows with
+    /// `training.clone_uncertain`), the states near a failure included.
+    Clone,
+}
+
+/// What L_safety penalises (`training.safety_term`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SafetyTerm {
+    /// Eq. (14): -lambda log p_hat(f_hat(x, pi(y))), every action pushed towards higher predicted safety.
+    Absolute,
+    /// Relative to the expert (issue 45): lambda max(0, log p_hat(f_hat(x, pi_beta(x))) - log p_hat(f_hat(x,
+    /// pi(y)))), only an action predicted less safe than the expert's own is penalised, so that L_safety does not
+    /// pull against L_clone where the expert's action is as safe as the critic can tell.
+    Hinged,
+}
+
 /// Which gradients the policy's gradient-norm clip measures (`training.clip_scope`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

@@ -2,7 +2,8 @@
 
 use super::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
-    Precision, ScheduleKind, SecuritySection, Spawn, StoredAction, VisionTrunk,
+    Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn, StoredAction,
+    VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
@@ -301,9 +302,14 @@ pub struct TrainingSection {
     /// L_clone also on D?'s states, with the expert's labels (the steps where the expert failed excepted): DAgger's
     /// aggregate, where the reference and Algorithm 1's diagram clone D+ alone. The states where the policy left the
     /// track, and the expert's corrections there, are then in the policy's training set; L_safety stays on D+'s
-    /// states (at a D? state every action may lead out of the safe set). A camera policy reads D?'s images, which
+    /// states unless `safety_states = "clone"`. A camera policy reads D?'s images, which
     /// D? then keeps (within `replay.max_bytes`, [`super::RunConfig::uncertain_images`]). false (the reference): D+ alone.
     pub clone_uncertain: bool,
+    /// The states L_safety averages over: `d-plus` (the recorded runs: the batch's D+ rows) or `clone` (eq. (14):
+    /// every row L_clone fits, D?'s too with `clone_uncertain`).
+    pub safety_states: SafetyStates,
+    /// `absolute` (eq. (14)) or `hinged` (only actions predicted less safe than the expert's, [`SafetyTerm`]).
+    pub safety_term: SafetyTerm,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
@@ -349,6 +355,8 @@ impl Default for TrainingSection {
             standardise: false,
             policy_ema: 0.0,
             clone_uncertain: false,
+            safety_states: SafetyStates::DPlus,
+            safety_term: SafetyTerm::Absolute,
             batch_size: 64,
             initial_passes: 5,
             passes: 1,
