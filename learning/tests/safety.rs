@@ -4,6 +4,7 @@
 //! * `training.safety_states = "clone"` (eq. (14)): L_safety reaches the D? states L_clone fits.
 //! * `training.safety_term = "hinged"`: no cost for an action as safe as the expert's, a smaller push than eq. (14).
 //! * the critic's held-out rows (this epoch's D+ and D- rows) and its accuracy, Brier score and calibration error.
+//! * `training.safety_gate`: L_safety waits for the critic's held-out balanced accuracy.
 
 mod support;
 use cabc_learning::record::Record;
@@ -269,4 +270,54 @@ fn an_epoch_records_the_critics_held_out_accuracy_on_its_new_rows() {
     let brier = second.f64("critic_heldout_brier").unwrap();
     eprintln!("held out: accuracy {accuracy}, Brier {brier}");
     assert!(accuracy > 0.9 && brier < 0.1, "{second:?}");
+}
+
+/// `training.safety_gate`: L_safety waits for the critic's held-out balanced accuracy. The first epoch trains the
+/// critic with nothing held out yet: no L_safety under the gate. The second measures it on new rows: failures where
+/// D- lies (the critic tells them apart: L_safety acts), or failures inside D+'s region (the critic calls them safe:
+/// balanced accuracy about 0.5, L_safety stays off). Without a gate L_safety acts from the first fit; the measure
+/// survives a checkpoint.
+#[test]
+fn the_gate_holds_l_safety_until_the_critic_passes_on_held_out_rows() {
+    let run = |gate: f64, failures_at: std::ops::Range<f32>| {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let mut r = replay(6);
+        let mut c = config(6);
+        c.training.safety_gate = gate;
+        let mut t = Trainer::with_device(&c, Device::Cpu);
+        let first = train(&mut t, 0, &r);
+        r.begin_epoch();
+        r.add_segment(&lap(steps(96, &mut rng, -1.0..0.0))).unwrap();
+        r.add_segment(&failure(steps(32, &mut rng, failures_at)))
+            .unwrap();
+        r.apply_labels(&[]);
+        let mut second = Record::new(1);
+        t.train_epoch(1, &r, &mut second).unwrap();
+        (first, second, t, c, r)
+    };
+    let (first, second, t, c, r) = run(0.9, 0.3..1.5);
+    assert!(!first.safety_active, "no measure yet: {first:?}");
+    let balanced = second.f64("critic_heldout_balanced").unwrap();
+    assert!(balanced >= 0.9, "the blobs are apart: {balanced}");
+    assert_eq!(second.f64("safety_active"), Some(1.0), "{second:?}");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("checkpoint");
+    cabc_learning::CheckpointWriter::new(&path)
+        .files(t.to_checkpoint())
+        .commit()
+        .unwrap();
+    let mut resumed =
+        Trainer::resume(&c, &cabc_learning::Checkpoint::open(&path).unwrap()).unwrap();
+    assert!(
+        resumed.fit_policy(&r, 1).unwrap().safety_active,
+        "a resumed trainer keeps the measure"
+    );
+
+    let (_, second, ..) = run(0.9, -1.0..0.0);
+    let balanced = second.f64("critic_heldout_balanced").unwrap();
+    assert!(balanced < 0.7, "failures where D+ lies: {balanced}");
+    assert_eq!(second.f64("safety_active"), Some(0.0), "{second:?}");
+
+    let (first, ..) = run(0.0, 0.3..1.5);
+    assert!(first.safety_active, "no gate: from the first fit");
 }

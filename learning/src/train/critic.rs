@@ -168,6 +168,9 @@ pub struct Heldout {
     pub positives: usize,
     /// The share on the right side of p = 0.5.
     pub accuracy: f64,
+    /// The mean of the two classes' accuracies (None without rows of both): what a critic that calls every state
+    /// safe scores 0.5 on, however few the negatives.
+    pub balanced: Option<f64>,
     /// The Brier score, mean of (p - y)^2.
     pub brier: f64,
     /// The expected calibration error over `ECE_BINS` equal-width bins of p: sum over bins of
@@ -189,11 +192,13 @@ pub fn heldout(critic: &Critic, safe: &Tensor, unsafe_: &Tensor) -> Option<Heldo
     let p = Vec::<f32>::try_from(p.to_kind(Kind::Float).to_device(Device::Cpu).reshape([-1]))
         .expect("a float tensor");
     let label = |i: usize| if i < n_safe { 1.0 } else { 0.0 };
-    let (mut right, mut brier) = (0usize, 0.0f64);
+    let (mut right, mut right_safe, mut brier) = (0usize, 0usize, 0.0f64);
     let mut bins = [(0usize, 0.0f64, 0.0f64); ECE_BINS];
     for (i, &p) in p.iter().enumerate() {
         let (p, y) = (f64::from(p), label(i));
-        right += usize::from((p > 0.5) == (y > 0.5));
+        let hit = usize::from((p > 0.5) == (y > 0.5));
+        right += hit;
+        right_safe += if i < n_safe { hit } else { 0 };
         brier += (p - y) * (p - y);
         let bin = &mut bins[((p * ECE_BINS as f64) as usize).min(ECE_BINS - 1)];
         *bin = (bin.0 + 1, bin.1 + p, bin.2 + y);
@@ -204,6 +209,10 @@ pub fn heldout(critic: &Critic, safe: &Tensor, unsafe_: &Tensor) -> Option<Heldo
         points,
         positives: n_safe,
         accuracy: right as f64 / n,
+        balanced: (n_safe > 0 && n_unsafe > 0).then(|| {
+            let right_unsafe = right - right_safe;
+            (right_safe as f64 / n_safe as f64 + right_unsafe as f64 / n_unsafe as f64) / 2.0
+        }),
         brier: brier / n,
         ece,
     })

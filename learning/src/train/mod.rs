@@ -79,6 +79,8 @@ pub struct Trainer {
     standardiser: Option<Standardiser>,
     /// The moving average of the policy's weights (`training.policy_ema`), from the first policy fit on.
     ema: Option<Policy>,
+    /// The critic's last held-out balanced accuracy (`training.safety_gate`).
+    heldout_balanced: Option<f64>,
 }
 
 impl Trainer {
@@ -131,6 +133,7 @@ impl Trainer {
             rng: ChaCha8Rng::seed_from_u64(seed.wrapping_add(3)),
             standardiser: None,
             ema: None,
+            heldout_balanced: None,
         }
     }
 
@@ -201,6 +204,13 @@ impl Trainer {
     /// Whether the critic has trained at least once (L_safety is active from then on when lambda > 0).
     pub fn critic_trained(&self) -> bool {
         self.critic_trained
+    }
+
+    /// Whether L_safety may act: the critic has trained and, under `training.safety_gate` > 0, its last held-out
+    /// balanced accuracy reached the gate.
+    fn critic_trusted(&self) -> bool {
+        let gate = self.config.training.safety_gate;
+        self.critic_trained && (gate <= 0.0 || self.heldout_balanced.is_some_and(|b| b >= gate))
     }
 
     /// Loads `observation.pretrained` (torchvision ResNet-18 weights) into the policy's trunk; returns what the
@@ -319,6 +329,10 @@ impl Trainer {
                 record.count("critic_heldout_points", h.points);
                 record.count("critic_heldout_positives", h.positives);
                 record.real("critic_heldout_accuracy", h.accuracy, 6);
+                if let Some(balanced) = h.balanced {
+                    record.real("critic_heldout_balanced", balanced, 6);
+                    self.heldout_balanced = Some(balanced);
+                }
                 record.real("critic_heldout_brier", h.brier, 6);
                 record.real("critic_heldout_ece", h.ece, 6);
             }

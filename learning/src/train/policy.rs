@@ -58,7 +58,7 @@ pub struct PolicyFit {
     pub imitation: f64,
     /// L_safety, mean over the last pass; 0 while inactive.
     pub safety: f64,
-    /// Whether L_safety took part (lambda > 0 and the critic has trained).
+    /// Whether L_safety took part (lambda > 0, the critic has trained and passes `training.safety_gate`).
     pub safety_active: bool,
     /// Samples seen (all passes); 0 when D+ holds fewer than `batch_size` steps and nothing trained.
     pub samples: usize,
@@ -124,7 +124,7 @@ impl Trainer {
         if plus.len() < self.config.training.batch_size {
             return Ok(PolicyFit::default());
         }
-        let safety_active = lambda > 0.0 && self.critic_trained;
+        let safety_active = lambda > 0.0 && self.critic_trusted();
         let cloned = self.cloned_uncertain(replay);
         let images = match (self.policy.arch(), &plus.images, &replay.uncertain.images) {
             (PolicyArch::Camera { .. }, None, _) => return Err(TrainError::NoImages("D+")),

@@ -37,6 +37,9 @@ struct TrainerState {
     /// The state's standardisation (`training.standardise`); absent in checkpoints from before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     standardiser: Option<Standardiser>,
+    /// The critic's last held-out balanced accuracy (`training.safety_gate`); absent before its first measure.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    heldout_balanced: Option<f64>,
 }
 
 impl Trainer {
@@ -59,6 +62,7 @@ impl Trainer {
                 self.critic.architecture(),
             ],
             standardiser: self.standardiser.clone(),
+            heldout_balanced: self.heldout_balanced,
         };
         let ema = self.ema.as_ref().map(|ema| (POLICY_EMA, ema.to_bytes()));
         let mut files = vec![
@@ -105,6 +109,7 @@ impl Trainer {
             Err(e) => return Err(e.into()),
         };
         self.standardiser = state.standardiser;
+        self.heldout_balanced = state.heldout_balanced;
         self.epochs_trained = state.epochs_trained;
         self.critic_trained = state.critic_trained;
         [

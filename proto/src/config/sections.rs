@@ -310,6 +310,9 @@ pub struct TrainingSection {
     pub safety_states: SafetyStates,
     /// `absolute` (eq. (14)) or `hinged` (only actions predicted less safe than the expert's, [`SafetyTerm`]).
     pub safety_term: SafetyTerm,
+    /// L_safety acts only while the critic's last held-out balanced accuracy (p_hat before an epoch's fit, on that
+    /// epoch's new D+ and D- rows) is at least this; 0 (the recorded runs): from the critic's first fit on.
+    pub safety_gate: f64,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
     pub initial_passes: usize,
@@ -357,6 +360,7 @@ impl Default for TrainingSection {
             clone_uncertain: false,
             safety_states: SafetyStates::DPlus,
             safety_term: SafetyTerm::Absolute,
+            safety_gate: 0.0,
             batch_size: 64,
             initial_passes: 5,
             passes: 1,

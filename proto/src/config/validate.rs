@@ -53,6 +53,13 @@ impl RunConfig {
                 "must lie in [0, 1): the share of the old average kept each epoch (0: no average)",
             );
         }
+        if !(0.0..=1.0).contains(&self.training.safety_gate) {
+            return invalid(
+                "training.safety_gate",
+                self.training.safety_gate.to_string(),
+                "must lie in [0, 1]: a balanced accuracy (0: no gate)",
+            );
+        }
         if !(self.training.lr_min >= 0.0 && self.training.lr_min.is_finite()) {
             return invalid(
                 "training.lr_min",
