@@ -3,7 +3,7 @@
 //!   they were; the reference's scope accumulates L_safety's gradient into them.
 //! * `training.safety_states = "clone"` (eq. (14)): L_safety reaches the D? states L_clone fits.
 //! * `training.safety_term = "hinged"`: no cost for an action as safe as the expert's, a smaller push than eq. (14).
-//! * the critic's held-out rows (this epoch's D+ and D- rows) and its accuracy, Brier score and calibration error.
+//! * the critic's held-out rows (this epoch's D+ and D? rows) and its accuracy, Brier score and calibration error.
 //! * `training.safety_gate`: L_safety waits for the critic's held-out balanced accuracy.
 
 mod support;
@@ -200,30 +200,35 @@ fn the_hinged_term_costs_nothing_at_the_experts_action_and_pushes_less() {
     );
 }
 
-/// This epoch's rows: D+'s appended ones, and what the epoch's labelling kept of its D? rows (D?'s tail).
+/// This epoch's rows: D+'s appended ones, and D?'s, less what the epoch's labelling removed (D?'s tail, and D-'s).
 #[test]
-fn the_fresh_rows_are_this_epochs_d_plus_and_d_minus() {
+fn the_fresh_rows_are_this_epochs_d_plus_and_d_uncertain() {
     let mut rng = ChaCha8Rng::seed_from_u64(4);
     let mut r = replay(4);
     assert_eq!((r.len_plus(), r.len_minus()), (2048, 1024));
     r.begin_epoch();
-    assert!(r.fresh_plus().is_empty() && r.fresh_minus().is_empty());
+    assert!(r.fresh_plus().is_empty() && r.fresh_uncertain().is_empty());
     let new_fail = steps(40, &mut rng, 0.3..1.5);
     r.add_segment(&lap(steps(100, &mut rng, -1.0..0.0)))
         .unwrap();
     r.add_segment(&failure(new_fail.clone())).unwrap();
     assert_eq!(r.fresh_plus(), 2048..2148);
-    assert!(r.fresh_minus().is_empty(), "before the epoch's labelling");
+    assert_eq!(
+        r.fresh_uncertain(),
+        1024..1064,
+        "before the epoch's labelling"
+    );
     // Remove 3 old D? rows and 2 new ones (D?'s rows 1024.. are the new ones).
     r.apply_labels(&[0, 5, 1000, 1024, 1030]);
-    assert_eq!(r.fresh_minus(), 1021..1059);
+    assert_eq!(r.fresh_uncertain(), 1021..1059);
     let kept: Vec<[f32; 6]> = (0..40)
         .filter(|&i| i != 0 && i != 6)
         .map(|i| new_fail[i].state)
         .collect();
-    assert_eq!(&r.minus()[r.fresh_minus()], kept.as_slice());
+    assert_eq!(&r.minus()[r.fresh_uncertain()], kept.as_slice());
+    assert_eq!(&r.uncertain.states[r.fresh_uncertain()], kept.as_slice());
     r.begin_epoch();
-    assert!(r.fresh_plus().is_empty() && r.fresh_minus().is_empty());
+    assert!(r.fresh_plus().is_empty() && r.fresh_uncertain().is_empty());
 }
 
 /// With every weight zero the critic says p = 0.5 everywhere: accuracy = the negatives' share (p > 0.5 is "safe"),
@@ -248,7 +253,7 @@ fn the_held_out_measure_of_a_critic_that_knows_nothing() {
 }
 
 /// The trainer measures the critic, before its fit, on the epoch's new rows: after an epoch on the two blobs it
-/// tells the next epoch's new D+ and D- rows apart.
+/// tells the next epoch's new D+ and D? rows apart (an epoch without labelling: its D? rows are all failures').
 #[test]
 fn an_epoch_records_the_critics_held_out_accuracy_on_its_new_rows() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
@@ -261,7 +266,6 @@ fn an_epoch_records_the_critics_held_out_accuracy_on_its_new_rows() {
     r.add_segment(&lap(steps(96, &mut rng, -1.0..0.0))).unwrap();
     r.add_segment(&failure(steps(32, &mut rng, 0.3..1.5)))
         .unwrap();
-    r.apply_labels(&[]);
     let mut second = Record::new(1);
     t.train_epoch(1, &r, &mut second).unwrap();
     assert_eq!(second.u64("critic_heldout_points"), Some(128));

@@ -130,16 +130,16 @@ pub struct Replay {
     fresh: Fresh,
 }
 
-/// The stores at the start of an epoch, to find the rows D_new adds ([`Replay::fresh_plus`], [`Replay::fresh_minus`]):
-/// the rows the critic has not trained on yet, its held-out set.
+/// The stores at the start of an epoch, to find the rows D_new adds ([`Replay::fresh_plus`],
+/// [`Replay::fresh_uncertain`]): the rows the critic has not trained on yet, its held-out set.
 #[derive(Clone, Copy, Debug, Default)]
 struct Fresh {
     /// D+'s length and its steps ever added.
     plus: (usize, usize),
     /// D?'s, likewise.
     uncertain: (usize, usize),
-    /// D-'s first row from this epoch, once this epoch's labelling made D- anew.
-    minus_from: Option<usize>,
+    /// D?'s first row from this epoch after this epoch's labelling, once it labelled.
+    labelled_from: Option<usize>,
 }
 
 /// The first row a store gained since `(len, added)`, when it gained them at its end (no eviction since).
@@ -379,13 +379,13 @@ impl Replay {
         }
     }
 
-    /// Marks the start of an epoch: the rows added from here on are [`Replay::fresh_plus`] and, once labelled,
-    /// [`Replay::fresh_minus`].
+    /// Marks the start of an epoch: the rows added from here on are [`Replay::fresh_plus`] and
+    /// [`Replay::fresh_uncertain`].
     pub fn begin_epoch(&mut self) {
         self.fresh = Fresh {
             plus: (self.plus.len(), self.added.plus),
             uncertain: (self.uncertain.len(), self.added.uncertain),
-            minus_from: None,
+            labelled_from: None,
         };
     }
 
@@ -395,12 +395,15 @@ impl Replay {
         appended_from(self.fresh.plus, len, self.added.plus).map_or(0..0, |from| from..len)
     }
 
-    /// D-'s rows from D? steps added since [`Replay::begin_epoch`], when this epoch's labelling made D- (the ones
-    /// it kept); empty before that labelling, or when eviction scattered them.
-    pub fn fresh_minus(&self) -> std::ops::Range<usize> {
-        self.fresh
-            .minus_from
-            .map_or(0..0, |from| from.min(self.minus.len())..self.minus.len())
+    /// D?'s rows added since [`Replay::begin_epoch`] (the epoch's failures), without those this epoch's labelling
+    /// removed, when it labelled (then they are also D-'s last rows); empty when eviction scattered them.
+    pub fn fresh_uncertain(&self) -> std::ops::Range<usize> {
+        let len = self.uncertain.len();
+        let from = self
+            .fresh
+            .labelled_from
+            .or_else(|| appended_from(self.fresh.uncertain, len, self.added.uncertain));
+        from.map_or(0..0, |from| from.min(len)..len)
     }
 
     /// Applies an auto-labelling pass (eq. (19)), Algorithm 1's "remove x from D?": the D? entries at
@@ -428,7 +431,7 @@ impl Replay {
         self.uncertain.retain(&keep);
         self.minus = self.uncertain.states.clone();
         // D? keeps its order, so what is left of this epoch's rows is its tail.
-        self.fresh.minus_from = fresh_from.map(|from| from - removed_before_fresh);
+        self.fresh.labelled_from = fresh_from.map(|from| from - removed_before_fresh);
     }
 
     /// The replay as bytes for the checkpoint (magic, version, bincode), after appending the images written since

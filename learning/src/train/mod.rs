@@ -322,10 +322,11 @@ impl Trainer {
                 t.narrow(0, r.start as i64, r.len() as i64)
             };
             let safe = rows(&data.plus.states, replay.fresh_plus());
-            let unsafe_ = rows(&data.minus, replay.fresh_minus());
+            let unsafe_ = rows(&data.uncertain.states, replay.fresh_uncertain());
             if let Some(h) = critic::heldout(&self.critic, &safe, &unsafe_) {
-                // p_hat as it stands before this epoch's fits, on D_new's rows of D+ and of D- (none of which it has
-                // trained on): accuracy, Brier score and calibration error (issue 45).
+                // p_hat as it stands before this epoch's fits, on D_new's rows of D+ (safe) and of D? (failures, as
+                // this epoch's labelling left them when it labelled), none of which it has trained on: accuracy,
+                // balanced accuracy, Brier score and calibration error (issue 45).
                 record.count("critic_heldout_points", h.points);
                 record.count("critic_heldout_positives", h.positives);
                 record.real("critic_heldout_accuracy", h.accuracy, 6);

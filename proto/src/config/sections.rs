@@ -311,7 +311,7 @@ pub struct TrainingSection {
     /// `absolute` (eq. (14)) or `hinged` (only actions predicted less safe than the expert's, [`SafetyTerm`]).
     pub safety_term: SafetyTerm,
     /// L_safety acts only while the critic's last held-out balanced accuracy (p_hat before an epoch's fit, on that
-    /// epoch's new D+ and D- rows) is at least this; 0 (the recorded runs): from the critic's first fit on.
+    /// epoch's new D+ and D? rows) is at least this; 0 (the recorded runs): from the critic's first fit on.
     pub safety_gate: f64,
     pub batch_size: usize,
     /// Passes over D+ for the policy in epoch 0 and later.
