@@ -16,7 +16,7 @@
 //! | when each part runs (k_f, k_p, labelling, λ warm-up) | [`schedule`] |
 //! | the evaluations from the fixed spawn, early stopping, the best version | [`evaluations`] |
 //! | an epoch's metrics, one line where each is computed | [`record`], written through [`sink`] |
-//! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `migrate` |
+//! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `replay::migrate` and `record::rows` |
 //!
 //! The actors are a port (`cabc_proto::ports::Rollouts`): over zenoh in a run (the `learner` binary), in-process
 //! in a test. The sinks of a run folder (CSV tables, plots, GIFs, TensorBoard, the progress bar) are the
@@ -31,7 +31,6 @@ pub mod hull;
 pub mod kdtree;
 pub mod learner;
 pub mod ledger;
-mod migrate;
 pub mod provenance;
 pub mod record;
 pub mod replay;

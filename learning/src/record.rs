@@ -13,7 +13,7 @@
 //! (Acme's injected logger, `logger.write(result)`, in [`crate::sink`]); the sinks are in the cabc-outputs crate.
 //!
 //! Checkpoints written before records existed hold each row as an object of named fields (`EpochRow`, up to
-//! 2f28af3): `crate::migrate` reads them through [`LEGACY`], so a resumed old run writes the same `metrics.csv` byte for
+//! 2f28af3): [`rows`] reads them through [`LEGACY`], so a resumed old run writes the same `metrics.csv` byte for
 //! byte.
 
 use serde::de::Error as _;
@@ -218,7 +218,7 @@ impl Serialize for Record {
     }
 }
 
-/// A list of entries (an old checkpoint's rows, objects of `EpochRow`'s fields, are `crate::migrate`'s).
+/// A list of entries (an old checkpoint's rows, objects of `EpochRow`'s fields, are [`rows`]').
 impl<'de> Deserialize<'de> for Record {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let entries = match serde_json::Value::deserialize(d)? {
@@ -285,6 +285,70 @@ pub fn table(records: &[Record]) -> String {
         text.push('\n');
     }
     text
+}
+
+/// `state.json`'s `rows`: each a record (a list of entries), or an old checkpoint's object of `EpochRow`'s fields.
+pub(crate) fn rows<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Record>, D::Error> {
+    Vec::<serde_json::Value>::deserialize(d)?
+        .into_iter()
+        .map(|row| match row {
+            serde_json::Value::Object(row) => legacy_row(&row).map_err(D::Error::custom),
+            entries => serde_json::from_value(entries).map_err(D::Error::custom),
+        })
+        .collect()
+}
+
+/// A row of an old checkpoint (an object of `EpochRow`'s fields), through [`LEGACY`].
+fn legacy_row(row: &serde_json::Map<String, serde_json::Value>) -> Result<Record, String> {
+    let mut record = Record::default();
+    for (name, kind) in LEGACY {
+        let field = row.get(name).filter(|v| !v.is_null());
+        let count = |v: &serde_json::Value| v.as_u64().ok_or(format!("{name}: {v} is not a count"));
+        // serde_json writes a NaN as null: read back as NaN.
+        let real = |v: Option<&serde_json::Value>| match v {
+            None => Ok(f64::NAN),
+            Some(v) => v.as_f64().ok_or(format!("{name}: {v} is not a number")),
+        };
+        let value = match kind {
+            Legacy::Count => Value::Count(field.map_or(Ok(0), count)?),
+            Legacy::OptCount => match field {
+                Some(v) => Value::Count(count(v)?),
+                None => continue,
+            },
+            Legacy::Real(decimals) => Value::Real(
+                if row.contains_key(name) {
+                    real(field)?
+                } else {
+                    0.0
+                },
+                Some(decimals),
+            ),
+            Legacy::Exact => Value::Real(
+                if row.contains_key(name) {
+                    real(field)?
+                } else {
+                    0.0
+                },
+                None,
+            ),
+            Legacy::OptReal(decimals) => match field {
+                Some(v) => Value::Real(real(Some(v))?, Some(decimals)),
+                None => continue,
+            },
+            Legacy::Flag => match field {
+                Some(v) => Value::Flag(v.as_bool().ok_or(format!("{name}: {v} is not a flag"))?),
+                None => Value::Flag(false),
+            },
+            Legacy::IncompleteShare => {
+                let steps = |n| record.u64(n).unwrap_or(0);
+                let share =
+                    steps("incomplete_steps") as f64 / steps("steps_collected").max(1) as f64;
+                Value::Real(share, Some(4))
+            }
+        };
+        record.put(name, value);
+    }
+    Ok(record)
 }
 
 #[cfg(test)]

@@ -28,8 +28,8 @@ pub struct LearnerState {
     /// The next epoch to run.
     pub next_epoch: u64,
     /// Every epoch's record (`metrics.csv`'s rows). Old checkpoints' rows (objects of named fields) load too
-    /// ([`crate::migrate::rows`]).
-    #[serde(deserialize_with = "crate::migrate::rows")]
+    /// ([`crate::record::rows`]).
+    #[serde(deserialize_with = "crate::record::rows")]
     pub rows: Vec<Record>,
     /// The evaluations (saved as the fields `evals` and `successes`).
     #[serde(flatten)]

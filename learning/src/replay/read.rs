@@ -1,4 +1,4 @@
-//! A replay read back without changing its run folder (every version of `replay.bin` is decoded by `crate::migrate`):
+//! A replay read back without changing its run folder (every version of `replay.bin` is decoded by `migrate`):
 //! [`ReplaySnapshot`], the stores as a checkpoint left them with D+'s images left on disk, read one at a time
 //! ([`Images`]) by tools that stream a run's data out (`cabc export`). [`Replay::from_checkpoint`] instead loads
 //! every image and opens the log for appending, cutting off records of a checkpoint that did not commit: right for

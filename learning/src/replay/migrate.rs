@@ -1,84 +1,12 @@
-//! The readers of old checkpoint formats, in one place: what a checkpoint written by an earlier cabc holds, read into
-//! today's types, so that old run folders resume and old results load (`outputs/tests/records.rs` resumes one of
-//! 2f28af3). The current types' modules know only the current format; a format that changes gets its reader here.
-//!
-//! * `replay.bin`: [`Saved::decode`] reads every version (1: before D- was held, its D- is the whole of its D?; 2:
-//!   images inline in every store; 3: the current one, D+'s images in the image log);
-//! * `state.json`'s rows: [`rows`] reads the records, and the rows of checkpoints up to 2f28af3, objects of
-//!   `EpochRow`'s fields, through [`LEGACY`]'s frozen columns.
-//!
-//! The trainer's files need no reader here: an optimiser state missing from an older checkpoint restarts its
-//! moments (`train/state.rs`).
+//! The readers of `replay.bin`'s older versions, into today's [`Saved`] (1: before D- was held, its D- is the whole
+//! of its D?; 2: images inline in every store; 3, the current one, is `super::persist`'s), so that old run folders
+//! resume and old results load. A format that changes gets its reader here; `super::persist` knows only the current
+//! one. (The records of `state.json` have theirs beside them, `crate::record::rows`; the trainer's files need none: an
+//! optimiser state missing from an older checkpoint restarts its moments, `train/state.rs`.)
 
-use crate::record::{Legacy, Record, Value, LEGACY};
-use crate::replay::{AddCounts, ImageStore, ReplayError, Saved, Store, MAGIC, NOT_LOGGED, VERSION};
+use super::{AddCounts, ImageStore, ReplayError, Saved, Store, MAGIC, NOT_LOGGED, VERSION};
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
-use serde::de::Error as _;
-use serde::{Deserialize, Deserializer};
-
-/// `state.json`'s `rows`: each a record (a list of entries), or an old checkpoint's object of `EpochRow`'s fields.
-pub(crate) fn rows<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Record>, D::Error> {
-    Vec::<serde_json::Value>::deserialize(d)?
-        .into_iter()
-        .map(|row| match row {
-            serde_json::Value::Object(row) => legacy_row(&row).map_err(D::Error::custom),
-            entries => serde_json::from_value(entries).map_err(D::Error::custom),
-        })
-        .collect()
-}
-
-/// A row of an old checkpoint (an object of `EpochRow`'s fields), through [`LEGACY`].
-fn legacy_row(row: &serde_json::Map<String, serde_json::Value>) -> Result<Record, String> {
-    let mut record = Record::default();
-    for (name, kind) in LEGACY {
-        let field = row.get(name).filter(|v| !v.is_null());
-        let count = |v: &serde_json::Value| v.as_u64().ok_or(format!("{name}: {v} is not a count"));
-        // serde_json writes a NaN as null: read back as NaN.
-        let real = |v: Option<&serde_json::Value>| match v {
-            None => Ok(f64::NAN),
-            Some(v) => v.as_f64().ok_or(format!("{name}: {v} is not a number")),
-        };
-        let value = match kind {
-            Legacy::Count => Value::Count(field.map_or(Ok(0), count)?),
-            Legacy::OptCount => match field {
-                Some(v) => Value::Count(count(v)?),
-                None => continue,
-            },
-            Legacy::Real(decimals) => Value::Real(
-                if row.contains_key(name) {
-                    real(field)?
-                } else {
-                    0.0
-                },
-                Some(decimals),
-            ),
-            Legacy::Exact => Value::Real(
-                if row.contains_key(name) {
-                    real(field)?
-                } else {
-                    0.0
-                },
-                None,
-            ),
-            Legacy::OptReal(decimals) => match field {
-                Some(v) => Value::Real(real(Some(v))?, Some(decimals)),
-                None => continue,
-            },
-            Legacy::Flag => match field {
-                Some(v) => Value::Flag(v.as_bool().ok_or(format!("{name}: {v} is not a flag"))?),
-                None => Value::Flag(false),
-            },
-            Legacy::IncompleteShare => {
-                let steps = |n| record.u64(n).unwrap_or(0);
-                let share =
-                    steps("incomplete_steps") as f64 / steps("steps_collected").max(1) as f64;
-                Value::Real(share, Some(4))
-            }
-        };
-        record.put(name, value);
-    }
-    Ok(record)
-}
+use serde::Deserialize;
 
 impl Saved {
     /// The saved replay in `bytes` (magic, version, bincode; versions 1 and 2 upgraded), images not read.
