@@ -8,7 +8,7 @@
 //! |---|---|
 //! | the loop: collect with beta-mixing, partition, auto-label, train, publish, evaluate | [`algorithm`] |
 //! | what is held between epochs (replay, networks, ledger, evaluations, checkpoint) | [`learner`], [`state`] |
-//! | "store trajectories in D+ / D?" (safe prefixes and failures' last steps), D- | [`replay`], [`ledger`] (exactly once), [`provenance`] |
+//! | "store trajectories in D+ / D?" (completed laps; failed episodes' steps), D- | [`replay`], [`ledger`] (exactly once), [`provenance`] |
 //! | "auto-label D?": eq. (19), local convex hulls of D+ | [`autolabel`], over [`kdtree`] and [`hull`] |
 //! | "train f̂ on D+ ∪ D?": eq. (15) | [`train`] (`train/dynamics.rs`) |
 //! | "train p̂ on D+ (safe) and D- (unsafe)": eq. (16) | [`train`] (`train/critic.rs`) |

@@ -2,7 +2,7 @@
 //! preset and a tag (`<preset>-<tag>`, the name of an ablation or a candidate), `k` counts seeds from 1 and the run's
 //! seed is `41 + k` (seed 1 is the presets' 42), and `-baseline` marks the baseline method (lambda = 0) of the same
 //! experiment and seed. The experiment is the run's *group*: the runs of one group over seeds and methods are what
-//! `learner compare` and `--by-group` put side by side.
+//! `cabc compare` and `--by-group` put side by side.
 //!
 //! `deploy/reproduce.sh` names its runs so (`--tag T` makes the experiment `<preset>-T`), `cabc campaign` expands a
 //! plan's slices into these names, and the analysis over run folders groups them by [`group_of`].
