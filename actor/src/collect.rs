@@ -14,8 +14,11 @@
 use crate::eyes::Eyes;
 use crate::segment::{Segmenter, SeqCounter, StepEnd};
 use crate::sensor::Sensor;
+use crate::shield::{Shield, ShieldConfig};
 use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn, StoredAction};
-use cabc_proto::messages::{EndReason, ExpertAnswer, ExpertQuery, Image, Segment, Step, StreamId};
+use cabc_proto::messages::{
+    EndReason, ExpertAnswer, ExpertQuery, Image, Segment, ShieldNets, Step, StreamId,
+};
 use cabc_proto::ports::{ExpertClient, Next, Pending, PortError};
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
@@ -92,6 +95,10 @@ pub struct Collector {
     action_noise: ActionNoise,
     /// Steps taken in the current epoch.
     taken: u64,
+    /// `collection.shield`: its settings, the current version's networks, and the steps it gave the expert this epoch.
+    shield_config: ShieldConfig,
+    shield: Option<Shield>,
+    shielded: u64,
 }
 
 impl Collector {
@@ -142,7 +149,25 @@ impl Collector {
                 k,
             ),
             taken: 0,
+            shield_config: ShieldConfig::of(config),
+            shield: None,
+            shielded: 0,
         }
+    }
+
+    /// The shield of the version about to be collected ([`crate::shield`]): none when the run has none or `nets` is
+    /// None; networks that do not load (another size, malformed) are refused, logged, and the version collected
+    /// without a shield.
+    pub fn arm_shield(&mut self, nets: Option<&ShieldNets>) {
+        self.shield = self.shield_config.shield(nets).unwrap_or_else(|e| {
+            tracing::error!("refusing the shield's networks: {e}");
+            None
+        });
+    }
+
+    /// Steps of this epoch the shield gave the expert.
+    pub fn shielded(&self) -> u64 {
+        self.shielded
     }
 
     /// Sets the incarnation every segment carries (the `actor` binary: the time it started), so that the learner
@@ -184,6 +209,7 @@ impl Collector {
     /// episodes are reset at each epoch (the reference).
     pub fn begin_epoch(&mut self) {
         self.taken = 0;
+        self.shielded = 0;
         if !self.started || self.episodes == Episodes::Reset {
             for i in 0..self.envs.len() {
                 self.reset(i);
@@ -273,6 +299,23 @@ impl Collector {
                 StoredAction::Clipped => clip_action(&mixed),
                 StoredAction::Unclipped => mixed,
             });
+        }
+        if let Some(shield) = &self.shield {
+            let states: Vec<[f32; 6]> = self.before.iter().map(|o| f32s(&o.state)).collect();
+            for (j, overrule) in shield
+                .overrules(&states, &self.applied)
+                .into_iter()
+                .enumerate()
+            {
+                if overrule && expert_ok(&answers[j]) {
+                    self.applied[j] = clip_action(&answers[j].action);
+                    self.stored[j] = match self.stored_action {
+                        StoredAction::Clipped => self.applied[j],
+                        StoredAction::Unclipped => answers[j].action,
+                    };
+                    self.shielded += 1;
+                }
+            }
         }
         let results = self
             .envs

@@ -10,3 +10,4 @@ pub mod local;
 pub mod run;
 pub mod segment;
 pub mod sensor;
+pub mod shield;

@@ -86,6 +86,7 @@ struct Store<'a> {
     steps_published: u64,
     steps_taken: u64,
     steps_staged: u64,
+    steps_shielded: u64,
 }
 
 impl SegmentSink for Store<'_> {
@@ -96,6 +97,7 @@ impl SegmentSink for Store<'_> {
                 self.steps_published += done.steps;
                 self.steps_taken += done.taken;
                 self.steps_staged += done.staged;
+                self.steps_shielded += done.shielded;
             }
         }
         Ok(())
@@ -118,6 +120,7 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
             steps_published: 0,
             steps_taken: 0,
             steps_staged: 0,
+            steps_shielded: 0,
         };
         for collector in &mut self.collectors {
             collect_epoch(
@@ -141,6 +144,7 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
             steps_published: sink.steps_published,
             steps_taken: sink.steps_taken,
             steps_staged: sink.steps_staged,
+            steps_shielded: sink.steps_shielded,
             timed_out: false,
             missing: Vec::new(),
             live: self

@@ -167,6 +167,7 @@ pub fn collect_epoch(
     let budget = update.steps_per_actor;
     let first_seq = collector.segments_cut();
     collector.begin_epoch();
+    collector.arm_shield(update.shield.as_ref());
     let mut published = 0u64;
     let interrupted = collector.collect(
         budget,
@@ -190,6 +191,7 @@ pub fn collect_epoch(
         steps: published,
         taken: collector.taken(),
         staged: collector.staged(),
+        shielded: collector.shielded(),
     }))?;
     Ok((published, interrupted))
 }

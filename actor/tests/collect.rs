@@ -382,3 +382,86 @@ fn action_noise_perturbs_the_applied_action_and_leaves_the_label() {
         "the noise moves the car off the line: {moved} steps"
     );
 }
+
+/// The shield (`collection.shield`, issue 45): f_hat and p_hat arrive with the update; a step whose applied action
+/// p_hat finds below the threshold is the expert's. A critic with every weight zero says p = 0.5 everywhere: under a
+/// threshold of 0.6 every step is handed to the expert (applied = the expert's action, clipped), under 0.4 none is
+/// (applied = the policy's, beta = 0); without networks (before the critic's first fit) or with malformed ones
+/// there is no shield.
+#[test]
+fn the_shield_hands_the_steps_it_overrules_to_the_expert() {
+    use cabc_models::{Critic, Dynamics, Network};
+    use cabc_proto::messages::ShieldNets;
+    let mut config = RunConfig::load("smoke").unwrap();
+    config.actors.envs_per_actor = 2;
+    let nets = {
+        let dynamics = Dynamics::new(config.networks.dynamics, tch::Device::Cpu, 0);
+        let mut critic = Critic::new(6, config.networks.critic, tch::Device::Cpu, 0);
+        tch::no_grad(|| {
+            for mut v in critic.var_store_mut().trainable_variables() {
+                let _ = v.zero_();
+            }
+        });
+        ShieldNets {
+            dynamics: dynamics.to_bytes(),
+            critic: critic.to_bytes(),
+        }
+    };
+    let run = |threshold: f64, nets: Option<&ShieldNets>| {
+        let mut config = config.clone();
+        config.collection.shield = threshold;
+        let mut collector = Collector::new("t", 0, &config);
+        let mut expert = Pid {
+            fail_every: usize::MAX,
+            answered: 0,
+        };
+        collector.begin_epoch();
+        collector.arm_shield(nets);
+        let mut segments = Vec::new();
+        collector
+            .collect(
+                200,
+                0.0,
+                1,
+                &mut expert,
+                |obs| Ok::<_, PortError>(policy(obs.states)),
+                |out| {
+                    segments.append(out);
+                    Ok(None)
+                },
+            )
+            .unwrap();
+        let mut out = Vec::new();
+        collector.end_epoch(1, &mut out);
+        segments.append(&mut out);
+        let steps: Vec<_> = segments.into_iter().flat_map(|s| s.steps).collect();
+        (collector.shielded(), collector.taken(), steps)
+    };
+    let expert_driven = |steps: &[cabc_proto::messages::Step]| {
+        steps
+            .iter()
+            .filter(|s| {
+                let e = [s.expert_action[0] as f64, s.expert_action[1] as f64];
+                let clipped = cabc_sim::vehicle::clip_action(&e);
+                (0..2).all(|d| (s.applied_action[d] as f64 - clipped[d]).abs() < 1e-5)
+            })
+            .count()
+    };
+    let (shielded, taken, steps) = run(0.6, Some(&nets));
+    assert_eq!(shielded, taken, "p = 0.5 < 0.6: every step");
+    assert_eq!(expert_driven(&steps), steps.len());
+    let (shielded, _, steps) = run(0.4, Some(&nets));
+    assert_eq!(shielded, 0, "p = 0.5 >= 0.4: none");
+    assert!(
+        expert_driven(&steps) < steps.len() / 10,
+        "the policy drives: {} of {}",
+        expert_driven(&steps),
+        steps.len()
+    );
+    assert_eq!(run(0.6, None).0, 0, "no networks yet");
+    let malformed = ShieldNets {
+        dynamics: vec![1, 2, 3],
+        critic: nets.critic.clone(),
+    };
+    assert_eq!(run(0.6, Some(&malformed)).0, 0, "refused, not a panic");
+}

@@ -27,6 +27,7 @@ fn update(version: u64, architecture: &str, weights: Vec<u8>) -> PolicyUpdate {
         weights,
         steps_per_actor: 120,
         published_unix_ms: 0,
+        shield: None,
     }
 }
 

@@ -132,6 +132,7 @@ mod tests {
             steps: 10,
             taken: 10,
             staged: 0,
+            shielded: 0,
         }
     }
 

@@ -336,6 +336,7 @@ impl Rollouts for ZenohActors {
             steps_published: gate.markers().map(|m| m.steps).sum(),
             steps_taken: gate.markers().map(|m| m.taken).sum(),
             steps_staged: gate.markers().map(|m| m.staged).sum(),
+            steps_shielded: gate.markers().map(|m| m.shielded).sum(),
             missing,
             timed_out,
             live: self.live.iter().cloned().collect(),
@@ -402,6 +403,7 @@ mod tests {
             steps: 0,
             taken: 0,
             staged: 0,
+            shielded: 0,
         })
     }
 

@@ -43,6 +43,9 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         record.count("steps_published", collected.steps_published);
         record.count("steps_taken", collected.steps_taken);
         record.count("steps_staged", collected.steps_staged);
+        if learner.config.collection.shield > 0.0 {
+            record.count("steps_shielded", collected.steps_shielded);
+        }
         record.flag("closed_by_timeout", collected.timed_out);
         // Partition D_new into D+' (laps) and D?' (failures): D+ <- D+ u D+', D? <- D? u D?'.
         learner.partition(&mut record);

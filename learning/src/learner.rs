@@ -12,8 +12,9 @@ use crate::sink::{Sink, SinkError};
 use crate::state::{LearnerState, StateError, CHECKPOINT};
 use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
+use cabc_models::Network;
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment};
+use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, ShieldNets};
 use cabc_proto::ports::PortError;
 use serde_json::json;
 use std::collections::HashSet;
@@ -173,6 +174,12 @@ impl Learner {
             weights,
             steps_per_actor: self.config.steps_per_actor(epoch),
             published_unix_ms: unix_ms(),
+            shield: (self.config.collection.shield > 0.0 && self.trainer.critic_trained()).then(
+                || ShieldNets {
+                    dynamics: self.trainer.dynamics().to_bytes(),
+                    critic: self.trainer.critic().to_bytes(),
+                },
+            ),
         }
     }
 

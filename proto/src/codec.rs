@@ -12,7 +12,7 @@ use serde::{de::DeserializeOwned, Serialize};
 /// The first four bytes of every payload.
 pub const MAGIC: [u8; 4] = *b"CABC";
 /// Bumped whenever a message changes shape.
-pub const SCHEMA_VERSION: u16 = 3;
+pub const SCHEMA_VERSION: u16 = 4;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 7;
 /// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
@@ -319,6 +319,7 @@ mod tests {
             steps: 1024,
             taken: 1030,
             staged: 17,
+            shielded: 3,
         }));
         round_trip(PolicyUpdate {
             version: 9,
@@ -327,6 +328,10 @@ mod tests {
             weights: vec![0, 1, 2, 255],
             steps_per_actor: 512,
             published_unix_ms: 1_790_000_000_000,
+            shield: Some(ShieldNets {
+                dynamics: vec![3, 4],
+                critic: vec![5],
+            }),
         });
         round_trip(ExpertRequest {
             request_id: 5,

@@ -152,6 +152,8 @@ pub struct EpochDone {
     /// Steps taken but still staged when the actor was done with this version (an unfinished lap, carried into the
     /// next epoch's segments when episodes go on across epochs).
     pub staged: u64,
+    /// Steps the shield handed to the expert (`collection.shield`).
+    pub shielded: u64,
 }
 
 /// What an actor publishes on `traj/<actor>`.
@@ -175,6 +177,16 @@ pub struct PolicyUpdate {
     pub steps_per_actor: u64,
     /// When the learner published it (ms since the Unix epoch), for the broadcast latency.
     pub published_unix_ms: u64,
+    /// f_hat and p_hat for the shield in collection (`collection.shield` > 0, once the critic has trained).
+    pub shield: Option<ShieldNets>,
+}
+
+/// The networks of the shield in collection: safetensors bytes of f_hat and p_hat (their sizes are the run's
+/// `networks.dynamics` and `networks.critic`; an actor refuses others).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShieldNets {
+    pub dynamics: Vec<u8>,
+    pub critic: Vec<u8>,
 }
 
 /// Identifies a stream of expert queries (one environment's episode), for the MPCC warm start.

@@ -92,6 +92,8 @@ pub struct Collected {
     /// Steps the actors had taken but still staged when they were done (their markers): unfinished laps that later
     /// epochs' segments carry.
     pub steps_staged: u64,
+    /// Steps the shield handed to the expert (their markers; `collection.shield`).
+    pub steps_shielded: u64,
     /// Whether the timeout closed the epoch (an actor missing or not yet seen).
     pub timed_out: bool,
     /// Actors alive when the epoch closed that had not said they were done.

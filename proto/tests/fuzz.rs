@@ -151,6 +151,7 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 steps: 1024,
                 taken: 1024,
                 staged: 0,
+                shielded: 0,
             })),
         ),
         (
@@ -162,6 +163,7 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 weights: (0..64).collect(),
                 steps_per_actor: 512,
                 published_unix_ms: 1_790_000_000_000,
+                shield: None,
             }),
         ),
         (

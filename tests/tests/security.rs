@@ -152,6 +152,7 @@ fn forgeries(keys: &Keys, per_kind: u64) -> Vec<(String, Vec<u8>)> {
             weights: vec![0; 64],
             steps_per_actor: 1,
             published_unix_ms: 0,
+            shield: None,
         };
         out.push((keys.policy(), encode(&update)));
         // A perfect evaluation of version 1: through, it would end the run by early stop.
@@ -184,6 +185,7 @@ fn forgeries(keys: &Keys, per_kind: u64) -> Vec<(String, Vec<u8>)> {
             steps: FORGED + i,
             taken: FORGED + i,
             staged: 0,
+            shielded: 0,
         });
         out.push((keys.traj("actor-1"), encode(&done)));
     }

@@ -191,6 +191,11 @@ pub struct CollectionSection {
     /// alone. The stored label stays the expert's; the stored action is the one applied. [0, 0] (the reference):
     /// none.
     pub action_noise_std: [f64; 2],
+    /// p_hat as a shield in collection (SafeDAgger, EnsembleDAgger and ThriftyDAgger use a learned safety signal
+    /// so): once the critic has trained, a step whose applied action u (the mixture's, with its noise) has
+    /// p_hat(f_hat(x, u)) below this is driven by the expert's action instead (when the expert answered); the
+    /// stored label stays the expert's either way. 0 (the paper): no shield.
+    pub shield: f64,
 }
 
 impl Default for CollectionSection {
@@ -207,6 +212,7 @@ impl Default for CollectionSection {
             expert_failure_staged: ExpertFailureStaged::Uncertain,
             stored_action: StoredAction::Clipped,
             action_noise_std: [0.0; 2],
+            shield: 0.0,
         }
     }
 }

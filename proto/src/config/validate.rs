@@ -53,6 +53,20 @@ impl RunConfig {
                 "must lie in [0, 1): the share of the old average kept each epoch (0: no average)",
             );
         }
+        if !(0.0..1.0).contains(&self.collection.shield) {
+            return invalid(
+                "collection.shield",
+                self.collection.shield.to_string(),
+                "must lie in [0, 1): the probability of safety below which the expert drives (0: no shield)",
+            );
+        }
+        if self.collection.shield > 0.0 && self.training.standardise {
+            return invalid(
+                "collection.shield",
+                self.collection.shield.to_string(),
+                "needs training.standardise = false: the actors feed f_hat and p_hat raw states",
+            );
+        }
         if !(0.0..=1.0).contains(&self.training.safety_gate) {
             return invalid(
                 "training.safety_gate",
