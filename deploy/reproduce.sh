@@ -9,12 +9,12 @@
 # (an ablation), and --tag names it: run folders are runs/<exp>[-<tag>]-s<k> and runs/<exp>[-<tag>]-s<k>-baseline.
 # An interrupted campaign resumes where it stopped: a run with summary.json from an ended run is skipped, a run with
 # a checkpoint is resumed, any other starts fresh. After each run its results (summary.json, metrics.csv, evals.csv,
-# plots) are copied to docs/reproduction/<run>/ and the comparison figures of its group redrawn with `cabc
-# compare` into docs/reproduction/<exp>[-<tag>]-*.png, its tables (per run, and per method over seeds: median and
-# range) into docs/reproduction/<exp>[-<tag>]-table.md. With CABC_BIN=DIR the binaries in DIR are used and nothing
-# is built (a campaign that outlives code changes keeps its binaries; deploy/campaign.sh pins them).
-# This script builds the binaries and hands over to `cabc reproduce` (campaign/src/reproduce.rs), which does the
-# above; the run names are proto/src/run_name.rs's.
+# config.toml; no plots: `cabc plots RUN` redraws them) are copied to docs/reproduction/<run>/ and the comparison
+# figures of its group redrawn with `cabc compare` into docs/reproduction/<exp>[-<tag>]-*.png, its tables (per run,
+# and per method over seeds: median and range) into docs/reproduction/<exp>[-<tag>]-table.md. With CABC_BIN=DIR the
+# binaries in DIR are used and nothing is built (a campaign that outlives code changes keeps its binaries, pinned by
+# deploy/campaign.sh). This script builds the binaries and hands over to `cabc reproduce` (campaign/src/reproduce.rs),
+# which does the above; the run names are proto/src/run_name.rs's.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"

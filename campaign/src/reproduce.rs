@@ -2,7 +2,8 @@
 //! experiment (a preset), each seed k and each method it names the run ([`RunName`]: `<preset>[-<tag>]-s<k>
 //! [-baseline]`, seed 41 + k), skips it when it ended (here or in `docs/reproduction/`, [`run_state`]), resumes it
 //! when it has a checkpoint and starts it fresh otherwise, through `deploy/run-local.sh` with the binaries of
-//! `CABC_BIN`; then copies its results (summary.json, metrics.csv, evals.csv, config.toml, plots/) to
+//! `CABC_BIN`; then copies its results, the four small files a figure is drawn from ([`RESULT_FILES`]: summary.json,
+//! metrics.csv, evals.csv, config.toml; no plots or videos: `cabc plots RUN` redraws a run's plots from them), to
 //! `docs/reproduction/<run>/`, and after each experiment redraws its group's figures and table with `cabc compare`
 //! (`docs/reproduction/<group>-*.png`, `<group>-table.md`). `deploy/reproduce.sh` builds the binaries and calls it.
 //!
@@ -19,8 +20,9 @@ use std::process::Command;
 /// The experiments run when none is named.
 pub const DEFAULT_EXPERIMENTS: [&str; 3] = ["v-b", "v-a-cpu", "v-c-cpu"];
 
-/// The files of a run folder copied to its results (plots/ besides, whole).
-const RESULT_FILES: [&str; 4] = ["summary.json", "metrics.csv", "evals.csv", "config.toml"];
+/// The files of a run folder copied to its results, and the only ones: what the figures and tables are drawn from
+/// (the run's plots and videos stay in the run folder; `cabc plots RUN` redraws the plots from these).
+pub const RESULT_FILES: [&str; 4] = ["summary.json", "metrics.csv", "evals.csv", "config.toml"];
 
 /// The seeds' numbers: `N` (1 to N) or `A-B`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -229,7 +231,7 @@ pub fn group_folders(results: &Path, group: &str) -> Result<Vec<PathBuf>> {
 }
 
 /// Copies a run folder's results into `to` (created), overwriting what is there: the files of [`RESULT_FILES`] it
-/// has, and plots/ whole.
+/// has, nothing else (no plots/, GIFs, policies or checkpoint).
 fn copy_results(from: &Path, to: &Path) -> Result<()> {
     std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
     for file in RESULT_FILES {
@@ -237,24 +239,6 @@ fn copy_results(from: &Path, to: &Path) -> Result<()> {
         if src.is_file() {
             std::fs::copy(&src, to.join(file))
                 .with_context(|| format!("copying {}", src.display()))?;
-        }
-    }
-    let plots = from.join("plots");
-    if plots.is_dir() {
-        copy_dir(&plots, &to.join("plots"))?;
-    }
-    Ok(())
-}
-
-fn copy_dir(from: &Path, to: &Path) -> Result<()> {
-    std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
-    for entry in std::fs::read_dir(from).with_context(|| format!("reading {}", from.display()))? {
-        let entry = entry?;
-        let (src, dst) = (entry.path(), to.join(entry.file_name()));
-        if entry.file_type()?.is_dir() {
-            copy_dir(&src, &dst)?;
-        } else if src.is_file() {
-            std::fs::copy(&src, &dst).with_context(|| format!("copying {}", src.display()))?;
         }
     }
     Ok(())
@@ -312,6 +296,48 @@ mod tests {
         assert_eq!(runs.len(), 6);
         assert_eq!(runs[0].name.to_string(), "v-b-s2-baseline");
         assert_eq!(runs[5].args.last().unwrap(), "v-c-cpu");
+    }
+
+    /// The results are the four small files and nothing else of the run folder: no plots/, GIFs, policies or
+    /// checkpoint (issue 47: results small; `cabc plots RUN` redraws the plots).
+    #[test]
+    fn only_the_result_files_are_copied() {
+        let dir = tempfile::tempdir().unwrap();
+        let (from, to) = (dir.path().join("runs/r-s1"), dir.path().join("docs/r-s1"));
+        for file in [
+            "summary.json",
+            "metrics.csv",
+            "evals.csv",
+            "config.toml",
+            "plots/laps.png",
+            "plots/eval-v3.gif",
+            "best-policy.gif",
+            "best-policy.safetensors",
+            "checkpoint/state.json",
+            "logs/learner.log",
+        ] {
+            let path = from.join(file);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(&path, file).unwrap();
+        }
+        copy_results(&from, &to).unwrap();
+        let mut copied: Vec<String> = std::fs::read_dir(&to)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        copied.sort();
+        let mut expected = RESULT_FILES.map(String::from).to_vec();
+        expected.sort();
+        assert_eq!(copied, expected);
+        assert_eq!(
+            std::fs::read_to_string(to.join("evals.csv")).unwrap(),
+            "evals.csv"
+        );
+        // A run without a summary yet (interrupted): what it has.
+        std::fs::remove_file(from.join("summary.json")).unwrap();
+        let partial = dir.path().join("docs/r-s2");
+        copy_results(&from, &partial).unwrap();
+        assert!(partial.join("metrics.csv").is_file() && !partial.join("summary.json").exists());
     }
 
     #[test]

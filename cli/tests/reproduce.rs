@@ -1,8 +1,8 @@
 //! `cabc reproduce`, the campaign's per-run step (what deploy/reproduce.sh did in bash): the runs' names, seeds and
 //! arguments reach deploy/run-local.sh, an ended run is skipped, one with a checkpoint resumed, a failure fails the
-//! step, the results are copied, and the group's table is drawn over its own folders only. deploy/run-local.sh and
-//! the drawing `cabc compare` (--compare, not the runs' binaries: a campaign's pinned ones predate a column) are
-//! fakes that record their calls.
+//! step, the results are copied (the small files alone, no plots or GIFs), and the group's table is drawn over its
+//! own folders only. deploy/run-local.sh and the drawing `cabc compare` (--compare, not the runs' binaries: a
+//! campaign's pinned ones predate a column) are fakes that record their calls.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -30,6 +30,8 @@ mkdir -p "runs/$name/plots/sub"
 echo '{"ended": "max-epochs"}' > "runs/$name/summary.json"
 echo "epoch" > "runs/$name/metrics.csv"
 echo "png" > "runs/$name/plots/sub/laps.png"
+echo "gif" > "runs/$name/plots/eval-v3.gif"
+echo "gif" > "runs/$name/best-policy.gif"
 "#,
     );
     executable(&dir.join("bin/cabc"), "#!/usr/bin/env bash\nexit 8\n");
@@ -116,12 +118,14 @@ fn runs_are_named_seeded_skipped_resumed_copied_and_drawn() {
         ]
     );
     let results = dir.join("docs/reproduction");
+    // The results are the small files alone: no plots/ or GIFs (issue 47; `cabc plots RUN` redraws the plots).
     for run in ["p-t-s1", "p-t-s1-baseline", "p-t-s2", "p-t-s2-baseline"] {
-        assert!(results.join(run).join("summary.json").is_file(), "{run}");
-        assert!(
-            results.join(run).join("plots/sub/laps.png").is_file(),
-            "{run}"
-        );
+        let mut copied: Vec<String> = std::fs::read_dir(results.join(run))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        copied.sort();
+        assert_eq!(copied, ["metrics.csv", "summary.json"], "{run}");
     }
     let table = std::fs::read_to_string(results.join("p-t-table.md")).unwrap();
     assert_eq!(
