@@ -19,8 +19,8 @@ use tools::load;
 #[command(
     name = "cabc",
     version,
-    about = "cabc's tools: finished runs (compare, show, video, export), the learning core's demo and benchmarks, a \
-             secure deployment's zenohd configuration and denials"
+    about = "cabc's tools: finished runs (compare, plots, show, video, export), the learning core's demo and \
+             benchmarks, a secure deployment's zenohd configuration and denials"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -47,6 +47,17 @@ enum Command {
         gif: Option<show::Which>,
         /// Where to write the GIF (default: in the run folder).
         #[arg(long, requires = "gif")]
+        out: Option<PathBuf>,
+    },
+    /// Redraws a run's plots (laps per version, losses, lap times against the expert's) from its config.toml,
+    /// metrics.csv, evals.csv and summary.json alone: a run folder, or its kept copy in docs/reproduction/<run>/.
+    /// Prints the files written; the plots those files cannot give (the evaluated line, the videos) are named on
+    /// stderr with the command that makes them from a full run folder.
+    Plots {
+        /// The run folder.
+        run: PathBuf,
+        /// Where to write the PNG files (default: RUN/plots/).
+        #[arg(long)]
         out: Option<PathBuf>,
     },
     /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
@@ -118,6 +129,7 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
+        Command::Plots { run, out } => tools::plots(&run, out.as_deref()),
         Command::Video { run, final_, out } => {
             let report = show::video(&run, final_, out)?;
             println!("{} laps, ended by {}", report.laps, report.end_reason);

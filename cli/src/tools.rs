@@ -1,6 +1,6 @@
-//! The subcommands that hand their arguments to a library whole: `cabc compare` (cabc-analysis), `cabc demo`,
-//! `cabc bench` and `cabc bench-vision` (cabc-bench), and a secure deployment's `cabc zenohd-config` and
-//! `cabc acl-denials` (cabc-bus, deploy/SCALE-OUT.md §2).
+//! The subcommands that hand their arguments to a library whole: `cabc compare` (cabc-analysis), `cabc plots`
+//! (cabc-outputs), `cabc demo`, `cabc bench` and `cabc bench-vision` (cabc-bench), and a secure deployment's
+//! `cabc zenohd-config` and `cabc acl-denials` (cabc-bus, deploy/SCALE-OUT.md §2).
 
 use anyhow::Context;
 use cabc_proto::config::RunConfig;
@@ -9,6 +9,23 @@ use std::path::PathBuf;
 /// `cabc compare RUN...`: the paper's figures and the table of runs (Markdown on stdout).
 pub fn compare(options: &cabc_analysis::compare::CompareOptions) -> anyhow::Result<()> {
     print!("{}", cabc_analysis::compare::run(options)?);
+    Ok(())
+}
+
+/// `cabc plots RUN [--out DIR]`: the run's plots redrawn from its small files; the files written on stdout, what was
+/// missing and what is left out on stderr.
+pub fn plots(run: &std::path::Path, out: Option<&std::path::Path>) -> anyhow::Result<()> {
+    let redrawn = cabc_outputs::redraw::redraw(run, out)
+        .with_context(|| format!("redrawing the plots of {}", run.display()))?;
+    for note in &redrawn.notes {
+        eprintln!("note: {note}");
+    }
+    for left_out in redrawn.left_out {
+        eprintln!("left out: {left_out}");
+    }
+    for path in &redrawn.drawn {
+        println!("{}", path.display());
+    }
     Ok(())
 }
 

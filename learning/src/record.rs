@@ -287,6 +287,89 @@ pub fn table(records: &[Record]) -> String {
     text
 }
 
+/// A line of a table (`metrics.csv`, `evals.csv`) that does not read back.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("line {line}: {message}")]
+pub struct TableError {
+    /// The line, from 1 (the header).
+    pub line: usize,
+    pub message: String,
+}
+
+/// [`table`]'s text read back: a record per line, a metric per non-empty cell under its column's name (a number
+/// without a point a count, `true` / `false` a flag, any other number a real with the decimals it was written with),
+/// so that [`table`] gives the same text again. Blank lines are skipped; a line with more or fewer cells than the
+/// header, a cell that is not a number or a flag, a table without an `epoch` column or without a header are refused.
+pub fn parse_table(text: &str) -> Result<Vec<Record>, TableError> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().ok_or(TableError {
+        line: 1,
+        message: "no header (an empty table)".into(),
+    })?;
+    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    if !header.contains(&"epoch") {
+        return Err(TableError {
+            line: 1,
+            message: format!("no epoch column in the header {:?}", header.join(",")),
+        });
+    }
+    let mut records = vec![];
+    for (i, line) in lines {
+        let fail = |message: String| TableError {
+            line: i + 1,
+            message,
+        };
+        let cells: Vec<&str> = line.split(',').collect();
+        if cells.len() != header.len() {
+            return Err(fail(format!(
+                "{} cells, the header has {} columns",
+                cells.len(),
+                header.len()
+            )));
+        }
+        let mut record = Record::default();
+        for (name, cell) in header.iter().zip(cells) {
+            let cell = cell.trim();
+            if cell.is_empty() {
+                continue;
+            }
+            let value = cell_value(cell)
+                .ok_or_else(|| fail(format!("{name}: {cell:?} is not a number or a flag")))?;
+            record.put(name, value);
+        }
+        if record.u64("epoch").is_none() {
+            return Err(fail("no epoch (a count) in the row".into()));
+        }
+        records.push(record);
+    }
+    Ok(records)
+}
+
+/// A cell of [`table`] as the value that writes it.
+fn cell_value(cell: &str) -> Option<Value> {
+    match cell {
+        "true" => return Some(Value::Flag(true)),
+        "false" => return Some(Value::Flag(false)),
+        _ => {}
+    }
+    if cell.bytes().all(|b| b.is_ascii_digit()) {
+        if let Ok(n) = cell.parse() {
+            return Some(Value::Count(n));
+        }
+    }
+    let x: f64 = cell.parse().ok()?;
+    let decimals = match cell.split_once('.') {
+        Some((_, fraction)) if fraction.bytes().all(|b| b.is_ascii_digit()) => {
+            u8::try_from(fraction.len()).ok()
+        }
+        _ => None,
+    };
+    Some(Value::Real(x, decimals))
+}
+
 /// `state.json`'s `rows`: each a record (a list of entries), or an old checkpoint's object of `EpochRow`'s fields.
 pub(crate) fn rows<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Record>, D::Error> {
     Vec::<serde_json::Value>::deserialize(d)?
@@ -396,6 +479,56 @@ mod tests {
             "3",
         ] {
             assert!(serde_json::from_str::<Record>(bad).is_err(), "{bad}");
+        }
+    }
+
+    /// `metrics.csv` reads back into records that write the same text again, with the same numbers; a malformed
+    /// table is refused with its line.
+    #[test]
+    fn a_table_reads_back() {
+        let mut a = Record::new(0);
+        a.real("beta", 1.0, 6)
+            .exact("rho", 1.0)
+            .exact("lr", 0.001)
+            .real("imitation_loss", 0.153080, 6)
+            .real("negative", -0.0, 6)
+            .real("nan", f64::NAN, 3)
+            .flag("closed_by_timeout", false)
+            .count("d_plus", 1005u32);
+        let mut b = Record::new(1);
+        b.real("beta", 0.95, 6)
+            .real("critic_loss", 0.5, 6)
+            .flag("closed_by_timeout", true)
+            .count("new_column", 7u32);
+        let text = table(&[a, b.clone()]);
+        let back = parse_table(&text).unwrap();
+        assert_eq!(table(&back), text);
+        assert_eq!(back.len(), 2);
+        assert_eq!(back[0].f64("imitation_loss"), Some(0.15308));
+        assert_eq!(back[0].f64("rho"), Some(1.0));
+        assert_eq!(back[0].u64("d_plus"), Some(1005));
+        assert!(back[0].f64("nan").unwrap().is_nan());
+        assert_eq!(
+            back[0].get("critic_loss"),
+            None,
+            "an empty cell is no metric"
+        );
+        assert_eq!(back[1], b);
+        // Blank lines (a trailing one, CRLF) are no rows.
+        let crlf = "epoch,loss\r\n0,0.5\r\n\r\n1,0.25\r\n";
+        assert_eq!(parse_table(crlf).unwrap()[1].f64("loss"), Some(0.25));
+        for (bad, line, what) in [
+            ("", 1, "no header"),
+            ("beta\n1.0\n", 1, "no epoch column"),
+            ("epoch,loss\n0,0.5\n1\n", 3, "1 cells, the header has 2"),
+            ("epoch,loss\n0,0.5,9\n", 2, "3 cells"),
+            ("epoch,loss\n0,abc\n", 2, "loss: \"abc\" is not a number"),
+            ("epoch,loss\n,0.5\n", 2, "no epoch"),
+            ("epoch,loss\n0.5,0.5\n", 2, "no epoch"),
+        ] {
+            let e = parse_table(bad).unwrap_err();
+            assert_eq!(e.line, line, "{bad:?}: {e}");
+            assert!(e.to_string().contains(what), "{bad:?}: {e}");
         }
     }
 

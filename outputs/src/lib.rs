@@ -5,10 +5,12 @@
 //! * [`sinks`]: the sinks (the run folder's files, TensorBoard's events, the progress bar) and [`learner`], the
 //!   learner of a run folder with all three;
 //! * [`plots`]: the run's plots (PNG, plotters), and the drawing helpers the analysis's figures share;
+//! * [`redraw`]: a kept run folder's plots redrawn from its small files (`cabc plots RUN`);
 //! * [`video`]: the evaluations' GIFs (the track, the car, a camera run's view);
 //! * [`tensorboard`]: TensorBoard's event files, written and read without TensorFlow.
 
 pub mod plots;
+pub mod redraw;
 pub mod rundir;
 pub mod sinks;
 pub mod tensorboard;

@@ -1,5 +1,7 @@
 //! The run's plots (PNG, refreshed after every epoch): completed evaluation laps per policy version, imitation and
-//! safety loss per epoch, lap-time mean and spread against the expert's, and the last evaluated line on the track.
+//! safety loss per epoch, lap-time mean and spread against the expert's ([`draw_tables`]: from what the run folder's
+//! tables keep, so that `cabc plots` redraws them for a kept run folder, [`crate::redraw`]), and the last evaluated
+//! line on the track (from the evaluation's report).
 
 use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::Record;
@@ -71,15 +73,58 @@ pub fn png(
 
 const SIZE: (u32, u32) = (900, 500);
 
+/// The plots drawn from a run's tables and summary alone ([`draw_tables`]), by file name: laps per version, the
+/// losses, lap times against the expert's.
+pub const TABLE_PLOTS: [&str; 3] = ["laps.png", "losses.png", "lap_times.png"];
+
+/// The plot of the last evaluated line on the track: drawn from the evaluation's report (its line), which no table
+/// keeps.
+pub const LINE_PLOT: &str = "line.png";
+
+/// The expert's lap time as the lap-time plot draws it: mean and standard deviation over `laps` laps (the run's
+/// `summary.json` keeps it as `expert_lap_time`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExpertLaps {
+    pub mean: f64,
+    pub std: f64,
+    pub laps: usize,
+}
+
+impl ExpertLaps {
+    /// Over the expert's lap times; None without any.
+    pub fn of(lap_times: &[f64]) -> Option<Self> {
+        cabc_proto::stats::mean_std(lap_times).map(|(mean, std)| ExpertLaps {
+            mean,
+            std,
+            laps: lap_times.len(),
+        })
+    }
+}
+
 /// Draws every plot into `dir`. Errors are returned, not fatal: a run goes on without a picture.
 pub fn draw_all(dir: &Path, run: &History, eval_laps: u32) -> PlotResult {
-    let evals = &run.evals;
-    laps(&dir.join("laps.png"), evals, eval_laps)?;
-    losses(&dir.join("losses.png"), &run.rows)?;
-    lap_times(&dir.join("lap_times.png"), evals, &run.expert_lap_times)?;
+    let expert = ExpertLaps::of(&run.expert_lap_times);
+    draw_tables(dir, &run.rows, &run.evals, expert, eval_laps)?;
     if let Some(report) = &run.last_eval {
-        line(&dir.join("line.png"), report)?;
+        line(&dir.join(LINE_PLOT), report)?;
     }
+    Ok(())
+}
+
+/// Draws the plots of [`TABLE_PLOTS`] into `dir`, from what `metrics.csv`, `evals.csv` and `summary.json` keep: the
+/// epochs' records, the evaluations, the expert's lap time (None: no expert band) and `collection.eval_laps`. The
+/// live run's ([`draw_all`]) and a kept run folder's (`cabc plots`, [`crate::redraw`]).
+pub fn draw_tables(
+    dir: &Path,
+    rows: &[Record],
+    evals: &[EvalSummary],
+    expert: Option<ExpertLaps>,
+    eval_laps: u32,
+) -> PlotResult {
+    let [laps_png, losses_png, lap_times_png] = TABLE_PLOTS;
+    laps(&dir.join(laps_png), evals, eval_laps)?;
+    losses(&dir.join(losses_png), rows)?;
+    lap_times(&dir.join(lap_times_png), evals, expert)?;
     Ok(())
 }
 
@@ -162,16 +207,15 @@ fn losses(path: &Path, rows: &[Record]) -> PlotResult {
     })
 }
 
-fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
+fn lap_times(path: &Path, evals: &[EvalSummary], expert: Option<ExpertLaps>) -> PlotResult {
     crate::plots::png(path, SIZE, |root| {
         root.fill(&WHITE)?;
         let with_laps: Vec<&EvalSummary> = evals.iter().filter(|e| e.lap_mean.is_some()).collect();
-        let expert_ms = cabc_proto::stats::mean_std(expert);
         let max_v = evals.iter().map(|e| e.version).max().unwrap_or(1).max(1);
         let hi = with_laps
             .iter()
             .filter_map(|e| e.lap_max)
-            .chain(expert_ms.map(|m| m.0 + m.1))
+            .chain(expert.map(|e| e.mean + e.std))
             .fold(1.0, f64::max);
         let caption = "Lap time at evaluation: mean ± std, min–max";
         let mut chart = lap_time_chart(root, caption, max_v, hi)?;
@@ -194,9 +238,9 @@ fn lap_times(path: &Path, evals: &[EvalSummary], expert: &[f64]) -> PlotResult {
             }))?
             .label("policy")
             .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
-        if let Some((m, s)) = expert_ms {
-            let label = format!("expert {m:.2} ± {s:.2} s ({} laps)", expert.len());
-            expert_band(&mut chart, (m, s), (max_v + 1) as f64, label)?;
+        if let Some(ExpertLaps { mean, std, laps }) = expert {
+            let label = format!("expert {mean:.2} ± {std:.2} s ({laps} laps)");
+            expert_band(&mut chart, (mean, std), (max_v + 1) as f64, label)?;
         }
         legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         Ok(())
@@ -347,7 +391,7 @@ mod tests {
             last_eval: Some(report),
         };
         draw_all(dir.path(), &run, 50).unwrap();
-        for f in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
+        for f in TABLE_PLOTS.iter().chain([&LINE_PLOT]) {
             let len = std::fs::metadata(dir.path().join(f)).unwrap().len();
             assert!(len > 1000, "{f} is {len} bytes");
         }

@@ -12,7 +12,7 @@
 
 use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
 use cabc_learning::evaluations::EvalSummary;
-use cabc_learning::record::Record;
+use cabc_learning::record::{Record, TableError};
 use cabc_learning::state::CHECKPOINT;
 use cabc_proto::config::RunConfig;
 use std::fs::{File, OpenOptions};
@@ -122,8 +122,7 @@ impl RunDir {
         let path = self.root.join("metrics.csv");
         write_atomic(&path, cabc_learning::record::table(rows).as_bytes())?;
         let path = self.root.join("evals.csv");
-        let mut text =
-            String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        let mut text = format!("{EVALS_HEADER}\n");
         let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
         for e in evals {
             text.push_str(&format!(
@@ -151,6 +150,75 @@ impl RunDir {
     pub fn write_file(&self, name: &str, bytes: &[u8]) -> Result<(), RunDirError> {
         write_atomic(&self.root.join(name), bytes)
     }
+}
+
+/// `evals.csv`'s header: a row per evaluation ([`RunDir::write_tables`]), lap times with 3 decimals.
+pub const EVALS_HEADER: &str = "version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps";
+
+/// `evals.csv`'s text read back (the inverse of [`RunDir::write_tables`]'s, its lap times to 3 decimals): columns
+/// by name, `version` and `laps` needed, an empty cell or a missing column of the others None (`steps` 0,
+/// `end_reason` empty). Blank lines are skipped; a row of the wrong length or with a cell that is not a number is
+/// refused with its line.
+pub fn parse_evals(text: &str) -> Result<Vec<EvalSummary>, TableError> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().ok_or(TableError {
+        line: 1,
+        message: "no header (an empty table)".into(),
+    })?;
+    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let column = |name: &str| header.iter().position(|h| *h == name);
+    let needed = |name: &str| {
+        column(name).ok_or_else(|| TableError {
+            line: 1,
+            message: format!("no {name} column in the header {:?}", header.join(",")),
+        })
+    };
+    let (version, laps) = (needed("version")?, needed("laps")?);
+    let mut evals = vec![];
+    for (i, line) in lines {
+        let fail = |message: String| TableError {
+            line: i + 1,
+            message,
+        };
+        let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+        if cells.len() != header.len() {
+            return Err(fail(format!(
+                "{} cells, the header has {} columns",
+                cells.len(),
+                header.len()
+            )));
+        }
+        let cell = |name: &str| column(name).map_or("", |c| cells[c]);
+        fn parsed<T: std::str::FromStr>(name: &str, text: &str) -> Result<Option<T>, String> {
+            match text {
+                "" => Ok(None),
+                t => t
+                    .parse()
+                    .map(Some)
+                    .map_err(|_| format!("{name}: {t:?} is not a number")),
+            }
+        }
+        let real = |name: &str| parsed::<f64>(name, cell(name)).map_err(fail);
+        let missing = |name: &str| fail(format!("no {name}"));
+        evals.push(EvalSummary {
+            version: parsed("version", cells[version])
+                .map_err(fail)?
+                .ok_or_else(|| missing("version"))?,
+            laps: parsed("laps", cells[laps])
+                .map_err(fail)?
+                .ok_or_else(|| missing("laps"))?,
+            lap_mean: real("lap_mean")?,
+            lap_std: real("lap_std")?,
+            lap_min: real("lap_min")?,
+            lap_max: real("lap_max")?,
+            end_reason: cell("end_reason").to_string(),
+            steps: parsed("steps", cell("steps")).map_err(fail)?.unwrap_or(0),
+        });
+    }
+    Ok(evals)
 }
 
 /// Takes `<root>/lock` exclusively and writes this process's id into it.
@@ -282,5 +350,57 @@ mod tests {
             evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"),
             "{evals}"
         );
+    }
+
+    /// evals.csv reads back into the summaries that wrote it (lap times to 3 decimals); a malformed one is refused
+    /// with its line.
+    #[test]
+    fn evals_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(dir.path()).unwrap();
+        let report = |version, lap_times: Vec<f64>| EvalReport {
+            actor: "e".into(),
+            version,
+            laps: lap_times.len() as u32,
+            lap_times,
+            end_reason: EndReason::Spin,
+            steps: 130,
+            line: vec![],
+        };
+        let evals = [
+            EvalSummary::of(&report(0, vec![])),
+            EvalSummary::of(&report(3, vec![5.0, 6.0])),
+        ];
+        run.write_tables(&[Record::new(0)], &evals).unwrap();
+        let text = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
+        let back = parse_evals(&text).unwrap();
+        assert_eq!(back.len(), 2);
+        for (a, b) in back.iter().zip(&evals) {
+            assert_eq!(
+                serde_json::to_value(a).unwrap(),
+                serde_json::to_value(b).unwrap()
+            );
+        }
+        // An older table without steps or lap extremes.
+        let old = parse_evals("version,laps,lap_mean\n4,1,5.2\n").unwrap();
+        assert_eq!(
+            (old[0].version, old[0].lap_mean, old[0].steps),
+            (4, Some(5.2), 0)
+        );
+        for (bad, line, what) in [
+            ("", 1, "no header"),
+            ("laps\n1\n", 1, "no version column"),
+            ("version,laps\n1,2\n3\n", 3, "1 cells"),
+            (
+                "version,laps,lap_mean\n1,2,fast\n",
+                2,
+                "lap_mean: \"fast\" is not a number",
+            ),
+            ("version,laps\n1,\n", 2, "no laps"),
+        ] {
+            let e = parse_evals(bad).unwrap_err();
+            assert_eq!(e.line, line, "{bad:?}: {e}");
+            assert!(e.to_string().contains(what), "{bad:?}: {e}");
+        }
     }
 }
