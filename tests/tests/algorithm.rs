@@ -100,3 +100,45 @@ fn three_epochs_of_algorithm_1_in_process() {
     assert!(tmp.path().join("checkpoint").exists());
     assert!(tmp.path().join("metrics.csv").exists());
 }
+
+/// The shield in collection (`collection.shield`, issue 45) through Algorithm 1: the learner sends f_hat and p_hat
+/// with each update once the critic has trained (not before), and the epochs' records count the steps the shield
+/// gave the expert: under a threshold of 0.999 almost no action is that safe, so every epoch after the critic's
+/// first fit has some. Without a shield the column is absent.
+#[test]
+fn the_shield_travels_with_the_policy_once_the_critic_has_trained() {
+    let tmp = cabc_tests::test_dir();
+    let mut config = smoke(4);
+    config.training.critic_every = 1;
+    config.training.critic_min_uncertain = 0;
+    config.collection.episodes = cabc_proto::config::Episodes::Reset;
+    config.collection.shield = 0.999;
+    let (mut learner, _) = run(&config, tmp.path());
+    let rows = &learner.state.rows;
+    let shielded: Vec<u64> = rows
+        .iter()
+        .map(|r| r.u64("steps_shielded").unwrap())
+        .collect();
+    let trained: Vec<bool> = rows
+        .iter()
+        .map(|r| r.u64("critic_points").is_some())
+        .collect();
+    eprintln!("steps shielded per epoch {shielded:?}, critic trained {trained:?}");
+    assert_eq!(shielded[0], 0, "epoch 0: no critic yet, no networks");
+    let first = trained.iter().position(|&t| t).expect("the critic trains");
+    assert!(
+        shielded[first + 1..].iter().all(|&n| n > 0),
+        "after the critic's first fit every epoch's update carries the shield: {shielded:?}"
+    );
+    let update = learner.policy_update(4);
+    assert!(update.shield.is_some(), "the networks travel");
+    let off = tmp.path().join("off");
+    let (learner, _) = run(&smoke(2), &off);
+    assert!(
+        learner
+            .state
+            .rows
+            .iter()
+            .all(|r| r.get("steps_shielded").is_none())
+    );
+}
