@@ -141,8 +141,8 @@ impl Kept {
             }
             None => {
                 notes.push(
-                    "no summary.json (a run in progress): no expert band on the lap-time plot (the run's summary \
-                     gives it when the run ends)"
+                    "no summary.json (a run in progress, or a copy without it): no expert band on the lap-time plot \
+                     (the run's summary gives it when the run ends)"
                         .into(),
                 );
                 None
