@@ -134,11 +134,9 @@ fn the_shield_travels_with_the_policy_once_the_critic_has_trained() {
     assert!(update.shield.is_some(), "the networks travel");
     let off = tmp.path().join("off");
     let (learner, _) = run(&smoke(2), &off);
-    assert!(
-        learner
-            .state
-            .rows
-            .iter()
-            .all(|r| r.get("steps_shielded").is_none())
-    );
+    assert!(learner
+        .state
+        .rows
+        .iter()
+        .all(|r| r.get("steps_shielded").is_none()));
 }
