@@ -167,6 +167,16 @@ impl Reproduce {
             let to = root.join(RESULTS_DIR).join(run.name.to_string());
             copy_results(&dir, &to).with_context(|| format!("copying {}'s results", run.name))?;
         }
+        // A run stopped by Ctrl-C exits cleanly with its checkpoint: the slice is not done (a lane must not mark
+        // it so), and the next call resumes it.
+        if let (Some(_), RunState::InProgress(epochs)) = (mode, run_state(root, &run.name)) {
+            if !self.dry_run {
+                bail!(
+                    "{}: interrupted after {epochs} epochs; the same command resumes it",
+                    run.name
+                );
+            }
+        }
         Ok(())
     }
 }

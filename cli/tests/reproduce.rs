@@ -1,7 +1,7 @@
 //! `cabc reproduce`, the campaign's per-run step (what deploy/reproduce.sh did in bash): the runs' names, seeds and
-//! arguments reach deploy/run-local.sh, an ended run is skipped, one with a checkpoint resumed, a failure fails the
-//! step, the results are copied (the small files alone, no plots or GIFs), and the group's table is drawn over its
-//! own folders only. deploy/run-local.sh and the drawing `cabc compare` (--compare, not the runs' binaries: a
+//! arguments reach deploy/run-local.sh, an ended run is skipped, one with a checkpoint resumed, a failure or an
+//! interruption fails the step, the results are copied (the small files alone, no plots or GIFs), and the group's
+//! table is drawn over its own folders only. deploy/run-local.sh and the drawing `cabc compare` (--compare, not the runs' binaries: a
 //! campaign's pinned ones predate a column) are fakes that record their calls.
 
 use std::path::Path;
@@ -28,6 +28,10 @@ for a in "$@"; do case "$a" in run.name=*) name=${a#run.name=} ;; esac; done
 [ "$name" != "${FAIL:-}" ] || exit 3
 mkdir -p "runs/$name/plots/sub"
 echo '{"ended": "max-epochs"}' > "runs/$name/summary.json"
+if [ "$name" = "${INTERRUPT:-}" ]; then
+  mkdir -p "runs/$name/checkpoint"
+  echo '{"ended": "interrupted"}' > "runs/$name/summary.json"
+fi
 echo "epoch" > "runs/$name/metrics.csv"
 echo "png" > "runs/$name/plots/sub/laps.png"
 echo "gif" > "runs/$name/plots/eval-v3.gif"
@@ -158,6 +162,17 @@ fn runs_are_named_seeded_skipped_resumed_copied_and_drawn() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("q-s4-baseline"));
     assert_eq!(calls(dir).len(), 2);
+
+    // A run stopped by Ctrl-C (run-local.sh exits 0, the run resumable): the step fails, so that a lane does not
+    // mark its slice done, and the same call resumes it.
+    std::fs::remove_file(dir.join("calls")).unwrap();
+    let args = ["--seeds", "6-6", "--methods", "proposed", "u"];
+    let out = reproduce(dir, &args, &[("INTERRUPT", "u-s6")]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("u-s6: interrupted"));
+    let out = reproduce(dir, &args, &[]);
+    assert!(out.status.success());
+    assert!(calls(dir)[1].starts_with("--resume --set run.seed=47 --set run.name=u-s6 u"));
 
     // A dry run runs and copies nothing.
     std::fs::remove_file(dir.join("calls")).unwrap();
