@@ -9,10 +9,10 @@ use std::io::{self, Write};
 use std::path::Path;
 use std::sync::{Mutex, OnceLock};
 use tracing::field::{Field, Visit};
-use tracing::{Event, Level, Subscriber};
-use tracing_subscriber::filter::Targets;
+use tracing::{Event, Level, Metadata, Subscriber};
+use tracing_subscriber::filter::{FilterExt, LevelFilter, Targets};
 use tracing_subscriber::fmt::MakeWriter;
-use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
+use tracing_subscriber::layer::{Context, Filter, Layer, SubscriberExt};
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{fmt, EnvFilter};
 
@@ -56,10 +56,11 @@ impl<'a> MakeWriter<'a> for ToFile {
 
 /// Installs the global subscriber and the panic hook. Safe to call twice (the second call is a no-op).
 pub fn init() {
-    let filter = || {
-        EnvFilter::try_from_default_env()
-            .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"))
-    };
+    fn filter<S: Subscriber>() -> impl Filter<S> {
+        let env = EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"));
+        quiet(env)
+    }
     let installed = tracing_subscriber::registry()
         .with(
             fmt::layer()
@@ -84,6 +85,73 @@ pub fn init() {
             default(info);
         }));
     }
+}
+
+/// zenoh 1.10.2's ERROR lines, by (target, message), for a client withdrawing a declaration that the router's
+/// access control refused: a subscriber, a queryable, a liveliness token, a liveliness subscriber (its interest).
+///
+/// The access control checks an undeclaration on its way in only when it names its key, and zenoh's own session
+/// never does (`src/api/session.rs:1842`, an empty `ext_wire_expr`); so it lets it pass, "it will be rejected by
+/// the routing logic if its associated declaration was denied" (`src/net/routing/interceptor/access_control.rs:546`,
+/// also 581, 617, and 672 for an interest's end). The routing of the router's clients (the `broker` HAT) then finds
+/// no such declaration of that client, logs one of these lines at ERROR and does nothing else: nothing was
+/// registered, nothing is undone (`src/net/routing/hat/broker/pubsub.rs:325`, `queries.rs:380`, `token.rs:188`,
+/// `interests.rs:477`). So a denial that was handled, and already counted and warned ([`acl_denials`]), would end in
+/// an ERROR each time the denied client leaves (issue 47 item 8). Exactly these four lines are kept out of the logs;
+/// every other event of these modules, and every other ERROR, is not.
+const REFUSED_UNDECLARATIONS: [(&str, &str); 4] = [
+    (
+        "zenoh::net::routing::hat::broker::pubsub",
+        "Unknown subscriber",
+    ),
+    ("zenoh::net::routing::hat::broker::queries", "Unknown id"),
+    ("zenoh::net::routing::hat::broker::token", "Unknown token"),
+    (
+        "zenoh::net::routing::hat::broker::interests",
+        "Unknown interest",
+    ),
+];
+
+/// The filter that drops [`REFUSED_UNDECLARATIONS`] from the log lines (stderr and the run's file); it passes every
+/// other event.
+struct RefusedUndeclarations;
+
+impl RefusedUndeclarations {
+    fn drops(event: &Event<'_>) -> bool {
+        let meta = event.metadata();
+        if *meta.level() != Level::ERROR {
+            return false;
+        }
+        let Some((_, message)) = REFUSED_UNDECLARATIONS
+            .iter()
+            .find(|(target, _)| *target == meta.target())
+        else {
+            return false;
+        };
+        let mut m = Message(String::new());
+        event.record(&mut m);
+        m.0 == *message
+    }
+}
+
+impl<S: Subscriber> Filter<S> for RefusedUndeclarations {
+    fn enabled(&self, _: &Metadata<'_>, _: &Context<'_, S>) -> bool {
+        true
+    }
+
+    fn event_enabled(&self, event: &Event<'_>, _: &Context<'_, S>) -> bool {
+        !Self::drops(event)
+    }
+
+    /// No bound of its own (combined with `RUST_LOG`'s filter, that one's bound holds).
+    fn max_level_hint(&self) -> Option<LevelFilter> {
+        Some(LevelFilter::TRACE)
+    }
+}
+
+/// `filter` less [`REFUSED_UNDECLARATIONS`]: the filter of the log lines.
+fn quiet<S: Subscriber, F: Filter<S>>(filter: F) -> impl Filter<S> {
+    filter.and(RefusedUndeclarations)
 }
 
 /// From now on, also appends every log line to `path` (its folder created), unless [`NO_LOG_FILE`] is set. A file
@@ -350,6 +418,57 @@ mod tests {
         let sub = "actor/actor-0: Declare/Undeclare Subscriber (ingress) on cabc/r/traj/*";
         assert_eq!(d.get(sub), Some(&1), "{d:?}");
         assert_eq!(d.values().sum::<u64>(), 3, "{d:?}");
+    }
+
+    /// Exactly zenoh's lines for a refused declaration's withdrawal are kept out: not the same message of another
+    /// module or at another level, not another ERROR of the same module.
+    #[test]
+    fn only_the_withdrawals_of_refused_declarations_are_kept_out_of_the_log() {
+        #[derive(Clone, Default)]
+        struct Buffer(std::sync::Arc<Mutex<Vec<u8>>>);
+        impl Write for Buffer {
+            fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+                self.0.lock().unwrap().write(buf)
+            }
+            fn flush(&mut self) -> io::Result<()> {
+                Ok(())
+            }
+        }
+        let buffer = Buffer::default();
+        let writer = buffer.clone();
+        let layer = fmt::layer()
+            .with_writer(move || writer.clone())
+            .with_ansi(false)
+            .with_filter(quiet(EnvFilter::new("info")));
+        let subscriber = tracing_subscriber::registry().with(layer);
+        tracing::subscriber::with_default(subscriber, || {
+            let id = 1u32;
+            tracing::error!(target: "zenoh::net::routing::hat::broker::pubsub", id, "Unknown subscriber");
+            tracing::error!(target: "zenoh::net::routing::hat::broker::queries", "Unknown id");
+            tracing::error!(target: "zenoh::net::routing::hat::broker::token", id, "Unknown token");
+            tracing::error!(target: "zenoh::net::routing::hat::broker::interests", "Unknown interest");
+            tracing::error!(target: "zenoh::net::routing::hat::broker::pubsub", "Unknown matching status resource");
+            tracing::warn!(target: "zenoh::net::routing::hat::broker::pubsub", "Unknown subscriber");
+            tracing::error!(target: "zenoh::net::routing::hat::broker::token", "Unknown subscriber");
+            tracing::error!("Unknown subscriber");
+            tracing::info!("the run goes on");
+        });
+        let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 5, "{text}");
+        for (line, expected) in lines.iter().zip([
+            "ERROR zenoh::net::routing::hat::broker::pubsub: Unknown matching status resource",
+            "WARN zenoh::net::routing::hat::broker::pubsub: Unknown subscriber",
+            "ERROR zenoh::net::routing::hat::broker::token: Unknown subscriber",
+            "ERROR cabc_proto::telemetry::tests: Unknown subscriber",
+            "INFO cabc_proto::telemetry::tests: the run goes on",
+        ]) {
+            let (level, rest) = expected.split_once(' ').unwrap();
+            assert!(
+                line.contains(level) && line.ends_with(rest),
+                "{line:?} is not {expected:?}"
+            );
+        }
     }
 
     /// A zenohd's log: coloured, two threads' decisions interleaved (a cache being filled on one while the other
