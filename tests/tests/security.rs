@@ -438,6 +438,135 @@ fn actors_in_another_network_namespace_join_over_tls() {
     drop(pair);
 }
 
+/// The lines at ERROR in the run's own logs (`<run>/logs/*.log`, what each process appends there) and in what the
+/// test captured of each process's stderr (`<run>/<label>.log`).
+fn run_errors(cluster: &Cluster) -> Vec<String> {
+    let mut errors = Vec::new();
+    for dir in [cluster.dir.join("logs"), cluster.dir.clone()] {
+        let mut logs: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "log"))
+            .collect();
+        logs.sort();
+        assert!(!logs.is_empty(), "no log in {}", dir.display());
+        for log in logs {
+            let text = std::fs::read_to_string(&log).unwrap();
+            errors.extend(
+                text.lines()
+                    .filter(|l| l.contains("ERROR"))
+                    .map(|l| format!("{}: {l}", log.display())),
+            );
+        }
+    }
+    errors
+}
+
+/// Issue 47 item 8: a denial that the learner's access control handled leaves no ERROR in the run's logs. The set-up
+/// of deploy/SCALE-OUT.md §1 (mutual TLS, the learner as the router); the observer subscribes to the policy and the
+/// stop, actor-1's certificate to every actor's segments, every liveliness token, serves `expert/pid` and declares
+/// actor-0's token: all refused, counted and warned; then they withdraw it all and leave. zenoh lets each
+/// withdrawal through its access control and its routing logged `ERROR Unknown subscriber` (also `Unknown id`,
+/// `Unknown token`, `Unknown interest`) for the declaration it never took (proto/src/telemetry.rs,
+/// `REFUSED_UNDECLARATIONS`, says where).
+#[test]
+fn a_denied_client_leaving_logs_no_error() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    make_certs(&tmp.path().join("certs"), &["--actors", "2", "--observer"]).unwrap();
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    // Long enough to be running still when the intruders are gone (a few seconds).
+    let epochs = 60;
+    let mut cluster = mtls_cluster(tmp.path(), "quiet", epochs, &endpoint, &endpoint);
+    cluster.start_all(2, false).unwrap();
+    wait_for_epochs(&cluster, 1);
+    let keys = Keys::new("quiet").unwrap();
+    let config = cluster.config.clone();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    runtime.block_on(async {
+        let observer = zenoh::open(client(&config, "observer", false))
+            .await
+            .expect("the observer connects");
+        let actor = zenoh::open(client(&config, "actor/actor-1", false))
+            .await
+            .expect("actor-1 connects");
+        let mut subscribers = Vec::new();
+        for (session, key) in [
+            (&observer, keys.policy()),
+            (&observer, keys.control()),
+            (&actor, keys.traj_all()),
+        ] {
+            subscribers.push(session.declare_subscriber(&key).await.unwrap());
+        }
+        let alive = actor
+            .liveliness()
+            .declare_subscriber(keys.alive_all())
+            .await
+            .unwrap();
+        let queryable = actor.declare_queryable(keys.expert("pid")).await.unwrap();
+        let token = actor
+            .liveliness()
+            .declare_token(keys.alive("actor/actor-0"))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        // Withdrawn one by one (each an undeclaration on the wire), then the sessions close.
+        for subscriber in subscribers {
+            subscriber.undeclare().await.unwrap();
+        }
+        alive.undeclare().await.unwrap();
+        queryable.undeclare().await.unwrap();
+        token.undeclare().await.unwrap();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        observer.close().await.unwrap();
+        actor.close().await.unwrap();
+    });
+    assert_running(&mut cluster);
+    let summary = check_run(&mut cluster, epochs);
+    // The scenario happened: the access control refused the declarations.
+    let denied = summary["acl_denied"]
+        .as_object()
+        .expect("acl_denied in the summary");
+    println!("access-control drops counted: {denied:?}");
+    for (who, what) in [
+        (
+            "observer",
+            format!("Declare Subscriber (ingress) on {}", keys.policy()),
+        ),
+        (
+            "observer",
+            format!("Declare Subscriber (ingress) on {}", keys.control()),
+        ),
+        (
+            "actor/actor-1",
+            format!("Declare Subscriber (ingress) on {}", keys.traj_all()),
+        ),
+        (
+            "actor/actor-1",
+            format!("Declare Queryable (ingress) on {}", keys.expert("pid")),
+        ),
+        (
+            "actor/actor-1",
+            format!(
+                "Liveliness Token (ingress) on {}",
+                keys.alive("actor/actor-0")
+            ),
+        ),
+    ] {
+        let key = format!("{who}: {what}");
+        assert!(
+            denied.contains_key(&key),
+            "{key} is not among the drops: {denied:?}"
+        );
+    }
+    let errors = run_errors(&cluster);
+    assert!(errors.is_empty(), "the run's logs: {errors:#?}");
+}
+
 /// The zenohd of deploy/SCALE-OUT.md §2: `CABC_ZENOHD` (another build, an upstream release for one), else the
 /// workspace's `target/release/zenohd` (third_party/zenohd, built with cabc's binaries).
 fn zenohd() -> anyhow::Result<std::path::PathBuf> {
