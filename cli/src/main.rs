@@ -2,7 +2,8 @@
 //! convention), while the processes of a run stay `learner`, `actor` and `expert-server`.
 //!
 //! A subcommand is its arguments (a [`clap::Args`] struct) and one function, and one variant of [`Command`] below
-//! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], the rest in [`tools`].
+//! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], `robust` in [`robust`],
+//! the rest in [`tools`].
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
@@ -10,6 +11,7 @@ use std::path::PathBuf;
 
 mod campaign;
 mod export;
+mod robust;
 mod show;
 mod tools;
 
@@ -74,6 +76,10 @@ enum Command {
     /// A run's data (its checkpoint's replay) as a LeRobot v3 dataset: parquet rows of every step with the expert's
     /// label, the applied action, the next state, episode, store and policy version; prints what it wrote as JSON.
     Export(export::Args),
+    /// A run's policy driven from N random spawns along the track under action and state noise, at several levels:
+    /// crashes (share, Wilson 95 %), laps and lap times per level as JSON on stdout and in OUT/robust.json, and a
+    /// figure OUT/robust.png (crash share per level; the spawns on the track by the first level that crashes).
+    Robust(robust::Args),
     /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
     Demo(tools::DemoArgs),
     /// Throughput of auto-labelling and training.
@@ -136,6 +142,7 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Export(args) => export::run(&args),
+        Command::Robust(args) => robust::run(&args),
         Command::Demo(args) => tools::demo(&args),
         Command::Bench(args) => tools::bench(&args),
         Command::BenchVision(options) => tools::bench_vision(&options),

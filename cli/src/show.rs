@@ -115,7 +115,8 @@ pub fn video(run: &Path, final_: bool, out: Option<PathBuf>) -> Result<EvalRepor
     shown.evaluated.context("no evaluation was run")
 }
 
-fn run_config(run: &Path) -> Result<RunConfig> {
+/// The run folder's configuration, RUN/config.toml.
+pub(crate) fn run_config(run: &Path) -> Result<RunConfig> {
     let config_path = run.join("config.toml");
     RunConfig::load(&config_path.display().to_string())
         .with_context(|| format!("{} is not a run folder", run.display()))
@@ -156,11 +157,7 @@ fn evaluate_anew(
     version: u64,
     out: &Path,
 ) -> Result<EvalReport> {
-    let weights_path = run.join(format!("{weights}-policy.safetensors"));
-    let bytes = std::fs::read(&weights_path)
-        .with_context(|| format!("reading {}", weights_path.display()))?;
-    let policy = cabc_models::Policy::from_bytes(&bytes, tch::Device::Cpu)
-        .with_context(|| format!("{}", weights_path.display()))?;
+    let policy = load_policy(&run.join(format!("{weights}-policy.safetensors")))?;
     let mut poses = Vec::new();
     let mut sun = None;
     let report = cabc_actor::evaluate::evaluate_watched(
@@ -188,6 +185,13 @@ fn evaluate_anew(
         out.display()
     );
     Ok(report)
+}
+
+/// A policy's weights from a safetensors file, on the CPU.
+pub(crate) fn load_policy(path: &Path) -> Result<cabc_models::Policy> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    cabc_models::Policy::from_bytes(&bytes, tch::Device::Cpu)
+        .with_context(|| format!("{}", path.display()))
 }
 
 #[cfg(test)]
