@@ -289,11 +289,15 @@ impl Collector {
         self.before.clear();
         self.applied.clear();
         self.stored.clear();
+        // Whether the expert solved each environment's problem: once per step, for the mixture, the shield and the
+        // stored label.
+        let solved: Vec<bool> = answers[..active].iter().map(expert_ok).collect();
         for (j, env) in self.envs.envs()[first..first + active].iter().enumerate() {
             self.before.push(env.observation());
-            let mixed = self
-                .action_noise
-                .add(first + j, mixed_action(&answers[j], &policy[j], beta));
+            let mixed = self.action_noise.add(
+                first + j,
+                mixed_action(&answers[j], solved[j], &policy[j], beta),
+            );
             self.applied.push(clip_action(&mixed));
             self.stored.push(match self.stored_action {
                 StoredAction::Clipped => clip_action(&mixed),
@@ -307,7 +311,7 @@ impl Collector {
                 .into_iter()
                 .enumerate()
             {
-                if overrule && expert_ok(&answers[j]) {
+                if overrule && solved[j] {
                     self.applied[j] = clip_action(&answers[j].action);
                     self.stored[j] = match self.stored_action {
                         StoredAction::Clipped => self.applied[j],
@@ -325,7 +329,7 @@ impl Collector {
         let mut ended = Vec::new();
         for (j, result) in results.iter().enumerate() {
             let (i, answer) = (first + j, &answers[j]);
-            let expert_ok = expert_ok(answer);
+            let expert_ok = solved[j];
             self.stream_start[i] = false;
             let end = match (result.truncation, result.lap_completed) {
                 (Some(t), _) => StepEnd::Truncated(end_reason(t)),
@@ -512,11 +516,11 @@ impl ActionNoise {
     }
 }
 
-/// The beta mixture of the expert's and the policy's actions when the expert solved its problem, else the policy's
+/// The beta mixture of the expert's and the policy's actions when the expert `solved` its problem, else the policy's
 /// action; not clipped (the plant receives it clipped to the action box, [`clip_action`]).
-fn mixed_action(answer: &ExpertAnswer, policy: &[f32; 2], beta: f64) -> Input {
+fn mixed_action(answer: &ExpertAnswer, solved: bool, policy: &[f32; 2], beta: f64) -> Input {
     let agent = [policy[0] as f64, policy[1] as f64];
-    if expert_ok(answer) {
+    if solved {
         [
             beta * answer.action[0] + (1.0 - beta) * agent[0],
             beta * answer.action[1] + (1.0 - beta) * agent[1],
