@@ -5,7 +5,6 @@
 //! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], `robust` in [`robust`],
 //! the rest in [`tools`].
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -110,31 +109,11 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Compare(options) => tools::compare(&options),
         Command::Show {
-            key: run,
-            gif: Some(which),
-            out,
-            ..
-        } => {
-            let shown = show::gif(std::path::Path::new(&run), which, out)?;
-            if let Some(report) = shown.evaluated {
-                println!("{} laps, ended by {}", report.laps, report.end_reason);
-            }
-            println!("{}", shown.gif.display());
-            Ok(())
-        }
-        Command::Show {
             config,
             key,
-            gif: None,
-            ..
-        } => {
-            let value = load(&config)?.show(&key);
-            println!(
-                "{}",
-                value.with_context(|| format!("no key {key} in the configuration"))?
-            );
-            Ok(())
-        }
+            gif,
+            out,
+        } => show::run(&config, &key, gif, out),
         Command::Plots { run, out } => tools::plots(&run, out.as_deref()),
         Command::Video { run, final_, out } => {
             let report = show::video(&run, final_, out)?;

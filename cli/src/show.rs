@@ -52,6 +52,25 @@ pub struct Shown {
 }
 
 /// `cabc show RUN --gif [VERSION]`: the GIF of `which` (see the module doc), written to `out` (default
+/// `cabc show`: with `gif`, a video of run folder `key`'s policy (its path printed, and the evaluation's laps when one
+/// was driven anew); else the value of configuration `config`'s dotted `key`.
+pub fn run(config: &str, key: &str, gif: Option<Which>, out: Option<PathBuf>) -> Result<()> {
+    if let Some(which) = gif {
+        let shown = self::gif(Path::new(key), which, out)?;
+        if let Some(report) = shown.evaluated {
+            println!("{} laps, ended by {}", report.laps, report.end_reason);
+        }
+        println!("{}", shown.gif.display());
+        return Ok(());
+    }
+    let value = crate::load(config)?.show(key);
+    println!(
+        "{}",
+        value.with_context(|| format!("no key {key} in the configuration"))?
+    );
+    Ok(())
+}
+
 /// `RUN/best-policy.gif`, `RUN/final-policy.gif`, `RUN/plots/eval-v<N>.gif`).
 pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
     let config = run_config(run)?;
