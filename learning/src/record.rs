@@ -296,11 +296,9 @@ pub struct TableError {
     pub message: String,
 }
 
-/// [`table`]'s text read back: a record per line, a metric per non-empty cell under its column's name (a number
-/// without a point a count, `true` / `false` a flag, any other number a real with the decimals it was written with),
-/// so that [`table`] gives the same text again. Blank lines are skipped; a line with more or fewer cells than the
-/// header, a cell that is not a number or a flag, a table without an `epoch` column or without a header are refused.
-pub fn parse_table(text: &str) -> Result<Vec<Record>, TableError> {
+/// A CSV table's header and its rows, cells trimmed, each row with its line number (from 1); blank lines are skipped,
+/// and a table without a header or a row whose cells are not the header's count is refused.
+pub fn csv_rows(text: &str) -> Result<(Vec<&str>, Vec<(usize, Vec<&str>)>), TableError> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -310,6 +308,31 @@ pub fn parse_table(text: &str) -> Result<Vec<Record>, TableError> {
         message: "no header (an empty table)".into(),
     })?;
     let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let rows = lines
+        .map(|(i, line)| {
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cells.len() != header.len() {
+                return Err(TableError {
+                    line: i + 1,
+                    message: format!(
+                        "{} cells, the header has {} columns",
+                        cells.len(),
+                        header.len()
+                    ),
+                });
+            }
+            Ok((i + 1, cells))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((header, rows))
+}
+
+/// [`table`]'s text read back: a record per line, a metric per non-empty cell under its column's name (a number
+/// without a point a count, `true` / `false` a flag, any other number a real with the decimals it was written with),
+/// so that [`table`] gives the same text again. Blank lines are skipped; a line with more or fewer cells than the
+/// header, a cell that is not a number or a flag, a table without an `epoch` column or without a header are refused.
+pub fn parse_table(text: &str) -> Result<Vec<Record>, TableError> {
+    let (header, rows) = csv_rows(text)?;
     if !header.contains(&"epoch") {
         return Err(TableError {
             line: 1,
@@ -317,22 +340,10 @@ pub fn parse_table(text: &str) -> Result<Vec<Record>, TableError> {
         });
     }
     let mut records = vec![];
-    for (i, line) in lines {
-        let fail = |message: String| TableError {
-            line: i + 1,
-            message,
-        };
-        let cells: Vec<&str> = line.split(',').collect();
-        if cells.len() != header.len() {
-            return Err(fail(format!(
-                "{} cells, the header has {} columns",
-                cells.len(),
-                header.len()
-            )));
-        }
+    for (line, cells) in rows {
+        let fail = |message: String| TableError { line, message };
         let mut record = Record::default();
         for (name, cell) in header.iter().zip(cells) {
-            let cell = cell.trim();
             if cell.is_empty() {
                 continue;
             }

@@ -160,15 +160,7 @@ pub const EVALS_HEADER: &str = "version,laps,lap_mean,lap_std,lap_min,lap_max,en
 /// `end_reason` empty). Blank lines are skipped; a row of the wrong length or with a cell that is not a number is
 /// refused with its line.
 pub fn parse_evals(text: &str) -> Result<Vec<EvalSummary>, TableError> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let (_, header) = lines.next().ok_or(TableError {
-        line: 1,
-        message: "no header (an empty table)".into(),
-    })?;
-    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let (header, rows) = cabc_learning::record::csv_rows(text)?;
     let column = |name: &str| header.iter().position(|h| *h == name);
     let needed = |name: &str| {
         column(name).ok_or_else(|| TableError {
@@ -178,19 +170,8 @@ pub fn parse_evals(text: &str) -> Result<Vec<EvalSummary>, TableError> {
     };
     let (version, laps) = (needed("version")?, needed("laps")?);
     let mut evals = vec![];
-    for (i, line) in lines {
-        let fail = |message: String| TableError {
-            line: i + 1,
-            message,
-        };
-        let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-        if cells.len() != header.len() {
-            return Err(fail(format!(
-                "{} cells, the header has {} columns",
-                cells.len(),
-                header.len()
-            )));
-        }
+    for (line, cells) in rows {
+        let fail = |message: String| TableError { line, message };
         let cell = |name: &str| column(name).map_or("", |c| cells[c]);
         fn parsed<T: std::str::FromStr>(name: &str, text: &str) -> Result<Option<T>, String> {
             match text {
