@@ -296,9 +296,12 @@ pub struct TableError {
     pub message: String,
 }
 
+/// A row of [`csv_rows`]: its line number (from 1) and its cells.
+pub type CsvRow<'a> = (usize, Vec<&'a str>);
+
 /// A CSV table's header and its rows, cells trimmed, each row with its line number (from 1); blank lines are skipped,
 /// and a table without a header or a row whose cells are not the header's count is refused.
-pub fn csv_rows(text: &str) -> Result<(Vec<&str>, Vec<(usize, Vec<&str>)>), TableError> {
+pub fn csv_rows(text: &str) -> Result<(Vec<&str>, Vec<CsvRow<'_>>), TableError> {
     let mut lines = text
         .lines()
         .enumerate()
