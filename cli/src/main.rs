@@ -86,6 +86,10 @@ enum Command {
     /// The camera policy's training and inference images per second (ResNet-18 at 224x224 by default), on a GPU
     /// where there is one; prints JSON.
     BenchVision(cabc_bench::vision::VisionBenchOptions),
+    /// One epoch of a run's configuration timed per phase (each network's fit and its mini-batches' phases,
+    /// auto-labelling, a collection step's parts) against its floor (FLOPs at this core's GEMM rate; the expert's
+    /// step); prints JSON.
+    BenchEpoch(tools::BenchEpochArgs),
     /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
     /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
     ZenohdConfig(tools::ZenohdConfigArgs),
@@ -125,6 +129,7 @@ fn main() -> anyhow::Result<()> {
         Command::Demo(args) => tools::demo(&args),
         Command::Bench(args) => tools::bench(&args),
         Command::BenchVision(options) => tools::bench_vision(&options),
+        Command::BenchEpoch(args) => tools::bench_epoch(&args),
         Command::ZenohdConfig(args) => tools::zenohd_config(&args),
         Command::AclDenials(args) => tools::acl_denials(&args),
         Command::Campaign(args) => campaign::run(&args),

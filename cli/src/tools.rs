@@ -75,6 +75,27 @@ pub fn bench_vision(options: &cabc_bench::vision::VisionBenchOptions) -> anyhow:
 }
 
 #[derive(clap::Args)]
+pub struct BenchEpochArgs {
+    /// Run configuration: a preset or a TOML file.
+    #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
+    config: String,
+    /// A configuration value, `key=value`; repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    #[command(flatten)]
+    options: cabc_bench::epoch::EpochBenchOptions,
+}
+
+/// `cabc bench-epoch`: an epoch of a configuration, timed per phase against its floor (JSON).
+pub fn bench_epoch(args: &BenchEpochArgs) -> anyhow::Result<()> {
+    let config = load(&args.config)?
+        .with_overrides(&args.set)
+        .context("applying --set")?;
+    let report = cabc_bench::epoch::run(&config, &args.options).context("bench-epoch")?;
+    crate::print_json(&report)
+}
+
+#[derive(clap::Args)]
 pub struct ZenohdConfigArgs {
     /// Run configuration: a preset or a TOML file.
     #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]

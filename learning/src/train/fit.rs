@@ -9,6 +9,8 @@ use cabc_models::ModelError;
 use cabc_proto::config::TrainingSection;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
+use std::cell::RefCell;
+use std::time::Instant;
 use tch::{nn, Device, Kind, Tensor};
 
 use super::adam::Adam;
@@ -72,6 +74,69 @@ pub(crate) struct Budget {
     pub max_batches: usize,
 }
 
+/// Where the fit calls' time went, by phase of a mini-batch (`cabc bench epoch`): summed over the fit calls made on
+/// this thread inside [`profiled`]. On the CPU each phase is timed as it runs; on CUDA the clip's host read is the one
+/// sync, so the phases there are what the host waited for, not the kernels' time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FitProfile {
+    /// Mini-batches trained.
+    pub batches: usize,
+    /// The batch's rows to the device and the loss: the forward pass.
+    pub forward_s: f64,
+    /// Zeroing the gradients and the backward pass.
+    pub backward_s: f64,
+    /// The gradient-norm clip.
+    pub clip_s: f64,
+    /// Adam's step.
+    pub step_s: f64,
+}
+
+thread_local! {
+    static PROFILE: RefCell<Option<FitProfile>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` and returns, with its result, where the fit calls it made on this thread spent their time.
+pub fn profiled<R>(f: impl FnOnce() -> R) -> (R, FitProfile) {
+    let outer = PROFILE.with(|p| p.borrow_mut().replace(FitProfile::default()));
+    let result = f();
+    let profile = PROFILE.with(|p| std::mem::replace(&mut *p.borrow_mut(), outer));
+    (result, profile.unwrap_or_default())
+}
+
+/// The clock of one mini-batch's phases, when [`profiled`] is on (else nothing is read).
+struct Clock(Option<(Instant, FitProfile)>);
+
+impl Clock {
+    fn start() -> Self {
+        let on = PROFILE.with(|p| p.borrow().is_some());
+        Clock(on.then(|| (Instant::now(), FitProfile::default())))
+    }
+
+    /// Adds the time since the last lap to `phase`.
+    fn lap(&mut self, phase: fn(&mut FitProfile) -> &mut f64) {
+        if let Some((at, profile)) = &mut self.0 {
+            let now = Instant::now();
+            *phase(profile) += (now - *at).as_secs_f64();
+            *at = now;
+        }
+    }
+
+    /// Adds this batch to the thread's profile.
+    fn end(self) {
+        if let Some((_, batch)) = self.0 {
+            PROFILE.with(|p| {
+                if let Some(total) = p.borrow_mut().as_mut() {
+                    total.batches += 1;
+                    total.forward_s += batch.forward_s;
+                    total.backward_s += batch.backward_s;
+                    total.clip_s += batch.clip_s;
+                    total.step_s += batch.step_s;
+                }
+            });
+        }
+    }
+}
+
 /// One fit call over `n` examples: `loss` gives the batch's loss to minimise and records what it wants to report
 /// into the pass's `M` (a fresh `M` each pass). Returns the last pass's `M` and the samples seen (all passes).
 /// The gradients of `clip_also` (variables this optimiser does not step) count in the gradient-norm clip
@@ -104,15 +169,21 @@ pub(crate) fn fit<M: Default>(
         batches.truncate(left);
         left -= batches.len();
         for rows in batches {
+            let mut clock = Clock::start();
             let batch = Batch {
                 idx: Tensor::from_slice(&rows).to_device(device),
                 rows: &rows,
             };
             let l = with_precision(t.precision, device, || loss(&batch, &mut last))?;
+            clock.lap(|p| &mut p.forward_s);
             opt.adam.zero_grad();
             l.backward();
+            clock.lap(|p| &mut p.backward_s);
             opt.adam.clip_grad_norm(t.grad_clip, clip_also);
+            clock.lap(|p| &mut p.clip_s);
             opt.adam.step();
+            clock.lap(|p| &mut p.step_s);
+            clock.end();
             samples += t.batch_size;
         }
     }

@@ -32,6 +32,7 @@ mod state;
 
 pub use critic::{critic_examples, heldout, CriticFit, CriticTrainer, Heldout, ECE_BINS};
 pub use dynamics::Fit;
+pub use fit::{profiled, FitProfile};
 pub use policy::{l_clone, l_safety, l_safety_hinged, PolicyFit};
 pub use standardise::{Standardiser, MIN_STD};
 
