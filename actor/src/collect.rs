@@ -51,10 +51,11 @@ fn env_config(max_laps: u32) -> EnvConfig {
     }
 }
 
-/// The environment of a run: the BARC track, the reference vehicle and env constants, `max_laps` laps at most.
-pub fn make_env(max_laps: u32) -> Env {
+/// The environment of a run: its track (`sim.track`), the reference vehicle and env constants, `max_laps` laps at
+/// most.
+pub fn make_env(config: &RunConfig, max_laps: u32) -> Env {
     Env::new(
-        Arc::new(Track::l_track_barc()),
+        Arc::new(Track::from_kind(config.sim.track)),
         VehicleParams::default(),
         env_config(max_laps),
     )
@@ -106,7 +107,7 @@ impl Collector {
     pub fn new(actor: &str, index: u64, config: &RunConfig) -> Self {
         let k = config.actors.envs_per_actor as usize;
         let envs = EnvBatch::with_streams(
-            Arc::new(Track::l_track_barc()),
+            Arc::new(Track::from_kind(config.sim.track)),
             VehicleParams::default(),
             env_config(config.collection.max_laps),
             config.run.seed,

@@ -118,7 +118,7 @@ pub fn drive(
 ) -> anyhow::Result<EvalReport> {
     let laps_wanted = episode.laps;
     // One lap more than wanted so that the env's max-laps truncation never cuts the last wanted lap.
-    let mut env = make_env(laps_wanted + 1);
+    let mut env = make_env(config, laps_wanted + 1);
     let mut rng = Env::rng(episode.seed ^ EVAL_SEED, episode.stream);
     // The fixed spawn's reset draws the sun; a given start then moves the car.
     env.reset(Spawn::Fixed, &mut rng);

@@ -18,7 +18,7 @@ use cabc_learning::state::{LearnerState, CHECKPOINT};
 use cabc_outputs::video::{self, CameraView};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
-use cabc_sim::track::Pose;
+use cabc_sim::track::{Pose, Track};
 use std::path::{Path, PathBuf};
 
 /// Which policy of a run a video shows.
@@ -190,11 +190,12 @@ fn evaluate_anew(
             sun.get_or_insert(env.sun());
         },
     )?;
-    let mut view = CameraView::of(&config.observation).map(|v| match sun {
+    let track = Track::from_kind(config.sim.track);
+    let mut view = CameraView::of(&config.observation, &track).map(|v| match sun {
         Some(sun) => v.under(sun),
         None => v,
     });
-    video::gif(out, &report, &poses, view.as_mut())
+    video::gif(out, &track, &report, &poses, view.as_mut())
         .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     tracing::info!(
         version,

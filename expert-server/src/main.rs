@@ -7,9 +7,8 @@ use anyhow::{bail, Context, Result};
 use cabc_expert::bench;
 use cabc_expert::drive::{drive, DriveOptions};
 use cabc_expert::relabel::Expert;
-use cabc_expert::{Mpcc, MpccConfig};
-use cabc_proto::config::{ExpertKind, RunConfig};
-use cabc_sim::track::Track;
+use cabc_expert::Mpcc;
+use cabc_proto::config::RunConfig;
 use cabc_sim::vehicle::VehicleParams;
 use clap::{Parser, Subcommand};
 use std::sync::Arc;
@@ -70,10 +69,7 @@ fn main() -> Result<()> {
     {
         Command::Serve(args) => {
             cabc_proto::telemetry::log_run(&config, &format!("expert-server-{}", args.id));
-            let expert = match config.expert.kind {
-                ExpertKind::Mpcc => Expert::Mpcc(Arc::new(mpcc()?)),
-                ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
-            };
+            let expert = Expert::from_config(&config).context("building the MPCC")?;
             server::serve(config, expert, args)
         }
         Command::Drive {
@@ -82,7 +78,7 @@ fn main() -> Result<()> {
             trace,
             plot,
         } => {
-            let mpcc = mpcc()?;
+            let mpcc = mpcc(&config)?;
             let opts = DriveOptions {
                 laps,
                 max_steps,
@@ -114,18 +110,13 @@ fn main() -> Result<()> {
             if repeat == 0 {
                 bail!("--repeat must be at least 1");
             }
-            let report = bench::report(&Arc::new(mpcc()?), steps, repeat)?;
+            let report = bench::report(&Arc::new(mpcc(&config)?), steps, repeat)?;
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(())
         }
     }
 }
 
-fn mpcc() -> Result<Mpcc> {
-    Mpcc::new(
-        Track::l_track_barc(),
-        VehicleParams::default(),
-        MpccConfig::default(),
-    )
-    .context("building the MPCC")
+fn mpcc(config: &RunConfig) -> Result<Mpcc> {
+    Mpcc::from_config(config).context("building the MPCC")
 }

@@ -10,8 +10,8 @@
 //! * A bad item (NaN, outside the Frenet band, a solver error) is a per-item failure; an oversized batch is refused
 //!   whole with [`RelabelError`]. Nothing here panics on input.
 
-use crate::mpcc::{Mpcc, MpccStream};
-use cabc_proto::config::ExpertKind;
+use crate::mpcc::{Mpcc, MpccError, MpccStream};
+use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_proto::messages::{ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, StreamId};
 use cabc_proto::ports::{ExpertClient, PortError};
 use cabc_sim::pid::PidLaneFollower;
@@ -29,6 +29,15 @@ pub enum Expert {
 }
 
 impl Expert {
+    /// The expert a run's configuration names (`expert.kind`): [`Mpcc::from_config`], or the PID lane follower at
+    /// `expert.pid_target_speed`.
+    pub fn from_config(config: &RunConfig) -> Result<Expert, MpccError> {
+        Ok(match config.expert.kind {
+            ExpertKind::Mpcc => Expert::Mpcc(Arc::new(Mpcc::from_config(config)?)),
+            ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
+        })
+    }
+
     pub fn kind(&self) -> ExpertKind {
         match self {
             Expert::Mpcc(_) => ExpertKind::Mpcc,

@@ -187,9 +187,10 @@ pub fn export(run: &Path, out: &Path) -> Result<ExportReport, ExportError> {
     std::fs::create_dir_all(&root).map_err(|e| ExportError::io(&root, e))?;
 
     let fps = (1.0 / cabc_sim::env::DT).round() as u32;
-    let track = cabc_sim::Track::l_track_barc();
+    let track = cabc_sim::Track::from_kind(config.sim.track);
     let task = format!(
-        "drive laps of the L-shaped BARC track ({:.2} m) without leaving it (|x_tran| <= {} m)",
+        "drive laps of {} ({:.2} m) without leaving it (|x_tran| <= {} m)",
+        config.sim.track.describe(),
         track.length(),
         track.half_width()
     );

@@ -10,17 +10,13 @@ use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::rollouts::ZenohActors;
 use cabc_bus::{Bus, Role};
-use cabc_expert::mpcc::{Mpcc, MpccConfig};
 use cabc_expert::relabel::{Expert, Relabeller};
 use cabc_learning::algorithm::{self, Ending};
 use cabc_learning::learner::Learner;
 use cabc_outputs::RunDir;
-use cabc_proto::config::{ExpertKind, RunConfig};
+use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
-use cabc_sim::track::Track;
-use cabc_sim::vehicle::VehicleParams;
-use std::sync::Arc;
 use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.
@@ -54,17 +50,7 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
 /// version's evaluation arrives before the next epoch, so an early stop can come a few epochs sooner.
 pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let interrupt = Interrupt::on_ctrl_c();
-    let expert = match config.expert.kind {
-        ExpertKind::Mpcc => Expert::Mpcc(Arc::new(
-            Mpcc::new(
-                Track::l_track_barc(),
-                VehicleParams::default(),
-                MpccConfig::default(),
-            )
-            .context("building the MPCC")?,
-        )),
-        ExpertKind::Pid => Expert::Pid(config.expert.pid_target_speed),
-    };
+    let expert = Expert::from_config(&config).context("building the MPCC")?;
     let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
     let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     tracing::info!(

@@ -101,12 +101,13 @@ impl ExpertLaps {
     }
 }
 
-/// Draws every plot into `dir`. Errors are returned, not fatal: a run goes on without a picture.
-pub fn draw_all(dir: &Path, run: &History, eval_laps: u32) -> PlotResult {
+/// Draws every plot into `dir`, the last evaluated line on `track`. Errors are returned, not fatal: a run goes on
+/// without a picture.
+pub fn draw_all(dir: &Path, run: &History, eval_laps: u32, track: &Track) -> PlotResult {
     let expert = ExpertLaps::of(&run.expert_lap_times);
     draw_tables(dir, &run.rows, &run.evals, expert, eval_laps)?;
     if let Some(report) = &run.last_eval {
-        line(&dir.join(LINE_PLOT), report)?;
+        line(&dir.join(LINE_PLOT), track, report)?;
     }
     Ok(())
 }
@@ -321,9 +322,8 @@ pub fn track_edges(track: &Track, n: usize) -> [Vec<(f64, f64)>; 3] {
     [edge(0.0), edge(half), edge(-half)]
 }
 
-fn line(path: &Path, report: &EvalReport) -> PlotResult {
-    let track = Track::l_track_barc();
-    let [centre, left, right] = track_edges(&track, 400);
+fn line(path: &Path, track: &Track, report: &EvalReport) -> PlotResult {
+    let [centre, left, right] = track_edges(track, 400);
     let (x0, x1, y0, y1) = (-3.2, 4.4, -1.2, 5.8);
     crate::plots::png(path, (760, 700), |root| {
         root.fill(&WHITE)?;
@@ -390,7 +390,7 @@ mod tests {
             evals: vec![EvalSummary::of(&report)],
             last_eval: Some(report),
         };
-        draw_all(dir.path(), &run, 50).unwrap();
+        draw_all(dir.path(), &run, 50, &Track::l_track_barc()).unwrap();
         for f in TABLE_PLOTS.iter().chain([&LINE_PLOT]) {
             let len = std::fs::metadata(dir.path().join(f)).unwrap().len();
             assert!(len > 1000, "{f} is {len} bytes");

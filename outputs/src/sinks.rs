@@ -13,6 +13,7 @@ use cabc_learning::record::Record;
 use cabc_learning::sink::{History, Sink, SinkError, Sinks};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
+use cabc_sim::track::Track;
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// The learner of `run_dir` (its checkpoint there), writing the run folder's files, TensorBoard's events in `tb/` and
@@ -40,6 +41,8 @@ pub struct RunFolder {
     run_dir: RunDir,
     /// `collection.eval_laps`, drawn on the laps plot.
     eval_laps: u32,
+    /// The run's track (`sim.track`), under the line plot and the videos.
+    track: Track,
     /// A camera run's camera, drawn beside the track in the videos.
     camera: Option<CameraView>,
     /// What the tables and plots are drawn from, kept from the sink's events.
@@ -48,10 +51,12 @@ pub struct RunFolder {
 
 impl RunFolder {
     pub fn new(run_dir: RunDir, config: &RunConfig) -> Self {
+        let track = Track::from_kind(config.sim.track);
         RunFolder {
             run_dir,
             eval_laps: config.collection.eval_laps,
-            camera: CameraView::of(&config.observation),
+            camera: CameraView::of(&config.observation, &track),
+            track,
             history: History::default(),
         }
     }
@@ -61,7 +66,7 @@ impl RunFolder {
         self.run_dir
             .write_tables(&run.rows, &run.evals)
             .map_err(|e| failed("the tables", e))?;
-        if let Err(e) = plots::draw_all(&self.run_dir.plots(), run, self.eval_laps) {
+        if let Err(e) = plots::draw_all(&self.run_dir.plots(), run, self.eval_laps, &self.track) {
             tracing::warn!("drawing plots: {e}");
         }
         Ok(())
@@ -74,7 +79,10 @@ impl RunFolder {
         let path = plots.join(format!("eval-v{}.gif", report.version));
         let written = std::fs::create_dir_all(&plots)
             .map_err(|e| e.to_string())
-            .and_then(|_| eval_gif(&path, report, self.camera.as_mut()).map_err(|e| e.to_string()))
+            .and_then(|_| {
+                eval_gif(&path, &self.track, report, self.camera.as_mut())
+                    .map_err(|e| e.to_string())
+            })
             .and_then(|_| match best {
                 true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
                     .map(|_| ())

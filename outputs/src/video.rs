@@ -38,15 +38,16 @@ pub struct CameraView {
 }
 
 impl CameraView {
-    /// The camera of a run's observation section under the default sun; None for a full-state run.
-    pub fn of(observation: &ObservationSection) -> Option<Self> {
+    /// The camera of a run's observation section on `track` (the run's `sim.track`) under the default sun; None for a
+    /// full-state run.
+    pub fn of(observation: &ObservationSection, track: &Track) -> Option<Self> {
         (observation.kind == ObservationKind::Camera).then(|| CameraView {
             camera: Camera::new(
                 observation.width as usize,
                 observation.height as usize,
                 observation.fov_deg,
             ),
-            lookup: TrackLookup::new(&Track::l_track_barc(), LOOKUP_RESOLUTION),
+            lookup: TrackLookup::new(track, LOOKUP_RESOLUTION),
             sun: Sun::default(),
         })
     }
@@ -106,21 +107,27 @@ pub fn poses_of_line(line: &[[f32; 2]]) -> Vec<Pose> {
         .collect()
 }
 
-/// Writes the GIF of `report` from its line alone (see the module doc): [`FRAMES`] frames of 380x350, 730x350
-/// with a camera `view`.
-pub fn eval_gif(path: &Path, report: &EvalReport, view: Option<&mut CameraView>) -> Drawn {
-    gif(path, report, &poses_of_line(&report.line), view)
+/// Writes the GIF of `report` on `track` from its line alone (see the module doc): [`FRAMES`] frames of 380x350,
+/// 730x350 with a camera `view`.
+pub fn eval_gif(
+    path: &Path,
+    track: &Track,
+    report: &EvalReport,
+    view: Option<&mut CameraView>,
+) -> Drawn {
+    gif(path, track, report, &poses_of_line(&report.line), view)
 }
 
-/// Writes the GIF of an evaluation whose car poses are known (`poses`, in order; `report` gives the title and the
-/// trail): [`FRAMES`] frames, the car and its view at the pose 1/FRAMES further each frame.
+/// Writes the GIF of an evaluation on `track` whose car poses are known (`poses`, in order; `report` gives the title
+/// and the trail): [`FRAMES`] frames, the car and its view at the pose 1/FRAMES further each frame.
 pub fn gif(
     path: &Path,
+    track: &Track,
     report: &EvalReport,
     poses: &[Pose],
     mut view: Option<&mut CameraView>,
 ) -> Drawn {
-    let edges = crate::plots::track_edges(&Track::l_track_barc(), 300);
+    let edges = crate::plots::track_edges(track, 300);
     let line: Vec<(f64, f64)> = report
         .line
         .iter()
@@ -264,7 +271,7 @@ mod tests {
     fn a_video_decodes_with_its_frames() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("v.gif");
-        eval_gif(&path, &report(), None).unwrap();
+        eval_gif(&path, &Track::l_track_barc(), &report(), None).unwrap();
         let (size, frames, last) = decode(&path);
         assert_eq!((size, frames), ((380, 350), FRAMES));
         // The last frame shows the trail: red pixels.
@@ -278,11 +285,13 @@ mod tests {
     #[test]
     fn a_camera_runs_video_shows_the_view_beside_the_track() {
         let config = RunConfig::load("smoke-camera").unwrap();
-        let view = CameraView::of(&config.observation).expect("a camera run");
-        assert!(CameraView::of(&RunConfig::load("smoke").unwrap().observation).is_none());
+        let track = Track::from_kind(config.sim.track);
+        let view = CameraView::of(&config.observation, &track).expect("a camera run");
+        let smoke = RunConfig::load("smoke").unwrap();
+        assert!(CameraView::of(&smoke.observation, &track).is_none());
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("camera.gif");
-        eval_gif(&path, &report(), Some(&mut { view })).unwrap();
+        eval_gif(&path, &track, &report(), Some(&mut { view })).unwrap();
         let (size, frames, last) = decode(&path);
         assert_eq!((size, frames), ((380 + 350, 350), FRAMES));
         // The camera panel shows the sky (blue over red) and the road (grey) where a plot would be white.

@@ -14,7 +14,7 @@ mod security;
 mod validate;
 pub use choices::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
-    Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction, VisionTrunk,
+    Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction, TrackKind, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};
 
@@ -26,6 +26,7 @@ pub use sections::*;
 #[serde(deny_unknown_fields, default)]
 pub struct RunConfig {
     pub run: RunSection,
+    pub sim: SimSection,
     pub expert: ExpertSection,
     pub observation: ObservationSection,
     pub algorithm: AlgorithmSection,

@@ -7,15 +7,16 @@ use std::sync::{Arc, OnceLock};
 use cabc_proto::messages::EndReason;
 use cabc_sim::camera::{Camera, TrackLookup, REFERENCE_FOV_DEG, REFERENCE_SIZE};
 use cabc_sim::track::Pose;
-use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, Truncation};
+use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, TrackKind, Truncation};
 use pyo3::exceptions::PyValueError;
 use pyo3::PyResult;
 use rand_chacha::ChaCha8Rng;
 
-/// The track every environment drives (built once per process).
+/// The track every environment drives (built once per process): the default of a run's `sim.track`, the track of the
+/// MPCC expert (`Mpcc::reference`).
 pub fn track() -> &'static Arc<Track> {
     static TRACK: OnceLock<Arc<Track>> = OnceLock::new();
-    TRACK.get_or_init(|| Arc::new(Track::l_track_barc()))
+    TRACK.get_or_init(|| Arc::new(Track::from_kind(TrackKind::default())))
 }
 
 /// The camera's distance grid of the track, built on the first camera's first frame and shared.

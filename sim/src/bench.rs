@@ -6,7 +6,7 @@ use std::time::Instant;
 use crate::camera::{Camera, Sun, TrackLookup, REFERENCE_FOV_DEG};
 use crate::env::{Env, Spawn};
 use crate::pid::PidLaneFollower;
-use crate::track::{Pose, Track};
+use crate::track::Pose;
 
 /// Camera sizes measured (square images, pixels a side).
 pub const CAMERA_SIZES: [usize; 2] = [64, 224];
@@ -83,7 +83,7 @@ pub fn run(seconds: f64) -> BenchReport {
     }
     let env_steps_per_s = n as f64 / start.elapsed().as_secs_f64();
 
-    let track = Track::l_track_barc();
+    let track = env.track().clone();
     let t0 = Instant::now();
     let lookup = TrackLookup::new(&track, 0.01);
     let lookup_build_ms = t0.elapsed().as_secs_f64() * 1e3;

@@ -2,11 +2,13 @@
 
 use std::io::Write;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
+use cabc_proto::config::RunConfig;
 use cabc_sim::camera::{Camera, Sun, REFERENCE_FOV_DEG};
 use cabc_sim::rollout::{parse_pair, parse_size, rollout, RolloutOptions};
-use cabc_sim::{bench, map, trace, Track};
+use cabc_sim::{bench, map, trace, Track, TrackKind};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -16,13 +18,17 @@ use clap::{Parser, Subcommand};
     about = "The cabc racing simulator: rollouts, camera frames, track maps, benchmarks"
 )]
 struct Cli {
+    /// A run configuration (a preset or a TOML file) whose `sim.track` the rollout, the frame and the map use;
+    /// without one, the default track (L_track_barc).
+    #[arg(long, short, global = true)]
+    config: Option<String>,
     #[command(subcommand)]
     cmd: Cmd,
 }
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run one episode on L_track_barc and summarise it.
+    /// Run one episode on the track and summarise it.
     Rollout {
         #[command(flatten)]
         opts: RolloutOptions,
@@ -33,7 +39,7 @@ enum Cmd {
         #[arg(long)]
         trace: Option<PathBuf>,
     },
-    /// Render one camera frame at a Frenet pose of L_track_barc.
+    /// Render one camera frame at a Frenet pose of the track.
     Render {
         #[arg(long, default_value_t = cabc_sim::FIXED_SPAWN.s)]
         s: f64,
@@ -53,7 +59,7 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Draw L_track_barc from above, optionally with a rollout's driven line.
+    /// Draw the track from above, optionally with a rollout's driven line.
     Track {
         #[arg(long)]
         out: PathBuf,
@@ -83,9 +89,20 @@ fn parse_sun(s: &str) -> Result<Sun> {
 fn main() -> Result<()> {
     // Write through a handle so a closed pipe is an error, not a panic.
     let mut out = std::io::stdout().lock();
-    match Cli::parse().cmd {
+    let cli = Cli::parse();
+    let kind = match &cli.config {
+        Some(name) => {
+            RunConfig::load(name)
+                .with_context(|| format!("loading configuration {name}"))?
+                .sim
+                .track
+        }
+        None => TrackKind::default(),
+    };
+    let track = Track::from_kind(kind);
+    match cli.cmd {
         Cmd::Rollout { opts, json, trace } => {
-            let summary = rollout(&opts, trace.as_deref())?;
+            let summary = rollout(&opts, Arc::new(track), trace.as_deref())?;
             if json {
                 writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
             } else {
@@ -103,7 +120,7 @@ fn main() -> Result<()> {
         } => {
             let sun = sun.unwrap_or_default();
             let (frame, pose) = Camera::new(w, h, fov)
-                .render_frenet(&Track::l_track_barc(), (s, x_tran, e_psi), sun)
+                .render_frenet(&track, (s, x_tran, e_psi), sun)
                 .map_err(|e| anyhow::anyhow!("--s, --x-tran, --e-psi: {e}"))?;
             frame
                 .write_png(&path)
@@ -124,7 +141,7 @@ fn main() -> Result<()> {
                 .map(trace::read_xy)
                 .transpose()?
                 .unwrap_or_default();
-            let img = map::render_track(&Track::l_track_barc(), scale, &pts);
+            let img = map::render_track(&track, scale, &pts);
             img.write_png(&path)
                 .with_context(|| format!("writing {}", path.display()))?;
             let (w, h, n) = (img.width, img.height, pts.len());

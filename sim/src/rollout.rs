@@ -1,4 +1,4 @@
-//! One episode on `L_track_barc` under a simple policy (the PID lane follower or a constant action), summarised:
+//! One episode on a track (`L_track_barc` unless the configuration names another) under a simple policy (the PID lane follower or a constant action), summarised:
 //! the library behind `cabc-sim rollout`.
 
 use std::fmt;
@@ -143,14 +143,14 @@ impl fmt::Display for Summary {
     }
 }
 
-/// Runs one episode from `opts.spawn` (RNG stream (seed, 0)), writing every step to `trace` when given.
-pub fn rollout(opts: &RolloutOptions, trace: Option<&Path>) -> Result<Summary> {
+/// Runs one episode on `track` from `opts.spawn` (RNG stream (seed, 0)), writing every step to `trace` when given.
+pub fn rollout(opts: &RolloutOptions, track: Arc<Track>, trace: Option<&Path>) -> Result<Summary> {
     let mut policy = RolloutPolicy::parse(&opts.policy)?;
     let config = EnvConfig {
         max_laps: opts.max_laps,
         ..EnvConfig::default()
     };
-    let mut env = Env::new(Arc::new(Track::l_track_barc()), Default::default(), config);
+    let mut env = Env::new(track, Default::default(), config);
     let obs0 = env.reset(opts.spawn, &mut Env::rng(opts.seed, 0));
     let mut csv = trace.map(TraceWriter::create).transpose()?;
     if let Some(w) = csv.as_mut() {

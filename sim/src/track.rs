@@ -7,6 +7,8 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
+pub use cabc_proto::config::TrackKind;
+
 /// One piece of centreline: `length` of arc (m) and signed `radius` (m); 0 = straight, > 0 = left (CCW).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrackPiece {
@@ -150,6 +152,13 @@ fn sign(v: f64) -> f64 {
 }
 
 impl Track {
+    /// The track a run's configuration names (`sim.track`); [`TrackKind::default`] is [`Track::l_track_barc`].
+    pub fn from_kind(kind: TrackKind) -> Track {
+        match kind {
+            TrackKind::LTrackBarc => Track::l_track_barc(),
+        }
+    }
+
     /// The paper's `L_track_barc` (simulator.md §2.1): nine pieces to the npz's full precision,
     /// half-width 0.55 m, slack 0.3 m.
     pub fn l_track_barc() -> Track {

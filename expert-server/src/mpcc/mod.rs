@@ -67,6 +67,7 @@ mod status;
 
 use std::time::{Duration, Instant};
 
+use cabc_proto::config::RunConfig;
 use cabc_sim::track::{Track, TrackError};
 use cabc_sim::vehicle::{State, VehicleParams};
 
@@ -201,14 +202,20 @@ impl Mpcc {
         })
     }
 
-    /// The reference controller on `L_track_barc` with the reference vehicle.
-    pub fn reference() -> Self {
+    /// The run's expert: the reference controller ([`MpccConfig::default`]) on the run's track (`sim.track`), its
+    /// prediction model the simulator's vehicle. The one constructor of the MPCC of a run (expert server, `learner
+    /// run --local`, `expert-server drive` and `bench`).
+    pub fn from_config(config: &RunConfig) -> Result<Self, MpccError> {
         Self::new(
-            Track::l_track_barc(),
+            Track::from_kind(config.sim.track),
             VehicleParams::default(),
             MpccConfig::default(),
         )
-        .expect("the reference configuration is valid")
+    }
+
+    /// The reference controller on `L_track_barc` with the reference vehicle: the default configuration's expert.
+    pub fn reference() -> Self {
+        Self::from_config(&RunConfig::default()).expect("the reference configuration is valid")
     }
 
     /// The configuration.

@@ -283,3 +283,39 @@ fn streams_step_concurrently_like_sequentially() {
     let par: Vec<_> = starts.par_iter().map(run).collect();
     assert_eq!(seq, par);
 }
+
+/// The MPCC of a run's configuration is the construction every caller wrote out before (`Mpcc::new` on
+/// `L_track_barc`, the reference vehicle and `MpccConfig::default()`): its first steps from the fixed spawn give the
+/// same actions, bit for bit, for every preset, and so does `Mpcc::reference`.
+#[test]
+fn the_configured_mpcc_is_the_reference_construction() {
+    let written_out = Mpcc::new(
+        Track::l_track_barc(),
+        VehicleParams::default(),
+        MpccConfig::default(),
+    )
+    .unwrap();
+    let actions = |mpcc: &Mpcc| -> Vec<[u64; 2]> {
+        let q = fixed_spawn_state(mpcc.track());
+        let mut stream = mpcc.start(&q).unwrap();
+        (0..3)
+            .map(|_| mpcc.step(&mut stream, &q).unwrap().action.map(f64::to_bits))
+            .collect()
+    };
+    let expected = actions(&written_out);
+    assert_eq!(actions(&Mpcc::reference()), expected);
+    let config = RunConfig::load(cabc_proto::config::DEFAULT_PRESET).unwrap();
+    let configured = Mpcc::from_config(&config).unwrap();
+    assert_eq!(configured.track().length(), written_out.track().length());
+    assert_eq!(configured.config(), written_out.config());
+    assert_eq!(actions(&configured), expected);
+    match crate::relabel::Expert::from_config(&config).unwrap() {
+        crate::relabel::Expert::Mpcc(mpcc) => assert_eq!(actions(&mpcc), expected),
+        crate::relabel::Expert::Pid(_) => panic!("v-b's expert is the MPCC"),
+    }
+    let pid = RunConfig::load("v-a").unwrap();
+    assert!(matches!(
+        crate::relabel::Expert::from_config(&pid).unwrap(),
+        crate::relabel::Expert::Pid(v) if v == pid.expert.pid_target_speed
+    ));
+}

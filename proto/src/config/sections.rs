@@ -3,7 +3,7 @@
 use super::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
     Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn, StoredAction,
-    VisionTrunk,
+    TrackKind, VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +31,14 @@ impl Default for RunSection {
             runs_dir: "runs".into(),
         }
     }
+}
+
+/// The plant: what the simulator, the expert's prediction model and the plots of a run drive on.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimSection {
+    /// The track: `l-track-barc` (the paper's L-shaped BARC track, the only one today and the default).
+    pub track: TrackKind,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

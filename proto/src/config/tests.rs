@@ -321,3 +321,37 @@ fn the_baseline_variant_follows_the_run() {
     same.make_baseline();
     assert_eq!(same.run.name, "v-b-baseline");
 }
+
+#[test]
+fn the_track_key_defaults_to_the_l_track_and_refuses_an_unknown_track() {
+    // Every preset and a recorded config.toml (written before the key existed) drive the L-track.
+    for (name, _) in PRESETS {
+        assert_eq!(
+            RunConfig::load(name).unwrap().sim.track,
+            TrackKind::LTrackBarc,
+            "{name}"
+        );
+    }
+    let recorded = include_str!("../../../docs/reproducibility/smoke-6-epochs.toml");
+    assert!(!recorded.contains("[sim]"));
+    let c = RunConfig::from_toml(recorded, "smoke-6-epochs.toml").unwrap();
+    assert_eq!(c.sim.track, TrackKind::LTrackBarc);
+    let explicit = RunConfig::from_toml("[sim]\ntrack = \"l-track-barc\"\n", "t.toml").unwrap();
+    assert_eq!(explicit, RunConfig::default());
+    assert_eq!(explicit.show("sim.track").as_deref(), Some("l-track-barc"));
+    let err = RunConfig::from_toml("[sim]\ntrack = \"monza\"\n", "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("line 2") && err.contains("monza") && err.contains("l-track-barc"),
+        "{err}"
+    );
+    let err = RunConfig::default()
+        .with_overrides(&["sim.track=oval".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("oval") && err.contains("l-track-barc"),
+        "{err}"
+    );
+}
