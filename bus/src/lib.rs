@@ -240,6 +240,35 @@ pub fn encoding_of<M: Message>() -> Encoding {
     ))
 }
 
+/// A process's metrics on the bus (`metrics/<component>`, [`Bus::metrics_out`]): what it publishes for people watching
+/// the run, and the messages its bus refused so far.
+#[derive(Clone)]
+pub struct MetricsOut {
+    session: Session,
+    key: String,
+    rejects: Rejects,
+}
+
+impl MetricsOut {
+    /// Publishes `value` (JSON), blocking; dropped under congestion, and a failure is logged, never fatal.
+    pub fn publish(&self, value: &str) {
+        let put = self
+            .session
+            .put(&self.key, value.to_string())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Drop)
+            .wait();
+        if let Err(e) = put {
+            tracing::warn!("publishing metrics: {e}");
+        }
+    }
+
+    /// Messages this process's bus refused so far ([`Rejects`]).
+    pub fn rejected(&self) -> u64 {
+        self.rejects.count()
+    }
+}
+
 /// A process's handle on the bus.
 pub struct Bus {
     pub session: Session,
@@ -299,17 +328,19 @@ impl Bus {
             .map_err(zerr)
     }
 
-    /// [`Bus::metrics`], blocking; a failure is logged, never fatal.
-    pub fn metrics_blocking(&self, value: &str) {
-        let put = self
-            .session
-            .put(self.keys.metrics(&self.component), value.to_string())
-            .encoding(Encoding::APPLICATION_JSON)
-            .congestion_control(CongestionControl::Drop)
-            .wait();
-        if let Err(e) = put {
-            tracing::warn!("publishing metrics: {e}");
+    /// This process's metrics key and refused count apart from the bus ([`MetricsOut`]), for a writer that lives
+    /// beside the one that holds the bus (the learner's sink of its records, beside the actors' port).
+    pub fn metrics_out(&self) -> MetricsOut {
+        MetricsOut {
+            session: self.session.clone(),
+            key: self.keys.metrics(&self.component),
+            rejects: self.rejects.clone(),
         }
+    }
+
+    /// [`Bus::metrics`], blocking ([`MetricsOut::publish`]); a failure is logged, never fatal.
+    pub fn metrics_blocking(&self, value: &str) {
+        self.metrics_out().publish(value);
     }
 
     /// [`Bus::close`], blocking.

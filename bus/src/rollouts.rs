@@ -362,10 +362,6 @@ impl Rollouts for ZenohActors {
         self.interrupt.is_set()
     }
 
-    fn metrics(&mut self, json: &str) {
-        self.bus.metrics_blocking(json);
-    }
-
     fn stop(&mut self, reason: &str) -> Result<(), PortError> {
         let stop = cabc_proto::messages::Stop {
             reason: reason.to_string(),

@@ -9,6 +9,7 @@ use cli::{Cli, Command};
 
 mod cli;
 mod serve;
+mod watch;
 
 fn main() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();

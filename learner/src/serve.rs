@@ -5,6 +5,7 @@
 //! client of the standalone router of `bus.connect`, deploy/SCALE-OUT.md §2), resumes from the run folder's
 //! checkpoint with `resume`, and at the end publishes Stop, writes the final outputs and prints the summary.
 
+use crate::watch::BusMetrics;
 use anyhow::{Context, Result};
 use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
@@ -34,8 +35,11 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     );
     // Subscribe first: actors reconnecting to a restarted learner flush what they could not deliver at once.
     let expected = config.actors.count as usize;
+    let metrics = Box::new(BusMetrics::new(bus.metrics_out()));
     let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
-    let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
+    // What the router's access control refused (this process's router: zenoh logs its decisions only at TRACE).
+    let acl_denials = Box::new(cabc_proto::telemetry::acl_denials);
+    let mut learner = cabc_outputs::learner_on_bus(config, run_dir, resume, metrics, acl_denials)?;
     run_to_the_end(&mut learner, &mut actors)?;
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));
@@ -54,13 +58,13 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
     let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
     let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     tracing::info!(
-        run = learner.config.run.name,
+        run = learner.config().run.name,
         dir = %learner.folder().display(),
-        device = ?learner.trainer.device(),
+        device = ?learner.device(),
         "learner up, actors in-process"
     );
-    let mut actors = LocalActors::new(&learner.config, expert, true)
-        .on_device(learner.trainer.device())
+    let mut actors = LocalActors::new(learner.config(), expert, true)
+        .on_device(learner.device())
         .with_interrupt(interrupt);
     run_to_the_end(&mut learner, &mut actors)
 }
@@ -72,9 +76,9 @@ fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<()
         Ending::Interrupted => "interrupted".to_string(),
         Ending::EarlyStop(v) => format!(
             "early stop: policy version {v} completed {} laps twice",
-            learner.config.collection.eval_laps
+            learner.config().collection.eval_laps
         ),
-        Ending::MaxEpochs => format!("max_epochs {} reached", learner.config.run.max_epochs),
+        Ending::MaxEpochs => format!("max_epochs {} reached", learner.config().run.max_epochs),
     };
     let interrupted = ending == Ending::Interrupted;
     if !interrupted {

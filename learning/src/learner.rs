@@ -1,25 +1,30 @@
 //! What the learner holds between epochs of Algorithm 1 ([`crate::algorithm`]): D+, D? and D- (the replay), the
 //! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations, the epochs' records
-//! and the checkpoint. Everything it writes besides the checkpoint goes through one port, a [`Sink`]
-//! (the cabc-outputs crate has the run folder's).
+//! and the checkpoint; and, within an epoch, its record. Everything it writes besides the checkpoint goes through one
+//! port, a [`Sink`] (the cabc-outputs crate has the run folder's, the `learner` binary the bus's); what it reads of
+//! the bus besides the actors' port, the access control's refusals, is given to it too ([`AclDenials`]).
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
 use crate::checkpoint::{Checkpoint, CheckpointError};
+use crate::evaluations::Evaluations;
+use crate::ledger::Ledger;
 use crate::provenance::Provenance;
 use crate::record::Record;
 use crate::replay::{Checked, Frames, ImageLog, Replay};
+use crate::schedule::Due;
 use crate::sink::{Sink, SinkError};
 use crate::state::{LearnerState, StateError, CHECKPOINT};
+use crate::summary::{LapTime, Summary};
 use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_models::Network;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, ShieldNets};
-use cabc_proto::ports::PortError;
-use serde_json::json;
-use std::collections::HashSet;
+use cabc_proto::ports::{Collected, PortError};
+use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tch::Device;
 
 /// Errors that end the learner.
 #[derive(Debug, thiserror::Error)]
@@ -41,9 +46,15 @@ pub enum LearnerError {
 /// The replay's file in the checkpoint.
 const REPLAY: &str = "replay.bin";
 
-/// Counts of the epoch in progress, from [`Learner::begin_epoch`] on.
-#[derive(Default)]
-struct Tally {
+/// The access control's refusals so far, by "<subject>: <action> on <key>", as the side that knows the bus counts
+/// them (the `learner` binary: its router's, `cabc_proto::telemetry::acl_denials`): the `acl_denied` column, its
+/// warning and the summary's. In process there is no bus, and nothing refused: `Box::new(BTreeMap::new)`.
+pub type AclDenials = Box<dyn Fn() -> BTreeMap<String, u64>>;
+
+/// The epoch in progress, from [`Learner::begin_epoch`] to [`Learner::end_epoch`]: its record and its counts.
+struct Epoch {
+    record: Record,
+    started: Instant,
     /// The ledger's stored steps and segments when the epoch began.
     stored_before: (u64, u64),
     /// Steps in incomplete segments.
@@ -52,23 +63,34 @@ struct Tally {
     provenance: Provenance,
 }
 
+impl Epoch {
+    fn new(epoch: u64, ledger: &Ledger) -> Self {
+        Epoch {
+            record: Record::new(epoch),
+            started: Instant::now(),
+            stored_before: (ledger.stored_steps, ledger.stored_segments),
+            incomplete_steps: 0,
+            provenance: Provenance::default(),
+        }
+    }
+}
+
 /// Everything the learner holds.
 pub struct Learner {
-    pub config: RunConfig,
-    pub trainer: Trainer,
+    config: RunConfig,
+    trainer: Trainer,
     /// D+, D?, D- and the dynamics-only store.
-    pub replay: Replay,
+    replay: Replay,
     /// The records, the evaluations, the ledger: what the checkpoint saves besides networks and replay.
-    pub state: LearnerState,
+    state: LearnerState,
     /// The run folder: the checkpoint and D+'s image logs.
     folder: PathBuf,
     sink: Box<dyn Sink>,
+    acl_denials: AclDenials,
     /// The segments of the epoch being collected, until [`Learner::partition`].
     d_new: Vec<Checked>,
-    tally: Tally,
+    epoch: Epoch,
     expert_streams: HashSet<(String, u32, u64)>,
-    /// Segments refused or not stored, since the process started.
-    failed_segments: u64,
     /// The track's half-width (off-track spawns in [`Provenance`]).
     half_width: f64,
     /// D+'s images on disk (`replay-images-<generation>.log` in the run folder), appended to at each checkpoint.
@@ -77,12 +99,13 @@ pub struct Learner {
 
 impl Learner {
     /// A fresh learner for `config` with its checkpoint in `folder` (`folder/checkpoint`, and D+'s image logs),
-    /// writing its outputs through `sink`; or the one of its checkpoint with `resume` (refused without `resume` when
-    /// a checkpoint exists).
+    /// writing its outputs through `sink` and reading the access control's refusals from `acl_denials`; or the one
+    /// of its checkpoint with `resume` (refused without `resume` when a checkpoint exists).
     pub fn open(
         config: RunConfig,
         folder: PathBuf,
         mut sink: Box<dyn Sink>,
+        acl_denials: AclDenials,
         resume: bool,
     ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
@@ -145,13 +168,13 @@ impl Learner {
             config,
             trainer,
             replay,
+            epoch: Epoch::new(state.next_epoch, &state.ledger),
             state,
             folder,
             sink,
+            acl_denials,
             d_new: Vec::new(),
-            tally: Tally::default(),
             expert_streams: HashSet::new(),
-            failed_segments: 0,
             half_width: cabc_sim::track::Track::l_track_barc().half_width(),
             image_log,
         })
@@ -160,6 +183,36 @@ impl Learner {
     /// The run folder (the checkpoint's parent).
     pub fn folder(&self) -> &Path {
         &self.folder
+    }
+
+    /// The run's configuration.
+    pub fn config(&self) -> &RunConfig {
+        &self.config
+    }
+
+    /// The device the networks train on (`training.device`).
+    pub fn device(&self) -> Device {
+        self.trainer.device()
+    }
+
+    /// The epoch the run goes on with (0 for a fresh run).
+    pub fn next_epoch(&self) -> u64 {
+        self.state.next_epoch
+    }
+
+    /// Every epoch's record so far (`metrics.csv`'s rows).
+    pub fn rows(&self) -> &[Record] {
+        &self.state.rows
+    }
+
+    /// The evaluations taken in, the best version and the early stop.
+    pub fn evaluations(&self) -> &Evaluations {
+        &self.state.evaluations
+    }
+
+    /// The version kept by the early stop, once the second evaluation that completed `eval_laps` laps came in.
+    pub fn early_stop(&self) -> Option<u64> {
+        self.state.evaluations.early_stop()
     }
 
     /// (pi_j, beta_j) as the actors receive it, with each actor's step budget for the epoch.
@@ -183,15 +236,13 @@ impl Learner {
         }
     }
 
-    /// Starts an epoch's counts (what the ledger stored so far, no incomplete steps, no D? steps) and marks where
-    /// the replay's rows of D_new will begin (the critic's held-out set, [`Replay::begin_epoch`]).
-    pub fn begin_epoch(&mut self) {
+    /// Begins epoch `epoch`: its record (with beta_j), its clock and its counts (what the ledger stored so far, no
+    /// incomplete steps, no D? steps), and marks where the replay's rows of D_new will begin (the critic's held-out
+    /// set, [`Replay::begin_epoch`]).
+    pub fn begin_epoch(&mut self, epoch: u64) {
         self.replay.begin_epoch();
-        let ledger = &self.state.ledger;
-        self.tally = Tally {
-            stored_before: (ledger.stored_steps, ledger.stored_segments),
-            ..Tally::default()
-        };
+        self.epoch = Epoch::new(epoch, &self.state.ledger);
+        self.epoch.record.real("beta", self.config.beta(epoch), 6);
     }
 
     /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment the replay would not
@@ -203,7 +254,7 @@ impl Learner {
         let checked = match self.replay.checked(segment) {
             Ok(checked) => checked,
             Err(e) => {
-                self.failed_segments += 1;
+                self.state.segments_not_stored += 1;
                 tracing::warn!(actor, seq, "segment refused: {e}");
                 return;
             }
@@ -216,11 +267,13 @@ impl Learner {
         self.d_new.push(checked);
     }
 
-    /// Partitions D_new into D+' (laps) and D?' (failures; unfinished steps go to the dynamics-only store) and adds
-    /// them to D+ and D?. Segments are added in (actor, incarnation, seq) order, whatever order the bus delivered
-    /// them in, so a distributed run with a given seed is as reproducible as an in-process one. Puts what the epoch
+    /// Partitions D_new, as the actors closed its collection (`collected`), into D+' (laps) and D?' (failures;
+    /// unfinished steps go to the dynamics-only store) and adds them to D+ and D?. Segments are added in (actor,
+    /// incarnation, seq) order, whatever order the bus delivered them in, so a distributed run with a given seed is
+    /// as reproducible as an in-process one. Puts the collection's time and the actors' counts, what the epoch
     /// stored, and where its D? steps came from.
-    pub fn partition(&mut self, record: &mut Record) {
+    pub fn partition(&mut self, collected: &Collected) {
+        self.collected(collected);
         let mut d_new = std::mem::take(&mut self.d_new);
         d_new.sort_by(|a, b| {
             let (a, b) = (a.segment(), b.segment());
@@ -230,14 +283,15 @@ impl Learner {
             let segment = checked.segment();
             self.expert_lap_time(segment);
             if segment.outcome == Outcome::Incomplete {
-                self.tally.incomplete_steps += segment.steps.len() as u64;
+                self.epoch.incomplete_steps += segment.steps.len() as u64;
             }
             self.replay.add_checked(&checked);
             self.state.ledger.stored(segment);
             let flush = self.config.collection.flush;
-            self.tally.provenance.add(segment, flush, self.half_width);
+            self.epoch.provenance.add(segment, flush, self.half_width);
         }
-        let (ledger, t) = (&self.state.ledger, &self.tally);
+        let (ledger, t) = (&self.state.ledger, &mut self.epoch);
+        let record = &mut t.record;
         let stored = ledger.stored_steps - t.stored_before.0;
         record.count("steps_collected", stored);
         record.count("segments", ledger.stored_segments - t.stored_before.1);
@@ -253,7 +307,21 @@ impl Learner {
         record.count("uncertain_patience", t.provenance.patience);
         record.count("uncertain_failed_lap", t.provenance.failed_lap);
         record.count("expert_failures", t.provenance.expert_failures);
-        record.count("segments_not_stored", self.failed_segments);
+        record.count("segments_not_stored", self.state.segments_not_stored);
+    }
+
+    /// The collection's time and the actors' own counts (their markers), into the record and to the sinks.
+    fn collected(&mut self, collected: &Collected) {
+        let record = &mut self.epoch.record;
+        record.real("collect_s", self.epoch.started.elapsed().as_secs_f64(), 3);
+        record.count("steps_published", collected.steps_published);
+        record.count("steps_taken", collected.steps_taken);
+        record.count("steps_staged", collected.steps_staged);
+        if self.config.collection.shield > 0.0 {
+            record.count("steps_shielded", collected.steps_shielded);
+        }
+        record.flag("closed_by_timeout", collected.timed_out);
+        self.sink.collected(record.epoch(), collected);
     }
 
     /// Complete laps driven by the expert alone (beta = 1) give the expert's lap time: every lap segment of an
@@ -272,12 +340,25 @@ impl Learner {
         }
     }
 
-    /// Auto-labels D? (eq. (19)) and makes what stays in it D-. Returns (points removed, rho used); None when D? holds
-    /// fewer than `algorithm.autolabel_min_uncertain` points (or none).
-    pub fn autolabel(&mut self, epoch: u64) -> Option<(usize, f64)> {
+    /// Auto-labels D? when `due` (eq. (19)) and makes what stays in it D-. Puts the points removed and the rho used
+    /// (0 and `algorithm.rho` when not due, or when D? holds fewer than `algorithm.autolabel_min_uncertain` points).
+    pub fn autolabel(&mut self, due: bool) {
+        let labelled = due.then(|| self.label()).flatten();
+        let rho = self.config.algorithm.rho;
+        let record = &mut self.epoch.record;
+        record.count(
+            "autolabel_removed",
+            labelled.map_or(0, |(removed, _)| removed),
+        );
+        record.exact("rho", labelled.map_or(rho, |(_, rho)| rho));
+    }
+
+    /// [`Learner::autolabel`]'s labelling: (points removed, rho used), or None when D? holds too few points.
+    fn label(&mut self) -> Option<(usize, f64)> {
         if self.replay.len_uncertain() < self.config.algorithm.autolabel_min_uncertain.max(1) {
             return None;
         }
+        let epoch = self.epoch.record.epoch();
         self.progress(epoch, "auto-labelling");
         let report = autolabel_replay(&self.replay, &AutolabelOptions::from_config(&self.config));
         self.replay.apply_labels(&report.removed);
@@ -293,6 +374,15 @@ impl Learner {
         Some((removed, report.rho))
     }
 
+    /// ComputeGradient and Update: the trainer's epoch on the replay ([`Trainer::train`]), f_hat and p_hat as `due`
+    /// says; its losses go into the epoch's record.
+    pub fn train(&mut self, due: Due) -> Result<(), LearnerError> {
+        let epoch = self.epoch.record.epoch();
+        self.progress(epoch, "training");
+        let record = &mut self.epoch.record;
+        Ok(self.trainer.train(epoch, due, &self.replay, record)?)
+    }
+
     /// An evaluation report ([`crate::evaluations::Evaluations::take`]).
     pub fn on_eval(&mut self, report: EvalReport) {
         let rules = &self.config.collection;
@@ -302,9 +392,15 @@ impl Learner {
             .take(report, rules, |taken| sink.evaluation(taken));
     }
 
-    /// Closes an epoch: puts D+, D?, D-, the evaluations and the epoch's time, checkpoints, and writes the record
-    /// through the sink.
-    pub fn end_epoch(&mut self, mut record: Record, started: Instant) -> Result<(), LearnerError> {
+    /// Closes the epoch in progress: puts D+, D?, D-, the evaluations, the access control's refusals and the
+    /// epoch's time, checkpoints, and writes the record through the sink.
+    pub fn end_epoch(&mut self) -> Result<(), LearnerError> {
+        let next = Epoch::new(self.epoch.record.epoch() + 1, &self.state.ledger);
+        let Epoch {
+            mut record,
+            started,
+            ..
+        } = std::mem::replace(&mut self.epoch, next);
         record.count("d_plus", self.replay.len_plus());
         record.count("d_uncertain", self.replay.len_uncertain());
         // What the last auto-labelling left in D? (the critic's negatives), held until the next labelling.
@@ -327,7 +423,7 @@ impl Learner {
     /// Messages the router's access control has dropped so far, warned about when they grew since the last epoch
     /// (zenoh logs its decisions only at TRACE): an operator under attack sees who tried what.
     fn acl_denied(&self) -> u64 {
-        let by = cabc_proto::telemetry::acl_denials();
+        let by = (self.acl_denials)();
         let total: u64 = by.values().sum();
         let before = self.state.rows.last().and_then(|r| r.u64("acl_denied"));
         if total > before.unwrap_or(0) {
@@ -341,7 +437,7 @@ impl Learner {
     }
 
     /// Shows the phase of epoch `epoch` (the progress bar).
-    pub fn progress(&mut self, epoch: u64, phase: &str) {
+    fn progress(&mut self, epoch: u64, phase: &str) {
         self.sink.phase(epoch, phase);
     }
 
@@ -370,7 +466,7 @@ impl Learner {
         reason: &str,
         interrupted: bool,
         rejected: u64,
-    ) -> Result<serde_json::Value, LearnerError> {
+    ) -> Result<Summary, LearnerError> {
         tracing::info!("run ends: {reason}");
         let not_evaluated = self.state.evaluations.not_evaluated();
         if !not_evaluated.is_empty() {
@@ -389,43 +485,43 @@ impl Learner {
         Ok(summary)
     }
 
-    fn summary(&self, reason: &str, rejected: u64) -> serde_json::Value {
-        let evaluations = &self.state.evaluations;
-        let expert = cabc_proto::stats::mean_std(&self.state.expert_lap_times);
-        let epoch_s: Vec<f64> = self
-            .state
-            .rows
-            .iter()
-            .filter_map(|r| r.f64("epoch_s"))
-            .collect();
-        json!({
-            "run": self.config.run.name,
-            "experiment": self.config.run.experiment,
-            "lambda": self.config.algorithm.lambda,
-            "rho": self.config.algorithm.rho,
-            "ended": reason,
-            "epochs": self.state.rows.len(),
-            "early_stop_version": evaluations.early_stop(),
-            "first_version_with_eval_laps": evaluations.first_completing(self.config.collection.eval_laps),
-            "best_eval": evaluations.best(),
-            "last_eval": evaluations.evals.last(),
-            "trunk_init": self.state.trunk_init,
-            "expert_lap_time": expert.map(|(m, s)| json!({"mean": m, "std": s, "laps": self.state.expert_lap_times.len()})),
-            "mean_epoch_s": cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
-            "learner_peak_rss_mb": peak_rss_mb(),
-            "steps_stored": self.state.ledger.stored_steps,
-            "segments_stored": self.state.ledger.stored_segments,
-            "duplicate_segments": self.state.ledger.duplicates,
-            "segments_not_stored": self.failed_segments,
-            "refused_evals": evaluations.refused(),
-            "duplicate_evals": evaluations.duplicates(),
-            "versions_not_evaluated": evaluations.not_evaluated(),
-            "rejected_messages": rejected,
-            "acl_denied": cabc_proto::telemetry::acl_denials(),
-            "d_plus": self.replay.len_plus(),
-            "d_uncertain": self.replay.len_uncertain(),
-            "d_minus": self.replay.len_minus(),
-        })
+    fn summary(&self, reason: &str, rejected: u64) -> Summary {
+        let (config, state) = (&self.config, &self.state);
+        let evaluations = &state.evaluations;
+        let epoch_s: Vec<f64> = state.rows.iter().filter_map(|r| r.f64("epoch_s")).collect();
+        let expert = cabc_proto::stats::mean_std(&state.expert_lap_times);
+        Summary {
+            run: config.run.name.clone(),
+            experiment: config.run.experiment.clone(),
+            lambda: config.algorithm.lambda,
+            rho: config.algorithm.rho,
+            ended: reason.to_string(),
+            epochs: state.rows.len(),
+            early_stop_version: evaluations.early_stop(),
+            first_version_with_eval_laps: evaluations.first_completing(config.collection.eval_laps),
+            best_eval: evaluations.best().cloned(),
+            last_eval: evaluations.evals.last().cloned(),
+            trunk_init: state.trunk_init.clone(),
+            expert_lap_time: expert.map(|(mean, std)| LapTime {
+                laps: state.expert_lap_times.len(),
+                mean,
+                std,
+            }),
+            mean_epoch_s: cabc_proto::stats::mean(&epoch_s).unwrap_or(0.0),
+            learner_peak_rss_mb: peak_rss_mb(),
+            steps_stored: state.ledger.stored_steps,
+            segments_stored: state.ledger.stored_segments,
+            duplicate_segments: state.ledger.duplicates,
+            segments_not_stored: state.segments_not_stored,
+            refused_evals: evaluations.refused(),
+            duplicate_evals: evaluations.duplicates(),
+            versions_not_evaluated: evaluations.not_evaluated(),
+            rejected_messages: rejected,
+            acl_denied: (self.acl_denials)(),
+            d_plus: self.replay.len_plus(),
+            d_uncertain: self.replay.len_uncertain(),
+            d_minus: self.replay.len_minus(),
+        }
     }
 }
 

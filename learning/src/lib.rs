@@ -16,6 +16,7 @@
 //! | when each part runs (k_f, k_p, labelling, λ warm-up) | [`schedule`] |
 //! | the evaluations from the fixed spawn, early stopping, the best version | [`evaluations`] |
 //! | an epoch's metrics, one line where each is computed | [`record`], written through [`sink`] |
+//! | the run's summary (`summary.json`) | [`summary`] |
 //! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `replay::migrate` and `record::rows` |
 //!
 //! The actors are a port (`cabc_proto::ports::Rollouts`): over zenoh in a run (the `learner` binary), in-process
@@ -37,10 +38,11 @@ pub mod replay;
 pub mod schedule;
 pub mod sink;
 pub mod state;
+pub mod summary;
 pub mod train;
 
 pub use autolabel::{autolabel, autolabel_replay, AutolabelOptions, AutolabelReport};
 pub use checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
 pub use replay::{Replay, ReplayError};
-pub use schedule::Schedule;
+pub use schedule::{Due, Schedule};
 pub use train::{CriticFit, Fit, PolicyFit, TrainError, Trainer};

@@ -6,6 +6,16 @@
 
 use cabc_proto::config::{RunConfig, ScheduleKind};
 
+/// What trains in an epoch besides the policy: Algorithm 1's `j mod k_f = 0` (f_hat) and `j mod k_p = 0` (p_hat),
+/// read by the loop ([`crate::algorithm`]) and handed to the trainer ([`crate::Trainer::train`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Due {
+    /// f_hat trains (eq. (15)).
+    pub dynamics: bool,
+    /// p_hat trains (eq. (16)).
+    pub critic: bool,
+}
+
 /// The schedule of a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Schedule {
@@ -39,6 +49,14 @@ impl Schedule {
     /// Whether D? is auto-labelled (eq. (19)) before training in epoch j; the same under both kinds of schedule.
     pub fn autolabel_due(&self, j: u64) -> bool {
         j % self.autolabel_every == 0
+    }
+
+    /// What trains in epoch j besides the policy ([`Schedule::dynamics_due`], [`Schedule::critic_due`]).
+    pub fn due(&self, j: u64) -> Due {
+        Due {
+            dynamics: self.dynamics_due(j),
+            critic: self.critic_due(j),
+        }
     }
 
     /// Whether f_hat trains in epoch j: every k_f epochs (Algorithm 1), or every epoch (`EveryEpoch`).
@@ -105,6 +123,11 @@ mod tests {
         assert_eq!(due(Schedule::dynamics_due), [0, 5, 10, 15, 20]);
         assert_eq!(due(Schedule::critic_due), [0, 10, 20]);
         assert_eq!(due(Schedule::autolabel_due), [0, 4, 8, 12, 16, 20]);
+        let both = |dynamics, critic| Due { dynamics, critic };
+        assert_eq!(
+            [s.due(0), s.due(5), s.due(7)],
+            [both(true, true), both(true, false), both(false, false)]
+        );
         assert_eq!((s.policy_passes(0), s.policy_passes(1)), (7, 2));
         assert_eq!((s.aux_passes(0), s.aux_passes(1)), (30, 3));
         c.training.schedule = ScheduleKind::EveryEpoch;

@@ -1,13 +1,14 @@
 //! The port the learner writes everything but its checkpoint through ([`Sink`], Acme's injected logger): each
-//! epoch's [`Record`], the evaluations taken in, the phase of an epoch and the run's end; [`Sinks`], several as one;
-//! and [`Bus`], the sink of the actors' port's metrics (the other sinks, the run folder's files, TensorBoard and the
-//! progress bar, are the cabc-outputs crate's).
+//! epoch's [`Record`], the evaluations taken in, the phase of an epoch, how its collection closed and the run's end;
+//! and [`Sinks`], several as one. The sinks are given to the learner when it is made: the run folder's files,
+//! TensorBoard and the progress bar (the cabc-outputs crate), the bus's metrics in a distributed run (the `learner`
+//! binary).
 
 use crate::evaluations::{EvalSummary, Taken};
 use crate::record::Record;
+use crate::summary::Summary;
 use cabc_proto::messages::EvalReport;
-use cabc_proto::ports::Rollouts;
-use serde_json::json;
+use cabc_proto::ports::Collected;
 
 /// A sink's failure (a file not written).
 #[derive(Debug, thiserror::Error)]
@@ -53,15 +54,17 @@ impl History {
 }
 
 /// The port the learner writes its outputs through (Acme's logger): events, each given once, in the order they
-/// happen (the run opens; per epoch its phases, the expert's laps and the evaluations taken in, then its record; the
-/// run closes). A sink sees no learner state: what it needs of the past it keeps itself ([`History`]). The sinks
-/// (the cabc-outputs crate, and [`Bus`] here): `metrics.csv` and the run folder's other files, TensorBoard's events,
-/// the bus's JSON metrics, the progress bar.
+/// happen (the run opens; per epoch its phases, how its collection closed, the expert's laps and the evaluations
+/// taken in, then its record; the run closes). A sink sees no learner state: what it needs of the past it keeps
+/// itself ([`History`]). The sinks: `metrics.csv` and the run folder's other files, TensorBoard's events, the
+/// progress bar (the cabc-outputs crate), the bus's JSON metrics (the `learner` binary's).
 pub trait Sink {
     /// The run starts, fresh or resumed with `history` (what was written before).
     fn open(&mut self, _history: &History) {}
     /// A phase of epoch `epoch` begins (collecting, auto-labelling, training).
     fn phase(&mut self, _epoch: u64, _phase: &str) {}
+    /// The collection of epoch `epoch` closed: the actors' counts and who was alive (its counts are in the record).
+    fn collected(&mut self, _epoch: u64, _collected: &Collected) {}
     /// A lap driven by the expert alone (beta = 1), in seconds.
     fn expert_lap(&mut self, _seconds: f64) {}
     /// An evaluation taken in.
@@ -69,11 +72,7 @@ pub trait Sink {
     /// An epoch's record, complete and checkpointed.
     fn write(&mut self, record: &Record) -> Result<(), SinkError>;
     /// The run ends with `summary`; `final_policy`: the policy's weights, unless the run was interrupted.
-    fn close(
-        &mut self,
-        _summary: &serde_json::Value,
-        _final_policy: Option<&[u8]>,
-    ) -> Result<(), SinkError> {
+    fn close(&mut self, _summary: &Summary, _final_policy: Option<&[u8]>) -> Result<(), SinkError> {
         Ok(())
     }
 }
@@ -92,6 +91,12 @@ impl Sink for Sinks {
         self.0.iter_mut().for_each(|s| s.phase(epoch, phase));
     }
 
+    fn collected(&mut self, epoch: u64, collected: &Collected) {
+        self.0
+            .iter_mut()
+            .for_each(|s| s.collected(epoch, collected));
+    }
+
     fn expert_lap(&mut self, seconds: f64) {
         self.0.iter_mut().for_each(|s| s.expert_lap(seconds));
     }
@@ -107,34 +112,10 @@ impl Sink for Sinks {
             .fold(Ok(()), Result::and)
     }
 
-    fn close(
-        &mut self,
-        summary: &serde_json::Value,
-        final_policy: Option<&[u8]>,
-    ) -> Result<(), SinkError> {
+    fn close(&mut self, summary: &Summary, final_policy: Option<&[u8]>) -> Result<(), SinkError> {
         self.0
             .iter_mut()
             .map(|s| s.close(summary, final_policy))
             .fold(Ok(()), Result::and)
-    }
-}
-
-/// The bus's metrics (`metrics/learner`): each record as JSON, with the actors alive at the epoch's end and the
-/// messages the bus refused so far, for people watching the run.
-pub struct Bus<'a> {
-    pub actors: &'a mut dyn Rollouts,
-    pub live: &'a [String],
-}
-
-impl Sink for Bus<'_> {
-    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
-        let json = json!({
-            "epoch": record.epoch(),
-            "row": record.to_json(),
-            "live_actors": self.live,
-            "rejected_messages": self.actors.rejected(),
-        });
-        self.actors.metrics(&json.to_string());
-        Ok(())
     }
 }

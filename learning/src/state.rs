@@ -41,6 +41,10 @@ pub struct LearnerState {
     /// What the policy's vision trunk started from ([`crate::train::Trainer::init_trunk`]).
     #[serde(default)]
     pub trunk_init: Option<String>,
+    /// Segments refused before the ledger saw them, since the run started (the `segments_not_stored` column).
+    /// Checkpoints written before it was saved start it at 0.
+    #[serde(default)]
+    pub segments_not_stored: u64,
 }
 
 impl LearnerState {
@@ -109,5 +113,23 @@ mod tests {
         assert_eq!(std::fs::read(ck.join("x")).unwrap(), b"2");
         Checkpoint::remove(&ck).unwrap();
         assert!(!Checkpoint::exists(&ck));
+    }
+
+    /// The count of segments not stored goes with the checkpoint; a checkpoint written before it did loads with 0.
+    #[test]
+    fn segments_not_stored_is_saved_and_defaults_to_zero() {
+        let dir = tempfile::tempdir().unwrap();
+        let ck = dir.path().join(CHECKPOINT);
+        let state = LearnerState {
+            segments_not_stored: 3,
+            ..Default::default()
+        };
+        state.save(&ck, [("x", vec![])]).unwrap();
+        let loaded = LearnerState::load(&Checkpoint::open(&ck).unwrap()).unwrap();
+        assert_eq!(loaded.segments_not_stored, 3);
+        let mut json: serde_json::Value = serde_json::to_value(&state).unwrap();
+        json.as_object_mut().unwrap().remove("segments_not_stored");
+        let old: LearnerState = serde_json::from_value(json).unwrap();
+        assert_eq!(old.segments_not_stored, 0);
     }
 }

@@ -17,4 +17,4 @@ pub mod tensorboard;
 pub mod video;
 
 pub use rundir::RunDir;
-pub use sinks::learner;
+pub use sinks::{learner, learner_on_bus};

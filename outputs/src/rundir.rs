@@ -14,6 +14,7 @@ use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
 use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::{Record, TableError};
 use cabc_learning::state::CHECKPOINT;
+use cabc_learning::summary::Summary;
 use cabc_proto::config::RunConfig;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, Write};
@@ -140,9 +141,12 @@ impl RunDir {
         write_atomic(&path, text.as_bytes())
     }
 
-    pub fn write_summary(&self, summary: &serde_json::Value) -> Result<(), RunDirError> {
+    pub fn write_summary(&self, summary: &Summary) -> Result<(), RunDirError> {
         let path = self.root.join("summary.json");
-        let text = serde_json::to_string_pretty(summary).unwrap_or_else(|_| summary.to_string());
+        let text = serde_json::to_string_pretty(summary).map_err(|e| RunDirError::Format {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         write_atomic(&path, text.as_bytes())
     }
 

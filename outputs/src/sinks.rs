@@ -1,31 +1,56 @@
 //! The sinks of the learner's records (`cabc_learning::sink::Sink`): the run folder's files ([`RunFolder`]: `metrics.csv`,
 //! `evals.csv`, plots, evaluation videos, the best and final policies, `summary.json`), TensorBoard's events
-//! ([`Tensorboard`]) and the progress bar ([`Progress`]) (the bus's JSON metrics are `cabc_learning::sink::Bus`);
-//! and [`learner`], the learner of a run folder with the three.
+//! ([`Tensorboard`]) and the progress bar ([`Progress`]) (the bus's JSON metrics are the `learner` binary's sink);
+//! and [`learner`], the learner of a run folder with the three ([`learner_on_bus`]: and the bus's).
 
 use crate::plots;
 use crate::rundir::RunDir;
 use crate::tensorboard::EventWriter;
 use crate::video::{eval_gif, CameraView};
 use cabc_learning::evaluations::Taken;
-use cabc_learning::learner::{Learner, LearnerError};
+use cabc_learning::learner::{AclDenials, Learner, LearnerError};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{History, Sink, SinkError, Sinks};
+use cabc_learning::summary::Summary;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
 use indicatif::{ProgressBar, ProgressStyle};
+use std::collections::BTreeMap;
 
-/// The learner of `run_dir` (its checkpoint there), writing the run folder's files, TensorBoard's events in `tb/` and
-/// the progress bar.
+/// The learner of `run_dir` (its checkpoint there) in one process (a test, `learner run --local`), writing the run
+/// folder's files, TensorBoard's events in `tb/` and the progress bar. No bus: no access control refuses anything.
 pub fn learner(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<Learner, LearnerError> {
+    open(config, run_dir, resume, None, Box::new(BTreeMap::new))
+}
+
+/// [`learner`] of a distributed run: `metrics`, the bus's sink, writes each record after the run folder's sinks,
+/// and the access control's refusals are read from `acl_denials` (both the bus side's, the `learner` binary's).
+pub fn learner_on_bus(
+    config: RunConfig,
+    run_dir: RunDir,
+    resume: bool,
+    metrics: Box<dyn Sink>,
+    acl_denials: AclDenials,
+) -> Result<Learner, LearnerError> {
+    open(config, run_dir, resume, Some(metrics), acl_denials)
+}
+
+fn open(
+    config: RunConfig,
+    run_dir: RunDir,
+    resume: bool,
+    bus: Option<Box<dyn Sink>>,
+    acl_denials: AclDenials,
+) -> Result<Learner, LearnerError> {
     let folder = run_dir.path().to_path_buf();
-    let sinks = Sinks(vec![
+    let mut sinks: Vec<Box<dyn Sink>> = vec![
         Box::new(RunFolder::new(run_dir.clone(), &config)),
         Box::new(Tensorboard::new(&run_dir)),
         Box::new(Progress::new(config.run.max_epochs)),
-    ]);
-    Learner::open(config, folder, Box::new(sinks), resume)
+    ];
+    sinks.extend(bus);
+    Learner::open(config, folder, Box::new(Sinks(sinks)), acl_denials, resume)
 }
 
 fn failed(what: &str, e: impl std::error::Error + Send + Sync + 'static) -> SinkError {
@@ -121,11 +146,7 @@ impl Sink for RunFolder {
         }
     }
 
-    fn close(
-        &mut self,
-        summary: &serde_json::Value,
-        final_policy: Option<&[u8]>,
-    ) -> Result<(), SinkError> {
+    fn close(&mut self, summary: &Summary, final_policy: Option<&[u8]>) -> Result<(), SinkError> {
         if let Some(weights) = final_policy {
             self.tables_and_plots()?;
             self.run_dir
@@ -245,7 +266,7 @@ impl Sink for Progress {
         Ok(())
     }
 
-    fn close(&mut self, _: &serde_json::Value, _: Option<&[u8]>) -> Result<(), SinkError> {
+    fn close(&mut self, _: &Summary, _: Option<&[u8]>) -> Result<(), SinkError> {
         self.bar.finish_and_clear();
         Ok(())
     }

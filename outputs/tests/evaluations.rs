@@ -45,21 +45,17 @@ fn early_stop_counts_distinct_versions_and_the_best_policy_is_kept() {
     // Version 3 again (a second evaluator, or a resumed one): ignored, not a second success.
     learner.on_eval(report(3, &[18.0, 18.0]));
     assert_eq!(
-        learner.state.evaluations.early_stop(),
+        learner.early_stop(),
         None,
         "one version succeeded, twice reported"
     );
     assert_eq!(std::fs::read(&best).unwrap(), published[3]);
     // A slower success: the second distinct version stops the run; the faster one stays best.
     learner.on_eval(report(2, &[21.0, 21.0]));
-    assert_eq!(learner.state.evaluations.early_stop(), Some(2));
+    assert_eq!(learner.early_stop(), Some(2));
     assert_eq!(std::fs::read(&best).unwrap(), published[3]);
     let summary = learner.finish("test", false, 0).unwrap();
-    assert_eq!(summary["duplicate_evals"], 1, "{summary}");
-    assert_eq!(summary["best_eval"]["version"], 3, "{summary}");
-    assert_eq!(
-        summary["versions_not_evaluated"],
-        serde_json::json!([4, 5]),
-        "{summary}"
-    );
+    assert_eq!(summary.duplicate_evals, 1, "{summary:?}");
+    assert_eq!(summary.best_eval.map(|e| e.version), Some(3));
+    assert_eq!(summary.versions_not_evaluated, [4, 5]);
 }

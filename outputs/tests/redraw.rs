@@ -6,6 +6,7 @@
 use cabc_learning::evaluations::{EvalSummary, Taken};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{History, Sink};
+use cabc_learning::summary::{LapTime, Summary};
 use cabc_outputs::plots::{LINE_PLOT, TABLE_PLOTS};
 use cabc_outputs::redraw::{redraw, Kept, RedrawError};
 use cabc_outputs::rundir::RunDir;
@@ -69,10 +70,15 @@ fn live_run(dir: &Path) {
         folder.write(&record).unwrap();
     }
     let (mean, std) = cabc_proto::stats::mean_std(&expert).unwrap();
-    let summary = serde_json::json!({
-        "run": "redraw",
-        "expert_lap_time": {"mean": mean, "std": std, "laps": expert.len()},
-    });
+    let summary = Summary {
+        run: "redraw".into(),
+        expert_lap_time: Some(LapTime {
+            laps: expert.len(),
+            mean,
+            std,
+        }),
+        ..Summary::default()
+    };
     folder.close(&summary, Some(b"weights")).unwrap();
 }
 

@@ -1,11 +1,11 @@
 //! What the learner refuses from the bus (issue 13, item 2): segments whose images are not of the run's observation
 //! size, and evaluation reports of versions not published yet; both counted in `summary.json`.
 
-use cabc_learning::record::Record;
 use cabc_learning::replay::{Frames, Replay, ReplayError};
 use cabc_outputs::rundir::RunDir;
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, EvalReport, Image, Outcome, Segment, Step};
+use cabc_proto::ports::Collected;
 
 fn step(image: Option<Image>) -> Step {
     Step {
@@ -104,17 +104,19 @@ fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
     learner.on_eval(report(1));
     learner.on_eval(report(u64::MAX));
     learner.on_eval(report(0));
-    assert_eq!(learner.state.evaluations.evals.len(), 1);
+    assert_eq!(learner.evaluations().evals.len(), 1);
     // A state run: a segment with an image is refused before the ledger sees it (its seq stays free).
-    learner.begin_epoch();
+    learner.begin_epoch(0);
     learner.store(segment(0, vec![step(image(2, 1, 6))]));
     learner.store(segment(0, vec![step(None)]));
-    let mut record = Record::new(0);
-    learner.partition(&mut record);
+    learner.partition(&Collected::default());
+    learner.autolabel(false);
+    learner.end_epoch().unwrap();
+    let record = learner.rows().last().unwrap();
     assert_eq!(record.u64("steps_collected"), Some(1));
     assert_eq!(record.u64("segments"), Some(1));
     assert_eq!(record.u64("segments_not_stored"), Some(1));
     let summary = learner.finish("test", true, 0).unwrap();
-    assert_eq!(summary["segments_not_stored"], 1, "{summary}");
-    assert_eq!(summary["refused_evals"], 3, "{summary}");
+    assert_eq!(summary.segments_not_stored, 1, "{summary:?}");
+    assert_eq!(summary.refused_evals, 3, "{summary:?}");
 }

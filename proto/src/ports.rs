@@ -117,8 +117,6 @@ pub trait Rollouts {
     fn interrupted(&self) -> bool {
         false
     }
-    /// The learner's metrics after an epoch (JSON), for people watching the run.
-    fn metrics(&mut self, _json: &str) {}
     /// Ends the run for every actor.
     fn stop(&mut self, reason: &str) -> Result<(), PortError>;
     /// Messages refused so far (foreign, malformed).

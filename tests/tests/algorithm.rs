@@ -42,7 +42,7 @@ fn three_epochs_of_algorithm_1_in_process() {
     config.collection.episodes = cabc_proto::config::Episodes::Reset;
     let (learner, ending) = run(&config, tmp.path());
     assert_eq!(ending, Ending::MaxEpochs);
-    let rows = &learner.state.rows;
+    let rows = learner.rows();
     // A metric of an epoch's record, by its metrics.csv name.
     let n = |r: &Record, name: &str| r.u64(name).unwrap_or_else(|| panic!("{name} in {r}"));
     assert_eq!(
@@ -90,8 +90,7 @@ fn three_epochs_of_algorithm_1_in_process() {
     );
     // Each policy version was evaluated once.
     let versions: Vec<u64> = learner
-        .state
-        .evaluations
+        .evaluations()
         .evals
         .iter()
         .map(|e| e.version)
@@ -114,7 +113,7 @@ fn the_shield_travels_with_the_policy_once_the_critic_has_trained() {
     config.collection.episodes = cabc_proto::config::Episodes::Reset;
     config.collection.shield = 0.999;
     let (mut learner, _) = run(&config, tmp.path());
-    let rows = &learner.state.rows;
+    let rows = learner.rows();
     let shielded: Vec<u64> = rows
         .iter()
         .map(|r| r.u64("steps_shielded").unwrap())
@@ -135,8 +134,7 @@ fn the_shield_travels_with_the_policy_once_the_critic_has_trained() {
     let off = tmp.path().join("off");
     let (learner, _) = run(&smoke(2), &off);
     assert!(learner
-        .state
-        .rows
+        .rows()
         .iter()
         .all(|r| r.get("steps_shielded").is_none()));
 }

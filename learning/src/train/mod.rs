@@ -1,6 +1,6 @@
 //! Constraint-aware training: the training part of Algorithm 1 and Fig. 4 of the paper.
 //!
-//! Per epoch j, in the order of Algorithm 1 ([`Trainer::train_epoch`], when due by the [`Schedule`]): the dynamics
+//! Per epoch j, in the order of Algorithm 1 ([`Trainer::train`], when due by the [`Schedule`]): the dynamics
 //! model f_hat (eq. (15), on every stored (x, u, x'), [`Trainer::fit_dynamics`]), the critic p_hat (eq. (16), D+
 //! against D-, [`Trainer::fit_critic`]), then the policy on D+ ([`Trainer::fit_policy`]) with
 //!
@@ -39,7 +39,7 @@ pub use standardise::{Standardiser, MIN_STD};
 use crate::checkpoint::CheckpointError;
 use crate::record::Record;
 use crate::replay::Replay;
-use crate::schedule::Schedule;
+use crate::schedule::{Due, Schedule};
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
 use cabc_proto::config::{ClipScope, Precision, RunConfig, VisionTrunk};
 use cabc_proto::messages::STATE_DIM;
@@ -297,14 +297,27 @@ impl Trainer {
         }
     }
 
-    /// One epoch of Algorithm 1's training part, as the run's [`Schedule`] says: f_hat when due (eq. (15)), p_hat
-    /// when due (eq. (16), D+ against its negatives), then pi_theta (eq. (14)). The one place the schedule is
-    /// applied: the algorithm's loop, the tests and the benchmark all call it. Auto-labelling is the caller's
-    /// ([`Replay::apply_labels`]), before this call. The losses, and the samples each network saw, go into the
-    /// epoch's `record`, the one place they are kept.
+    /// [`Trainer::train`] with what the run's [`Schedule`] says is due in `epoch` ([`Schedule::due`]): an epoch of a
+    /// test or a benchmark, as Algorithm 1's loop would train it.
     pub fn train_epoch(
         &mut self,
         epoch: u64,
+        replay: &Replay,
+        record: &mut Record,
+    ) -> Result<(), TrainError> {
+        let due = Schedule::from_config(&self.config).due(epoch);
+        self.train(epoch, due, replay, record)
+    }
+
+    /// One epoch of Algorithm 1's training part: f_hat when `due.dynamics` (eq. (15), j mod k_f = 0), p_hat when
+    /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14)). Whether each is
+    /// due is the caller's ([`crate::algorithm`] reads it from the [`Schedule`]); how many passes each makes is the
+    /// schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call. The losses, and
+    /// the samples each network saw, go into the epoch's `record`, the one place they are kept.
+    pub fn train(
+        &mut self,
+        epoch: u64,
+        due: Due,
         replay: &Replay,
         record: &mut Record,
     ) -> Result<(), TrainError> {
@@ -339,7 +352,7 @@ impl Trainer {
                 record.real("critic_heldout_ece", h.ece, 6);
             }
         }
-        if schedule.dynamics_due(epoch) {
+        if due.dynamics {
             if let Some(fit) = self.fit_dynamics_on(&data, schedule.aux_passes(epoch)) {
                 // Eq. (15)'s MSE, a mean over the fit call's last pass.
                 record.real("dynamics_loss", fit.loss, 6);
@@ -347,7 +360,7 @@ impl Trainer {
                 record.count("dynamics_samples", fit.samples);
             }
         }
-        if schedule.critic_due(epoch) {
+        if due.critic {
             if let Some(fit) = self.fit_critic_on(&data, schedule.aux_passes(epoch)) {
                 // Eq. (16)'s BCE, and the share of its points on the right side of p = 0.5 (last pass).
                 record.real("critic_loss", fit.loss, 6);

@@ -1,0 +1,159 @@
+//! The learner's state across epochs and resumes, and what it is given at construction: the count of segments not
+//! stored goes with the checkpoint (a resumed learner writes the count the run had), and the access control's
+//! refusals come from the source the bus side passes in (none in process).
+
+use cabc_learning::learner::{AclDenials, Learner};
+use cabc_learning::record::Record;
+use cabc_learning::sink::{Sink, SinkError};
+use cabc_proto::config::RunConfig;
+use cabc_proto::messages::{Image, Outcome, Segment, Step};
+use cabc_proto::ports::Collected;
+use std::cell::{Cell, RefCell};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::rc::Rc;
+
+/// A segment of `actor-0` with one step, with an image (refused in a full-state run) or without.
+fn segment(seq: u64, image: bool) -> Segment {
+    let step = Step {
+        state: [1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+        pose: [0.0; 3],
+        image: image.then(|| Image {
+            width: 2,
+            height: 1,
+            rgb: vec![7; 6],
+        }),
+        expert_action: [0.1, 0.0],
+        applied_action: [0.1, 0.0],
+        next_state: [1.0, 0.0, 0.0, 1.1, 0.0, 0.0],
+        expert_ok: true,
+    };
+    Segment {
+        actor: "actor-0".into(),
+        incarnation: 0,
+        env: 0,
+        episode: 0,
+        seq,
+        policy_version: 0,
+        outcome: Outcome::Lap,
+        steps: vec![step],
+    }
+}
+
+/// What a sink was told, in order.
+#[derive(Clone, Default)]
+struct Told(Rc<RefCell<Vec<String>>>);
+
+impl Sink for Told {
+    fn collected(&mut self, epoch: u64, collected: &Collected) {
+        let line = format!("collected {epoch} {:?}", collected.live);
+        self.0.borrow_mut().push(line);
+    }
+
+    fn write(&mut self, record: &Record) -> Result<(), SinkError> {
+        self.0
+            .borrow_mut()
+            .push(format!("write {}", record.epoch()));
+        Ok(())
+    }
+}
+
+fn open(dir: &Path, sink: Told, acl_denials: AclDenials, resume: bool) -> Learner {
+    let config = RunConfig::load("smoke").unwrap();
+    Learner::open(config, dir.into(), Box::new(sink), acl_denials, resume).unwrap()
+}
+
+/// Epoch `j` of Algorithm 1 without actors or training: `segments` arrive, the collection closes with `live`.
+fn epoch(learner: &mut Learner, j: u64, segments: Vec<Segment>, live: &[&str]) -> Record {
+    learner.begin_epoch(j);
+    segments.into_iter().for_each(|s| learner.store(s));
+    learner.partition(&Collected {
+        live: live.iter().map(|a| a.to_string()).collect(),
+        ..Collected::default()
+    });
+    learner.autolabel(false);
+    learner.end_epoch().unwrap();
+    learner.rows().last().unwrap().clone()
+}
+
+#[test]
+fn segments_not_stored_survive_a_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let none = || -> AclDenials { Box::new(BTreeMap::new) };
+    let mut learner = open(dir.path(), Told::default(), none(), false);
+    let first = epoch(
+        &mut learner,
+        0,
+        vec![segment(0, true), segment(1, false)],
+        &[],
+    );
+    assert_eq!(first.u64("segments_not_stored"), Some(1), "{first}");
+    assert_eq!(first.u64("segments"), Some(1), "{first}");
+    drop(learner);
+    let mut learner = open(dir.path(), Told::default(), none(), true);
+    assert_eq!(learner.next_epoch(), 1);
+    let second = epoch(&mut learner, 1, vec![segment(2, false)], &[]);
+    assert_eq!(
+        second.u64("segments_not_stored"),
+        Some(1),
+        "the resumed learner counts from the checkpoint's count: {second}"
+    );
+    let third = epoch(&mut learner, 2, vec![segment(3, true)], &[]);
+    assert_eq!(third.u64("segments_not_stored"), Some(2), "{third}");
+    let summary = learner.finish("test", true, 0).unwrap();
+    assert_eq!(summary.segments_not_stored, 2);
+    assert_eq!(summary.segments_stored, 2);
+}
+
+#[test]
+fn the_acl_source_passed_in_shows_in_the_record_and_the_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let refused = Rc::new(Cell::new(0));
+    let source = refused.clone();
+    let acl_denials: AclDenials = Box::new(move || match source.get() {
+        0 => BTreeMap::new(),
+        n => BTreeMap::from([("actor-9: put on cabc/r/traj/actor-0".to_string(), n)]),
+    });
+    let told = Told::default();
+    let mut learner = open(dir.path(), told.clone(), acl_denials, false);
+    let first = epoch(&mut learner, 0, vec![segment(0, false)], &["actor-0"]);
+    assert_eq!(first.u64("acl_denied"), Some(0), "{first}");
+    refused.set(3);
+    let second = epoch(
+        &mut learner,
+        1,
+        vec![segment(1, false)],
+        &["actor-0", "actor-1"],
+    );
+    assert_eq!(second.u64("acl_denied"), Some(3), "{second}");
+    let summary = learner.finish("test", true, 0).unwrap();
+    assert_eq!(
+        summary.acl_denied,
+        BTreeMap::from([("actor-9: put on cabc/r/traj/actor-0".to_string(), 3)])
+    );
+    // The sinks given at construction hear how each collection closed before the epoch's record.
+    assert_eq!(
+        *told.0.borrow(),
+        [
+            r#"collected 0 ["actor-0"]"#,
+            "write 0",
+            r#"collected 1 ["actor-0", "actor-1"]"#,
+            "write 1"
+        ]
+    );
+    // In process nothing is refused.
+    let other = tempfile::tempdir().unwrap();
+    let mut learner = open(
+        other.path(),
+        Told::default(),
+        Box::new(BTreeMap::new),
+        false,
+    );
+    let row = epoch(&mut learner, 0, vec![], &[]);
+    assert_eq!(row.u64("acl_denied"), Some(0));
+    assert!(learner
+        .finish("test", true, 0)
+        .unwrap()
+        .acl_denied
+        .is_empty());
+}
