@@ -572,3 +572,53 @@ fn the_policys_own_gamma_holds_its_learning_rate() {
         "{decayed:?}"
     );
 }
+
+/// Issue 46: Adam over one flat buffer per network gives every epoch's losses and networks bit for bit as the step
+/// parameter by parameter does, under both clip scopes (under the reference's, the critic's and the dynamics model's
+/// gradients outlive their fits, take L_safety's gradient and count in the policy's clip).
+#[test]
+fn the_flat_step_keeps_every_bit_under_both_clip_scopes() {
+    use cabc_models::Network;
+    use cabc_proto::config::ClipScope;
+    let r = replay(21);
+    // The first epochs before any labelling: no D-, so the critic does not train and L_safety waits, while the
+    // dynamics model's gradients already count in the policy's clip (the recipe's first ten epochs).
+    let mut unlabelled = replay(21);
+    unlabelled.apply_labels(&(0..2048).collect::<Vec<usize>>());
+    for scope in [ClipScope::Policy, ClipScope::PolicyCriticDynamics] {
+        let run = |per_variable: bool| {
+            let mut c = RunConfig::load_variant("v-b", false).unwrap();
+            c.run.seed = 21;
+            c.training.device = "cpu".into();
+            c.training.clip_scope = scope;
+            let mut t = Trainer::with_device(&c, Device::Cpu);
+            if per_variable {
+                t.per_variable_steps();
+            }
+            let losses: Vec<String> = (0..5)
+                .map(|e| {
+                    let mut record = Record::default();
+                    let data = if e < 2 { &unlabelled } else { &r };
+                    t.train_epoch(e, data, &mut record).unwrap();
+                    // What the learner does between epochs: the checkpoint and the published policy.
+                    let _ = (t.to_checkpoint(), t.policy_bytes());
+                    // Every column but the time.
+                    format!("{record}")
+                        .split(' ')
+                        .filter(|cell| !cell.starts_with("train_s="))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                })
+                .collect();
+            let nets = [
+                t.policy_bytes(),
+                t.dynamics().to_bytes(),
+                t.critic().to_bytes(),
+            ];
+            (losses, nets)
+        };
+        let (flat, each) = (run(false), run(true));
+        assert_eq!(flat.0, each.0, "{scope:?}: the records");
+        assert!(flat.1 == each.1, "{scope:?}: the networks");
+    }
+}

@@ -31,6 +31,22 @@ const BETA1: f64 = 0.9;
 const BETA2: f64 = 0.999;
 const EPS: f64 = 1e-8;
 
+/// The variables and their moments, each one contiguous buffer; each variable (and its moments, once it has any) a
+/// view of its stretch.
+struct Flat {
+    params: Tensor,
+    /// The gradients' buffer: after the first step each variable's gradient is a view of its stretch, which autograd
+    /// accumulates into in place (a step with no gradient yet, or one autograd replaced, moves them back in).
+    grads: Tensor,
+    exp_avg: Tensor,
+    exp_avg_sq: Tensor,
+    /// Each variable's stretch: (offset, length).
+    stretches: Vec<(i64, i64)>,
+}
+
+/// The alignment of each variable's stretch in the flat buffers, in elements (64 bytes of f32).
+const ALIGN: i64 = 16;
+
 /// The metadata of a state file, checked on load.
 const FORMAT: &str = "cabc-adam-1";
 
@@ -49,21 +65,33 @@ struct Param {
 }
 
 /// Adam with L2 weight decay and gradient-norm clipping over the trainable variables of one `VarStore`.
+///
+/// The variables, their gradients and their moments live in one flat buffer each ([`Flat`]): each variable is a view
+/// of its stretch of the buffer, so that a step in which every variable has a gradient at the same step count is one
+/// update of the whole buffer (about a dozen libtorch calls) rather than one per variable (a dozen each), and zeroing
+/// and clipping the gradients one call each. The update is elementwise, so the flat step gives each element the bits
+/// the per-variable step gives it (`flat_and_per_variable_steps_agree`, and a recipe run's `metrics.csv` and
+/// `evals.csv` bit for bit, issue 46). Each stretch starts 64-byte aligned, as a tensor of its own does: with
+/// unaligned weights a recipe run's GEMMs rounded differently from its tenth epoch on (measured).
 pub(crate) struct Adam {
     params: Vec<Param>,
+    flat: Flat,
     /// The learning rate of the next steps.
     pub lr: f64,
     weight_decay: f64,
     /// Whether the state file also holds the gradients (`<variable>.grad`): where they outlive a fit and count in
     /// another network's clip (`training.clip_scope = "policy-critic-dynamics"`), a resumed run needs them.
     pub keep_grads: bool,
+    /// Every step parameter by parameter, the gradients where autograd puts them (the flat step's reference, for
+    /// tests).
+    pub per_variable: bool,
 }
 
 impl Adam {
     /// Adam over the trainable variables `vs` holds now (in their order), with fresh moments.
     pub fn new(vs: &nn::VarStore, lr: f64, weight_decay: f64) -> Self {
         let named = vs.variables();
-        let params = vs
+        let mut params: Vec<Param> = vs
             .trainable_variables()
             .into_iter()
             .enumerate()
@@ -79,16 +107,24 @@ impl Adam {
                 }
             })
             .collect();
+        let flat = Flat::of(&mut params);
         Adam {
             params,
+            flat,
             lr,
             weight_decay,
             keep_grads: false,
+            per_variable: false,
         }
     }
 
     /// Zeroes the gradients (in place, as tch's `Tensor::zero_grad`).
     pub fn zero_grad(&mut self) {
+        let grads: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
+        if self.flat.holds(&grads) {
+            let _ = tch::no_grad(|| self.flat.grads.zero_());
+            return;
+        }
         for p in &mut self.params {
             p.var.zero_grad();
         }
@@ -115,27 +151,97 @@ impl Adam {
             let total_norm = f64::try_from(Tensor::stack(&norms, 0).norm()).expect("a scalar");
             let clip_coef = max / (total_norm + 1e-6);
             if clip_coef < 1.0 {
-                for mut grad in grads {
+                let own: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
+                let in_place = self.flat.holds(&own);
+                if in_place {
+                    let _ = self.flat.grads.shallow_clone().g_mul_scalar_(clip_coef);
+                }
+                for mut grad in grads.into_iter().skip(if in_place { own.len() } else { 0 }) {
                     let _ = grad.g_mul_scalar_(clip_coef);
                 }
             }
         })
     }
 
-    /// One Adam step of every parameter that has a gradient.
+    /// One Adam step of every parameter that has a gradient: over the flat buffers when every parameter has one and
+    /// all have stepped as often (always, in a fit), else parameter by parameter.
     pub fn step(&mut self) {
+        let grads: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
+        let steps = |p: &Param| p.state.as_ref().map_or(0, |m| m.step);
+        let uniform = grads.iter().all(Tensor::defined)
+            && self.params.windows(2).all(|w| steps(&w[0]) == steps(&w[1]));
+        match uniform && !self.params.is_empty() && !self.per_variable {
+            true => self.step_flat(&grads),
+            false => self.step_each(),
+        }
+    }
+
+    /// [`Adam::step`] over the flat buffers: the per-parameter update below on the concatenated gradients.
+    fn step_flat(&mut self, grads: &[Tensor]) {
         let (lr, wd) = (self.lr, self.weight_decay);
+        let flat = &self.flat;
+        let mut step = 0;
+        for (p, &(offset, len)) in self.params.iter_mut().zip(&flat.stretches) {
+            let m = p
+                .state
+                .get_or_insert_with(|| flat.moments(&p.var, offset, len));
+            m.step += 1;
+            step = m.step;
+        }
         tch::no_grad(|| {
-            for p in &mut self.params {
+            if !flat.holds(grads) {
+                // The gradients into their stretches, which they stay in: autograd accumulates into them in place.
+                for (mut g, &(offset, len)) in
+                    grads.iter().map(Tensor::shallow_clone).zip(&flat.stretches)
+                {
+                    let shape = g.size();
+                    let stretch = flat.grads.narrow(0, offset, len).view(shape.as_slice());
+                    stretch.shallow_clone().copy_(&g);
+                    g.set_data(&stretch);
+                }
+            }
+            let grad = flat.grads.shallow_clone();
+            let bias_correction1 = 1.0 - BETA1.powf(step as f64);
+            let bias_correction2 = 1.0 - BETA2.powf(step as f64);
+            let options = (flat.params.kind(), flat.params.device());
+            let scalar = |v: f64| Tensor::full([], v, options);
+            let grad = if wd != 0.0 {
+                grad.addcmul(&flat.params, &scalar(wd))
+            } else {
+                grad
+            };
+            let (mut exp_avg, mut exp_avg_sq) = (
+                flat.exp_avg.shallow_clone(),
+                flat.exp_avg_sq.shallow_clone(),
+            );
+            let _ = exp_avg
+                .g_mul_scalar_(BETA1)
+                .addcmul_(&grad, &scalar(1.0 - BETA1));
+            let _ = exp_avg_sq
+                .g_mul_scalar_(BETA2)
+                .addcmul_(&(&grad * (1.0 - BETA2)), &grad);
+            let denom = (exp_avg_sq.sqrt() / bias_correction2.sqrt()).g_add_scalar_(EPS);
+            let step_size = lr / bias_correction1;
+            let _ = flat
+                .params
+                .shallow_clone()
+                .addcdiv_(&(&exp_avg * -step_size), &denom);
+        })
+    }
+
+    /// [`Adam::step`] parameter by parameter (a parameter without a gradient is not stepped, as in libtorch).
+    fn step_each(&mut self) {
+        let (lr, wd) = (self.lr, self.weight_decay);
+        let flat = &self.flat;
+        tch::no_grad(|| {
+            for (p, &(offset, len)) in self.params.iter_mut().zip(&flat.stretches) {
                 let grad = p.var.grad();
                 if !grad.defined() {
                     continue;
                 }
-                let m = p.state.get_or_insert_with(|| Moments {
-                    step: 0,
-                    exp_avg: p.var.zeros_like(),
-                    exp_avg_sq: p.var.zeros_like(),
-                });
+                let m = p
+                    .state
+                    .get_or_insert_with(|| flat.moments(&p.var, offset, len));
                 m.step += 1;
                 let bias_correction1 = 1.0 - BETA1.powf(m.step as f64);
                 let bias_correction2 = 1.0 - BETA2.powf(m.step as f64);
@@ -233,17 +339,29 @@ impl Adam {
             };
             let exp_avg = moment("exp_avg")?;
             let exp_avg_sq = moment("exp_avg_sq")?;
-            states.push(Some(Moments {
-                step,
-                exp_avg,
-                exp_avg_sq,
-            }));
+            states.push(Some((step, exp_avg, exp_avg_sq)));
         }
         if let Some(extra) = tensors.keys().next() {
             return Err(format!("tensor `{extra}` matches no variable"));
         }
-        for ((p, state), grad) in self.params.iter_mut().zip(states).zip(grads) {
-            p.state = state;
+        let flat = &self.flat;
+        for (((p, state), grad), &(offset, len)) in self
+            .params
+            .iter_mut()
+            .zip(states)
+            .zip(grads)
+            .zip(&flat.stretches)
+        {
+            // The moments into the flat buffers' stretches.
+            p.state = state.map(|(step, exp_avg, exp_avg_sq)| {
+                let mut m = flat.moments(&p.var, offset, len);
+                m.step = step;
+                tch::no_grad(|| {
+                    m.exp_avg.copy_(&exp_avg);
+                    m.exp_avg_sq.copy_(&exp_avg_sq);
+                });
+                m
+            });
             if let Some(grad) = grad {
                 // d(sum(var * g))/d(var) = g exactly: the gradient as it was saved.
                 p.var.zero_grad();
@@ -251,6 +369,83 @@ impl Adam {
             }
         }
         Ok(())
+    }
+}
+
+impl Flat {
+    /// Moves `params`' variables into one buffer (each becomes a view of its stretch, with its values) and makes the
+    /// moments' buffers.
+    fn of(params: &mut [Param]) -> Self {
+        // Each stretch starts on a 64-byte boundary, as a variable of its own would (libtorch's CPU allocator aligns
+        // to 64 bytes): a GEMM's kernel may round differently on an unaligned operand. The padding holds zeros, whose
+        // Adam update is zero.
+        let stretches: Vec<(i64, i64)> = params
+            .iter()
+            .scan(0, |offset, p| {
+                let len = p.var.numel() as i64;
+                let start = *offset;
+                *offset = (start + len + ALIGN - 1) / ALIGN * ALIGN;
+                Some((start, len))
+            })
+            .collect();
+        let Some(first) = params.first() else {
+            let empty = Tensor::zeros([0], (tch::Kind::Float, tch::Device::Cpu));
+            return Flat {
+                grads: empty.zeros_like(),
+                exp_avg: empty.zeros_like(),
+                exp_avg_sq: empty.zeros_like(),
+                params: empty,
+                stretches,
+            };
+        };
+        let kind = first.var.kind();
+        let total = stretches.last().map_or(0, |&(offset, len)| offset + len);
+        let flat = Tensor::zeros([total], (kind, first.var.device()));
+        for (p, &(offset, len)) in params.iter_mut().zip(&stretches) {
+            let shape = p.var.size();
+            let stretch = flat.narrow(0, offset, len).view(shape.as_slice());
+            tch::no_grad(|| stretch.shallow_clone().copy_(&p.var));
+            p.var.set_data(&stretch);
+        }
+        Flat {
+            grads: flat.zeros_like(),
+            exp_avg: flat.zeros_like(),
+            exp_avg_sq: flat.zeros_like(),
+            params: flat,
+            stretches,
+        }
+    }
+
+    /// Whether `grads` (one per variable, in order) are the views of the gradients' buffer.
+    fn holds(&self, grads: &[Tensor]) -> bool {
+        let base = self.grads.data_ptr() as usize;
+        let width = self.grads.kind().elt_size_in_bytes();
+        grads.len() == self.stretches.len()
+            && !grads.is_empty()
+            && grads
+                .iter()
+                .zip(&self.stretches)
+                .all(|(g, &(offset, len))| {
+                    g.defined()
+                        && g.data_ptr() as usize == base + offset as usize * width
+                        && g.numel() as i64 == len
+                        && g.is_contiguous()
+                })
+    }
+
+    /// Fresh (zero) moments of the variable `var` at its stretch: views of the moments' buffers.
+    fn moments(&self, var: &Tensor, offset: i64, len: i64) -> Moments {
+        let shape = var.size();
+        let view = |buffer: &Tensor| {
+            let mut v = buffer.narrow(0, offset, len).view(shape.as_slice());
+            let _ = tch::no_grad(|| v.zero_());
+            v
+        };
+        Moments {
+            step: 0,
+            exp_avg: view(&self.exp_avg),
+            exp_avg_sq: view(&self.exp_avg_sq),
+        }
     }
 }
 
@@ -330,20 +525,37 @@ mod tests {
     use tch::nn::{Module, OptimizerConfig};
     use tch::{Device, Kind};
 
-    /// Two identical linear layers; one trained by tch's Adam, the other by ours.
+    /// A small network: 5 -> 37 -> 3 (stretches of 185, 37, 111 and 3 values, none a multiple of a vector's width).
+    fn net(vs: &nn::VarStore) -> nn::Sequential {
+        nn::seq()
+            .add(nn::linear(vs.root() / "l1", 5, 37, Default::default()))
+            .add_fn(|x| x.tanh())
+            .add(nn::linear(vs.root() / "l2", 37, 3, Default::default()))
+    }
+
+    /// Two identical networks; one trained by tch's Adam, the other by ours.
     fn pair() -> (nn::VarStore, nn::VarStore, nn::Sequential, nn::Sequential) {
-        tch::manual_seed(5);
         let a = nn::VarStore::new(Device::Cpu);
         let mut b = nn::VarStore::new(Device::Cpu);
-        let net = |vs: &nn::VarStore| {
-            nn::seq()
-                .add(nn::linear(vs.root() / "l1", 5, 37, Default::default()))
-                .add_fn(|x| x.tanh())
-                .add(nn::linear(vs.root() / "l2", 37, 3, Default::default()))
-        };
         let (na, nb) = (net(&a), net(&b));
         b.copy(&a).unwrap();
         (a, b, na, nb)
+    }
+
+    /// A copy of the network `template` holds.
+    fn copy_of(template: &nn::VarStore) -> (nn::VarStore, nn::Sequential) {
+        let mut vs = nn::VarStore::new(Device::Cpu);
+        let n = net(&vs);
+        vs.copy(template).unwrap();
+        (vs, n)
+    }
+
+    /// Inputs from a seeded generator of this test's own (the tests run in parallel: libtorch's global generator is
+    /// shared).
+    fn inputs(rng: &mut rand_chacha::ChaCha8Rng) -> Tensor {
+        use rand::Rng;
+        let v: Vec<f32> = (0..80).map(|_| rng.gen_range(-2.0..2.0)).collect();
+        Tensor::from_slice(&v).view([16, 5])
     }
 
     #[test]
@@ -380,6 +592,105 @@ mod tests {
             }
             assert_eq!(ours.steps(), vec![200; 4]);
         }
+    }
+
+    #[test]
+    fn flat_and_per_variable_steps_agree() {
+        tch::set_num_threads(1);
+        let (a, b, na, nb) = pair();
+        let mut each = Adam::new(&a, 1e-2, 1e-4);
+        let mut flat = Adam::new(&b, 1e-2, 1e-4);
+        for _ in 0..100 {
+            let x = Tensor::randn([16, 5], (Kind::Float, Device::Cpu));
+            for (adam, net) in [(&mut each, &na), (&mut flat, &nb)] {
+                adam.zero_grad();
+                net.forward(&x).square().sum(Kind::Float).backward();
+                adam.clip_grad_norm(0.01, &[]);
+            }
+            each.step_each();
+            flat.step();
+        }
+        let (va, vb) = (a.variables(), b.variables());
+        for (name, t) in &va {
+            assert!(t.equal(&vb[name]), "{name} differs");
+        }
+        assert_eq!(each.to_bytes(), flat.to_bytes());
+    }
+
+    #[test]
+    fn flat_steps_keep_the_bits_when_another_networks_gradients_count_in_the_clip() {
+        tch::set_num_threads(1);
+        // The reference's clip scope: the policy's loss reaches the critic's weights, whose gradients (left from the
+        // critic's own fit and accumulated into) count in the policy's clip and are scaled by it.
+        let (policy_template, critic_template, _, _) = pair();
+        let run = |flat: bool| {
+            let (policy_vs, policy) = copy_of(&policy_template);
+            let (critic_vs, critic) = copy_of(&critic_template);
+            let mut policy_adam = Adam::new(&policy_vs, 1e-2, 1e-4);
+            let mut critic_adam = Adam::new(&critic_vs, 1e-2, 1e-4);
+            let step = |adam: &mut Adam| match flat {
+                true => adam.step(),
+                false => adam.step_each(),
+            };
+            let mut rng = rand::SeedableRng::seed_from_u64(9);
+            let mut losses = Vec::new();
+            for _ in 0..30 {
+                let x = inputs(&mut rng);
+                for _ in 0..3 {
+                    critic_adam.zero_grad();
+                    critic.forward(&x).square().mean(Kind::Float).backward();
+                    critic_adam.clip_grad_norm(0.1, &[]);
+                    step(&mut critic_adam);
+                }
+                for _ in 0..3 {
+                    policy_adam.zero_grad();
+                    let u = policy.forward(&x);
+                    let inputs = Tensor::cat(&[&u, &x.narrow(1, 0, 2)], 1);
+                    let loss =
+                        u.square().mean(Kind::Float) + critic.forward(&inputs).mean(Kind::Float);
+                    loss.backward();
+                    losses.push(loss.double_value(&[]).to_bits());
+                    policy_adam.clip_grad_norm(0.1, &critic_vs.trainable_variables());
+                    step(&mut policy_adam);
+                }
+            }
+            (losses, policy_adam.to_bytes(), critic_adam.to_bytes())
+        };
+        let (each, flat) = (run(false), run(true));
+        assert_eq!(each.0, flat.0, "the losses");
+        assert_eq!(each.1, flat.1, "the policy's moments");
+        assert_eq!(each.2, flat.2, "the critic's moments");
+    }
+
+    #[test]
+    fn a_variable_without_a_gradient_is_not_stepped_as_in_libtorch() {
+        tch::set_num_threads(1);
+        let (a, b, na, nb) = pair();
+        let mut theirs = nn::Adam::default().wd(1e-4).build(&a, 1e-2).unwrap();
+        let mut ours = Adam::new(&b, 1e-2, 1e-4);
+        for i in 0..40 {
+            let x = Tensor::randn([16, 5], (Kind::Float, Device::Cpu));
+            // The first 10 steps train the first layer alone: the second's gradients are undefined, then its step
+            // counts trail the first's.
+            let loss = |net: &nn::Sequential, vs: &nn::VarStore| match i < 10 {
+                true => {
+                    let v = vs.variables();
+                    (x.matmul(&v["l1.weight"].tr()) + &v["l1.bias"]).sum(Kind::Float)
+                }
+                false => net.forward(&x).sum(Kind::Float),
+            };
+            theirs.zero_grad();
+            loss(&na, &a).backward();
+            theirs.step();
+            ours.zero_grad();
+            loss(&nb, &b).backward();
+            ours.step();
+        }
+        let (va, vb) = (a.variables(), b.variables());
+        for (name, t) in &va {
+            assert!(t.equal(&vb[name]), "{name} differs");
+        }
+        assert_eq!(ours.steps(), vec![40, 40, 30, 30]);
     }
 
     #[test]

@@ -116,14 +116,15 @@ impl Trainer {
         let keep_grads = t.clip_scope == ClipScope::PolicyCriticDynamics;
         dynamics_opt.adam.keep_grads = keep_grads;
         critic_opt.adam.keep_grads = keep_grads;
+        let policy_opt = Opt::with_gamma(
+            policy.var_store(),
+            t,
+            t.policy_lr_gamma.unwrap_or(t.lr_gamma),
+        );
         Trainer {
             config: config.clone(),
             device,
-            policy_opt: Opt::with_gamma(
-                policy.var_store(),
-                t,
-                t.policy_lr_gamma.unwrap_or(t.lr_gamma),
-            ),
+            policy_opt,
             dynamics_opt,
             critic_opt,
             policy,
@@ -249,6 +250,19 @@ impl Trainer {
                 );
                 Ok(format!("pretrained: {path} ({n} tensors)"))
             }
+        }
+    }
+
+    /// Steps the three optimisers parameter by parameter, as libtorch's Adam does, instead of over their flat
+    /// buffers: the reference the flat step's bits are tested against.
+    #[doc(hidden)]
+    pub fn per_variable_steps(&mut self) {
+        for opt in [
+            &mut self.policy_opt,
+            &mut self.dynamics_opt,
+            &mut self.critic_opt,
+        ] {
+            opt.adam.per_variable = true;
         }
     }
 
