@@ -115,6 +115,13 @@ fn images_are_stored_contiguously_and_checked() {
         vec![step(0.0, true, Some(image(2, 2, 0)))],
     ));
     assert!(matches!(bad, Err(ReplayError::ImageSize { .. })));
+    let mut short = image(4, 2, 0);
+    short.rgb.pop();
+    let short = r.add_segment(&segment(Outcome::Lap, vec![step(0.0, true, Some(short))]));
+    assert!(matches!(
+        short,
+        Err(ReplayError::ImageSize { bytes: 23, .. })
+    ));
     let none = r.add_segment(&segment(Outcome::Lap, vec![step(0.0, true, None)]));
     assert!(matches!(none, Err(ReplayError::ImagePresence)));
     assert_eq!(r.len_plus(), 3, "a refused segment stores nothing");

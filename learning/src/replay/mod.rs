@@ -90,6 +90,17 @@ impl Frames {
         }
     }
 
+    /// The images of `image`, as a step carries them: its size, or none.
+    fn of_image(image: Option<&Image>) -> Self {
+        image.map_or(Frames::None, |i| Frames::Rgb {
+            width: i.width,
+            height: i.height,
+        })
+    }
+
+    /// The one check of an image against the run's size: `width` x `height` and exactly that many RGB bytes (the
+    /// codec leaves the bytes' count to this check), or no image in a full-state run. Everything behind it (the
+    /// stores, their image arrays, the log) takes an image's size as given.
     fn check(self, image: Option<&Image>) -> Result<(), ReplayError> {
         match (self, image) {
             (Frames::Any, _) | (Frames::None, None) => Ok(()),
@@ -293,36 +304,30 @@ impl Replay {
         counts
     }
 
-    /// Whether [`Replay::add_segment`] would take `segment`: every image of the run's size ([`Frames`]) and of the
-    /// size its store already holds, all of the segment's images alike.
+    /// Whether [`Replay::add_segment`] would take `segment`: every image of the run's size ([`Frames`]). A replay
+    /// made without a configuration ([`Frames::Any`]) holds a segment to the images its stores already keep, or,
+    /// while they keep none, to its own first step's.
     pub fn check_segment(&self, segment: &Segment) -> Result<(), ReplayError> {
-        for step in &segment.steps {
-            self.frames.check(step.image.as_ref())?;
-            self.store_for(segment.outcome, step)
-                .check_image(step.image.as_ref())?;
+        let frames = self.frames_for(segment);
+        segment
+            .steps
+            .iter()
+            .try_for_each(|step| frames.check(step.image.as_ref()))
+    }
+
+    /// The images `segment` must carry: the run's, or, in a replay without a configuration, those of the stores
+    /// that keep images (the first one holding steps), else those of its first step.
+    fn frames_for(&self, segment: &Segment) -> Frames {
+        if self.frames != Frames::Any {
+            return self.frames;
         }
-        // A segment's images must also agree with each other when a store is still empty.
-        if let Some(first) = segment.steps.iter().find_map(|s| s.image.as_ref()) {
-            for step in &segment.steps {
-                match &step.image {
-                    Some(i)
-                        if i.width == first.width
-                            && i.height == first.height
-                            && i.rgb.len() == first.rgb.len() => {}
-                    Some(i) => {
-                        return Err(ReplayError::ImageSize {
-                            want_w: first.width,
-                            want_h: first.height,
-                            got_w: i.width,
-                            got_h: i.height,
-                            bytes: i.rgb.len(),
-                        })
-                    }
-                    None => return Err(ReplayError::ImagePresence),
-                }
-            }
+        let held = [&self.plus, &self.uncertain]
+            .into_iter()
+            .find(|s| s.keeps_images() && !s.is_empty());
+        match held {
+            Some(store) => store.frames(),
+            None => Frames::of_image(segment.steps.first().and_then(|s| s.image.as_ref())),
         }
-        Ok(())
     }
 
     fn which(outcome: Outcome, step: &Step) -> Which {
@@ -330,14 +335,6 @@ impl Replay {
             Outcome::Lap if step.expert_ok => Which::Plus,
             Outcome::Incomplete if step.expert_ok => Which::DynamicsOnly,
             _ => Which::Uncertain,
-        }
-    }
-
-    fn store_for(&self, outcome: Outcome, step: &Step) -> &Store {
-        match Self::which(outcome, step) {
-            Which::Plus => &self.plus,
-            Which::Uncertain => &self.uncertain,
-            Which::DynamicsOnly => &self.dynamics_only,
         }
     }
 

@@ -1,8 +1,8 @@
 //! One buffer of the replay, a structure of arrays with a fixed capacity and random eviction; the images of the
 //! steps that are read with their images (D+), in one contiguous array.
 
-use super::ReplayError;
-use cabc_proto::messages::{Image, Step, ACTION_DIM, STATE_DIM};
+use super::Frames;
+use cabc_proto::messages::{Step, ACTION_DIM, STATE_DIM};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -81,29 +81,16 @@ impl Store {
         self.capacity
     }
 
-    pub(crate) fn check_image(&self, image: Option<&Image>) -> Result<(), ReplayError> {
-        if !self.keeps_images {
-            return Ok(());
-        }
-        match (&self.images, image) {
-            (None, None) => Ok(()),
-            (None, Some(_)) if self.is_empty() => Ok(()),
-            (Some(store), Some(img))
-                if img.width == store.width
-                    && img.height == store.height
-                    && img.rgb.len() == store.image_len() =>
-            {
-                Ok(())
-            }
-            (Some(store), Some(img)) => Err(ReplayError::ImageSize {
-                want_w: store.width,
-                want_h: store.height,
-                got_w: img.width,
-                got_h: img.height,
-                bytes: img.rgb.len(),
-            }),
-            _ => Err(ReplayError::ImagePresence),
-        }
+    pub(crate) fn keeps_images(&self) -> bool {
+        self.keeps_images
+    }
+
+    /// The images this store's steps carry (of a store that keeps them).
+    pub(crate) fn frames(&self) -> Frames {
+        self.images.as_ref().map_or(Frames::None, |i| Frames::Rgb {
+            width: i.width,
+            height: i.height,
+        })
     }
 
     /// Appends, or overwrites a random entry when full.
