@@ -222,7 +222,7 @@ fn training(config: &RunConfig, options: &EpochBenchOptions, gemm: f64) -> Vec<P
 
 /// A step's parts: the MPCC expert's step, the policy's inference on one state, the simulator's step.
 fn step_parts(config: &RunConfig, options: &EpochBenchOptions) -> anyhow::Result<StepParts> {
-    let mpcc = cabc_expert::mpcc::Mpcc::reference();
+    let mpcc = cabc_expert::mpcc::Mpcc::from_config(config)?;
     let plant = cabc_sim::vehicle::VehicleParams::default();
     let mut p50s = Vec::new();
     for _ in 0..options.repeats.max(1) {
