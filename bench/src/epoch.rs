@@ -95,13 +95,8 @@ pub struct EpochBenchReport {
     pub step: StepParts,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => 0.0,
-        n if n % 2 == 1 => v[n / 2],
-        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-    }
+fn median(v: Vec<f64>) -> f64 {
+    cabc_proto::stats::median_of_middles(&v).unwrap_or(0.0)
 }
 
 /// The median of `repeats` timings of `f` (seconds), with the value `f` returned on the median repeat.

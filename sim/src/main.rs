@@ -7,7 +7,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use cabc_proto::config::RunConfig;
 use cabc_sim::camera::{Camera, Sun, REFERENCE_FOV_DEG};
-use cabc_sim::rollout::{parse_pair, parse_size, rollout, RolloutOptions};
+use cabc_sim::rollout::{parse_size, parse_sun, rollout, RolloutOptions};
 use cabc_sim::{bench, map, trace, Track, TrackKind};
 use clap::{Parser, Subcommand};
 
@@ -76,14 +76,6 @@ enum Cmd {
         #[arg(long, default_value_t = 1.0)]
         seconds: f64,
     },
-}
-
-fn parse_sun(s: &str) -> Result<Sun> {
-    let (az, el) = parse_pair(s).context("bad --sun (expected \"AZ,EL\" in degrees)")?;
-    Ok(Sun {
-        azimuth: az.to_radians(),
-        elevation: el.to_radians(),
-    })
 }
 
 fn main() -> Result<()> {

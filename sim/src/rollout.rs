@@ -62,6 +62,15 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
     Ok((w, h))
 }
 
+/// Parses a sun direction "AZ,EL" in degrees (`cabc-sim render --sun`).
+pub fn parse_sun(s: &str) -> Result<crate::camera::Sun> {
+    let (az, el) = parse_pair(s).context("bad --sun (expected \"AZ,EL\" in degrees)")?;
+    Ok(crate::camera::Sun {
+        azimuth: az.to_radians(),
+        elevation: el.to_radians(),
+    })
+}
+
 /// Two finite numbers "A,B".
 pub fn parse_pair(s: &str) -> Result<(f64, f64)> {
     let (a, b) = s
