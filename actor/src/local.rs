@@ -105,7 +105,13 @@ impl SegmentSink for Store<'_> {
 }
 
 impl<E: ExpertClient> Rollouts for LocalActors<E> {
-    fn collect(
+    /// Nothing to send: in-process the collection runs in [`Rollouts::gather`], on the learner's thread, so an
+    /// overlapped run (`collection.overlap`) here has the numbers of one over the bus, not its wall clock.
+    fn publish(&mut self, _update: &PolicyUpdate) -> Result<(), PortError> {
+        Ok(())
+    }
+
+    fn gather(
         &mut self,
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),

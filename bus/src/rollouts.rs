@@ -108,6 +108,16 @@ pub struct ZenohActors {
     expected: usize,
     epoch_timeout: Duration,
     interrupt: Interrupt,
+    /// The version published and not gathered yet.
+    published_last: Option<Publication>,
+}
+
+/// A publication of the policy, until its epoch is gathered: published again from the same bytes for an actor not
+/// heard from, and the epoch's timeout counts from it.
+struct Publication {
+    version: u64,
+    encoded: Bytes,
+    at: Instant,
 }
 
 impl ZenohActors {
@@ -180,6 +190,7 @@ impl ZenohActors {
             expected,
             epoch_timeout,
             interrupt,
+            published_last: None,
         })
     }
 
@@ -253,11 +264,7 @@ impl ZenohActors {
 }
 
 impl Rollouts for ZenohActors {
-    fn collect(
-        &mut self,
-        update: &PolicyUpdate,
-        store: &mut dyn FnMut(Segment),
-    ) -> Result<Option<Collected>, PortError> {
+    fn publish(&mut self, update: &PolicyUpdate) -> Result<(), PortError> {
         // Encoded once: held for the queryable, published, and published again, from the same buffer.
         let encoded = Bytes::from(codec::encode(update));
         {
@@ -273,19 +280,50 @@ impl Rollouts for ZenohActors {
         self.bus
             .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
             .map_err(transport)?;
+        self.published_last = Some(Publication {
+            version: update.version,
+            encoded,
+            at: Instant::now(),
+        });
+        Ok(())
+    }
+
+    fn gather(
+        &mut self,
+        update: &PolicyUpdate,
+        store: &mut dyn FnMut(Segment),
+    ) -> Result<Option<Collected>, PortError> {
+        let Publication {
+            encoded,
+            at: published_at,
+            ..
+        } = self
+            .published_last
+            .take()
+            .filter(|p| p.version == update.version)
+            .ok_or_else(|| {
+                PortError::Transport(format!(
+                    "gathering version {} before publishing it",
+                    update.version
+                ))
+            })?;
         self.follow_liveliness(None);
         let mut gate = EpochGate::open(
             update.version,
             self.epoch_timeout,
             self.live.iter().cloned(),
-            Instant::now(),
+            published_at,
         )
         .expecting(self.expected.saturating_sub(self.left.len()))
         .answering(update.published_unix_ms);
         let mut last_wait_log = Instant::now();
-        let mut last_publish = Instant::now();
+        let mut last_publish = published_at;
         let mut republish_after = REPUBLISH;
         let mut heard: BTreeSet<String> = BTreeSet::new();
+        // What arrived while the learner trained (`collection.overlap`), before anything is published again.
+        while let Ok(Some(sample)) = self.traj.try_recv() {
+            self.take_in(&sample, update.version, &mut gate, &mut heard, store);
+        }
         let closed = loop {
             if self.interrupt.is_set() {
                 return Ok(None);

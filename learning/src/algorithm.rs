@@ -4,10 +4,15 @@
 //! test (`cabc_actor::local`). Everything the learner holds (D+, D?, D-, the three networks, the evaluations, the
 //! checkpoint, the epoch's record and its sinks) is in [`Learner`]; the schedule (k_f, k_p, the auto-labelling
 //! period, the passes) in [`Schedule`], read here. Each epoch's metrics are one record
-//! ([`crate::record::Record`]), each put where it is computed.
+//! ([`crate::record::Record`]), each put where it is computed. Under `training.schedule = "every-epoch"` (the
+//! reference's full-state trainer) f_hat, p_hat and pi all train every epoch.
+//!
+//! Under `collection.overlap` (issue 46) epoch j >= 1 trains while the actors collect its D_new with pi_j, on the
+//! data of epochs < j; the collecting policy is then one version behind Algorithm 1's, and an epoch takes about the
+//! longer of collection and training instead of their sum.
 
 use crate::learner::{Learner, LearnerError};
-use crate::schedule::{Due, Schedule};
+use crate::schedule::Schedule;
 use cabc_proto::ports::Rollouts;
 
 /// Why a run ended.
@@ -26,11 +31,14 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
     let schedule = Schedule::from_config(learner.config());
     for j in learner.next_epoch()..learner.config().run.max_epochs {
         learner.begin_epoch(j);
-        // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j).
+        // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j); rollout pi_collect: D_new.
         let update = learner.policy_update(j);
-        // Rollout pi_collect to collect D_new.
-        let Some(collected) = actors.collect(&update, &mut |segment| learner.store(segment))?
-        else {
+        actors.publish(&update)?;
+        // Under `collection.overlap` the learner trains while D_new is collected, on what it held before.
+        if schedule.overlapped(j) {
+            learner.train(schedule.due(j))?;
+        }
+        let Some(collected) = actors.gather(&update, &mut |segment| learner.store(segment))? else {
             return Ok(Ending::Interrupted);
         };
         // Partition D_new into D+' (laps) and D?' (failures): D+ <- D+ u D+', D? <- D? u D?'.
@@ -39,12 +47,11 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         // hull of its D+ neighbours within rho; what D? then holds is D-, until the next labelling.
         learner.autolabel(schedule.autolabel_due(j));
         // ComputeGradient; if j mod k_f = 0, update phi_f (eq. (15)); if j mod k_p = 0, update phi_p (eq. (16), D+
-        // against D-); update theta (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat). Under
-        // `training.schedule = "every-epoch"` (the reference's full-state trainer) all three are due every epoch.
-        let (dynamics, critic) = (schedule.dynamics_due(j), schedule.critic_due(j));
-        learner.train(Due { dynamics, critic })?;
-        // Evaluate: the evaluator drives pi_j alone from the fixed spawn; the second evaluation that completes
-        // `eval_laps` laps stops the run and keeps that version.
+        // against D-); update theta (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat).
+        if !schedule.overlapped(j) {
+            learner.train(schedule.due(j))?;
+        }
+        // Evaluate: pi_j alone from the fixed spawn; the second evaluation with `eval_laps` laps keeps that version.
         for report in actors.evaluations() {
             learner.on_eval(report);
         }

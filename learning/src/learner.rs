@@ -237,10 +237,8 @@ impl Learner {
     }
 
     /// Begins epoch `epoch`: its record (with beta_j), its clock and its counts (what the ledger stored so far, no
-    /// incomplete steps, no D? steps), and marks where the replay's rows of D_new will begin (the critic's held-out
-    /// set, [`Replay::begin_epoch`]).
+    /// incomplete steps, no D? steps).
     pub fn begin_epoch(&mut self, epoch: u64) {
-        self.replay.begin_epoch();
         self.epoch = Epoch::new(epoch, &self.state.ledger);
         self.epoch.record.real("beta", self.config.beta(epoch), 6);
     }
@@ -271,9 +269,11 @@ impl Learner {
     /// unfinished steps go to the dynamics-only store) and adds them to D+ and D?. Segments are added in (actor,
     /// incarnation, seq) order, whatever order the bus delivered them in, so a distributed run with a given seed is
     /// as reproducible as an in-process one. Puts the collection's time and the actors' counts, what the epoch
-    /// stored, and where its D? steps came from.
+    /// stored, and where its D? steps came from. D_new's rows are the critic's next held-out set
+    /// ([`Replay::begin_epoch`]).
     pub fn partition(&mut self, collected: &Collected) {
         self.collected(collected);
+        self.replay.begin_epoch();
         let mut d_new = std::mem::take(&mut self.d_new);
         d_new.sort_by(|a, b| {
             let (a, b) = (a.segment(), b.segment());
@@ -310,7 +310,9 @@ impl Learner {
         record.count("segments_not_stored", self.state.segments_not_stored);
     }
 
-    /// The collection's time and the actors' own counts (their markers), into the record and to the sinks.
+    /// The collection's time (from the epoch's start, its publication, to its close; under `collection.overlap`
+    /// the epoch's training ran within it) and the actors' own counts (their markers), into the record and to the
+    /// sinks.
     fn collected(&mut self, collected: &Collected) {
         let record = &mut self.epoch.record;
         record.real("collect_s", self.epoch.started.elapsed().as_secs_f64(), 3);

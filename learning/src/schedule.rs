@@ -2,7 +2,8 @@
 //! (every k_p epochs), and how many passes each fit makes (more for the policy in epoch 0, the warm-up).
 //!
 //! All numbers come from the run configuration (`algorithm.autolabel_every`, `training.dynamics_every` = k_f,
-//! `training.critic_every` = k_p, `training.initial_passes` / `passes` / `aux_passes`, `training.schedule`).
+//! `training.critic_every` = k_p, `training.initial_passes` / `passes` / `aux_passes`, `training.schedule`,
+//! `collection.overlap`).
 
 use cabc_proto::config::{RunConfig, ScheduleKind};
 
@@ -29,6 +30,8 @@ pub struct Schedule {
     passes: usize,
     aux_passes: usize,
     initial_aux_passes: usize,
+    /// `collection.overlap`.
+    overlap: bool,
 }
 
 impl Schedule {
@@ -43,7 +46,14 @@ impl Schedule {
             passes: t.passes,
             aux_passes: t.aux_passes,
             initial_aux_passes: t.initial_aux_passes.unwrap_or(t.aux_passes),
+            overlap: config.collection.overlap,
         }
+    }
+
+    /// Whether epoch j trains while its D_new is collected (`collection.overlap`, from epoch 1 on: epoch 0 has
+    /// nothing to train on before its collection), on what the learner held before; else it trains after.
+    pub fn overlapped(&self, j: u64) -> bool {
+        self.overlap && j > 0
     }
 
     /// Whether D? is auto-labelled (eq. (19)) before training in epoch j; the same under both kinds of schedule.
@@ -135,5 +145,9 @@ mod tests {
         assert!((0..5).all(|j| s.dynamics_due(j) && s.critic_due(j)));
         assert_eq!((s.aux_passes(0), s.aux_passes(1)), (7, 2));
         assert!(!s.autolabel_due(1));
+        assert!(!(0..5).any(|j| s.overlapped(j)), "Algorithm 1's order");
+        c.collection.overlap = true;
+        let s = Schedule::from_config(&c);
+        assert!((1..21).all(|j| s.overlapped(j)) && !s.overlapped(0));
     }
 }

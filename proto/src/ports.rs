@@ -104,9 +104,13 @@ pub struct Collected {
 
 /// The actors, as the learner sees them.
 pub trait Rollouts {
-    /// Publishes (pi_j, beta_j) and collects D_new: every segment that arrives goes to `store`, until every live
-    /// actor is done with this version (or the epoch's timeout). `Ok(None)`: interrupted, the run must end.
-    fn collect(
+    /// Publishes (pi_j, beta_j): the actors start collecting D_new with it.
+    fn publish(&mut self, update: &PolicyUpdate) -> Result<(), PortError>;
+    /// Gathers D_new of the version last published (`update`): every segment that arrives goes to `store`, until
+    /// every live actor is done with this version (or the epoch's timeout, counted from the publication). What
+    /// arrived between the two calls (the learner trained meanwhile under `collection.overlap`) is taken first.
+    /// `Ok(None)`: interrupted, the run must end.
+    fn gather(
         &mut self,
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),

@@ -139,7 +139,7 @@ pub struct Replay {
     /// `replay.dynamics_only` (not saved: it is the configuration's): whether unfinished laps and the points
     /// auto-labelling removes are kept for f_hat, or dropped (the reference).
     keep_dynamics_only: bool,
-    /// Where this epoch's rows begin ([`Replay::begin_epoch`]; not saved: an epoch is never resumed halfway).
+    /// Where the last D_new's rows begin ([`Replay::begin_epoch`]; not saved: after a resume nothing is fresh).
     fresh: Fresh,
 }
 
@@ -338,8 +338,9 @@ impl Replay {
         }
     }
 
-    /// Marks the start of an epoch: the rows added from here on are [`Replay::fresh_plus`] and
-    /// [`Replay::fresh_uncertain`].
+    /// Marks the start of an epoch's data, right before D_new is added: the rows added from here on are
+    /// [`Replay::fresh_plus`] and [`Replay::fresh_uncertain`], until the next epoch's data (under
+    /// `collection.overlap` the next epoch trains before its D_new comes in, on these rows as its held-out set).
     pub fn begin_epoch(&mut self) {
         self.fresh = Fresh {
             plus: (self.plus.len(), self.added.plus),

@@ -188,7 +188,7 @@ impl Replay {
         let mut rng = ChaCha8Rng::from_seed(saved.rng_seed);
         rng.set_stream(saved.rng_stream);
         rng.set_word_pos(saved.rng_word_pos);
-        let replay = Replay {
+        let mut replay = Replay {
             frames: Frames::Any,
             plus: saved.plus,
             uncertain: saved.uncertain,
@@ -199,6 +199,8 @@ impl Replay {
             keep_dynamics_only: true,
             fresh: Fresh::default(),
         };
+        // Nothing fresh after a resume: the held-out rows of the last D_new are not known any more.
+        replay.begin_epoch();
         Ok((replay, log))
     }
 

@@ -204,6 +204,11 @@ pub struct CollectionSection {
     /// p_hat(f_hat(x, u)) below this is driven by the expert's action instead (when the expert answered); the
     /// stored label stays the expert's either way. 0 (the paper): no shield.
     pub shield: f64,
+    /// Collection overlapping training (issue 46): from epoch 1 on, the actors collect D_new with pi_j while the
+    /// learner trains on what it held before, so that an epoch takes about the longer of the two instead of their
+    /// sum. The policy that collects is then one version behind the synchronous order's (IMPALA's and Sample
+    /// Factory's actors run so). false (Algorithm 1's order): collection, then training.
+    pub overlap: bool,
 }
 
 impl Default for CollectionSection {
@@ -221,6 +226,7 @@ impl Default for CollectionSection {
             stored_action: StoredAction::Clipped,
             action_noise_std: [0.0; 2],
             shield: 0.0,
+            overlap: false,
         }
     }
 }
