@@ -233,3 +233,41 @@ fn an_evaluation_that_completes_its_laps_leaves_a_video() {
         "{said}"
     );
 }
+
+/// Collection overlapping training (`collection.overlap`, issue 46) over the bus: the segments that arrive while the
+/// learner trains wait in the subscription's queue, and the run has the in-process run's numbers.
+#[test]
+fn an_overlapped_distributed_run_gives_the_local_runs_numbers() {
+    let tmp = cabc_tests::test_dir();
+    let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\n";
+    let epochs = 4;
+    let overlap = |cluster: &Cluster| {
+        let text = std::fs::read_to_string(&cluster.config).unwrap();
+        let text = text.replacen("[collection]\n", "[collection]\noverlap = true\n", 1);
+        std::fs::write(&cluster.config, text).unwrap();
+    };
+    let mut dist = Cluster::new(tmp.path(), "dist", epochs, extra).unwrap();
+    overlap(&dist);
+    dist.start_all(2, false).unwrap();
+    assert_eq!(dist.summary("learner")["epochs"], epochs);
+    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
+    overlap(&local);
+    let (config, dir) = (
+        local.config.display().to_string(),
+        local.dir.display().to_string(),
+    );
+    local
+        .start(
+            "learner",
+            "learner",
+            &["run", "--local", "--config", &config, "--run-dir", &dir],
+        )
+        .unwrap();
+    assert_eq!(local.summary("learner")["epochs"], epochs);
+    let a = numbers(&dist.dir.join("metrics.csv"), METRICS);
+    let b = numbers(&local.dir.join("metrics.csv"), METRICS);
+    assert_eq!(a.len(), epochs as usize);
+    assert_eq!(a, b, "metrics.csv: distributed (left) and local (right)");
+    let config = std::fs::read_to_string(dist.dir.join("config.toml")).unwrap();
+    assert!(config.contains("overlap = true"), "{config}");
+}
