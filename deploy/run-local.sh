@@ -3,8 +3,9 @@
 #
 #   deploy/run-local.sh [--baseline] [--resume|--fresh] [--set KEY=VALUE ...] [PRESET|CONFIG.toml] [-- extra learner args]
 #
-# Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server, N actors and an
-# eval actor as separate processes. Logs of every process go to runs/<run>/logs/. One Ctrl-C stops them all.
+# Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server (none under
+# expert.placement = "in-actor"), N actors and an eval actor as separate processes. Logs of every process go to
+# runs/<run>/logs/. One Ctrl-C stops them all.
 # With CABC_BIN=DIR the binaries in DIR are used and nothing is built.
 # Default preset: the binaries' (cabc_proto::config::DEFAULT_PRESET: v-b, experiment V-B under its recipe, the
 # reference implementation's protocol with DAgger's aggregate, lambda's warm-up and D- as the critic's negatives,
@@ -26,7 +27,7 @@ while [ $# -gt 0 ]; do
     --resume) learner_args+=(--resume) ;;
     --fresh) learner_args+=(--fresh) ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
@@ -114,8 +115,11 @@ for _ in $(seq 1 600); do
   [ "$ready" = 1 ] && break
   sleep 0.1
 done
-"$bin/expert-server" serve --config "$cfg" --id 0 2>> "$logs/expert-server-0.log" &
-pids+=($!)
+# Under expert.placement = "in-actor" each actor solves its own relabellings: no server.
+if [ "$("$bin/cabc" show --config "$cfg" expert.placement)" = server ]; then
+  "$bin/expert-server" serve --config "$cfg" --id 0 2>> "$logs/expert-server-0.log" &
+  pids+=($!)
+fi
 for i in $(seq 0 $((actors - 1))); do
   "$bin/actor" --config "$cfg" --id "actor-$i" 2>> "$logs/actor-$i.log" &
   pids+=($!)

@@ -5,6 +5,7 @@
 
 pub mod collect;
 pub mod evaluate;
+pub mod expert;
 pub mod eyes;
 pub mod local;
 pub mod run;

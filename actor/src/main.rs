@@ -2,7 +2,8 @@
 //!
 //! Wiring only: the loop is `cabc_actor::run`, its ports are zenoh's (`cabc_bus::ports`): the learner's latest
 //! policy on start, then its updates; the expert server's labels for each batch (waiting and retrying while no server
-//! answers); segments and the epoch's "done" marker published reliably on `cabc/<run>/traj/<id>`.
+//! answers), or the actor's own under `expert.placement = "in-actor"`; segments and the epoch's "done" marker published
+//! reliably on `cabc/<run>/traj/<id>`.
 
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
@@ -12,11 +13,11 @@ use cabc_bus::interrupt::Interrupt;
 use cabc_bus::ports::{Shard, SharedStats, ZenohEvals, ZenohPolicySource, ZenohSegments};
 use cabc_bus::{Bus, Role};
 use cabc_models::{PolicyArch, PolicyCheck};
-use cabc_proto::config::RunConfig;
+use cabc_proto::config::{ExpertPlacement, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
+use cabc_proto::ports::ExpertClient;
 use clap::Parser;
-use serde_json::json;
 use std::time::Duration;
 
 #[derive(Parser)]
@@ -77,7 +78,11 @@ fn main() -> Result<()> {
     let check = PolicyCheck::new(PolicyArch::from_config(&config));
     let mut last = None;
     let mut after_epoch = |update: &PolicyUpdate, actor: &ActorStats| {
-        let value = metrics(update, actor, &stats, bus.rejects.count());
+        let wire = stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .figures(actor.busy);
+        let value = actor.metrics(update, bus.rejects.count(), wire);
         bus.metrics_blocking(&value.to_string());
         last = Some(value);
     };
@@ -94,7 +99,16 @@ fn main() -> Result<()> {
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
         let kind = config.expert.kind.as_str();
-        let mut expert = ZenohExpert::new(&bus, kind, timeout, &interrupt, stats.clone())?;
+        let mut expert: Box<dyn ExpertClient> = match config.expert.placement {
+            ExpertPlacement::Server => Box::new(ZenohExpert::new(
+                &bus,
+                kind,
+                timeout,
+                &interrupt,
+                stats.clone(),
+            )?),
+            ExpertPlacement::InActor => Box::new(cabc_actor::expert::in_actor(&config)?),
+        };
         let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone());
         let index = cli
             .index
@@ -108,7 +122,7 @@ fn main() -> Result<()> {
             &mut collector,
             &check,
             &mut source,
-            &mut expert,
+            expert.as_mut(),
             &mut sink,
             &mut after_epoch,
         )?;
@@ -119,31 +133,4 @@ fn main() -> Result<()> {
     drop(source);
     bus.close_blocking()?;
     Ok(())
-}
-
-/// Collection figures since start (published on `metrics/<role>/<id>` after every epoch, logged at exit).
-fn metrics(
-    update: &PolicyUpdate,
-    actor: &ActorStats,
-    wire: &SharedStats,
-    rejected: u64,
-) -> serde_json::Value {
-    let busy = actor.busy.as_secs_f64();
-    let mut value = json!({
-        "version": update.version,
-        "beta": update.beta,
-        "versions_seen": actor.versions,
-        "steps": actor.steps,
-        "steps_per_s": if busy > 0.0 { actor.steps as f64 / busy } else { 0.0 },
-        "rejected_messages": rejected,
-        "refused_policies": actor.refused_policies,
-    });
-    let wire = wire
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .figures(actor.busy);
-    if let Some(object) = value.as_object_mut() {
-        object.extend(wire);
-    }
-    value
 }

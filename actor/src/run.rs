@@ -43,6 +43,32 @@ pub struct ActorStats {
     pub refused_policies: u64,
 }
 
+impl ActorStats {
+    /// The figures an actor publishes after every epoch (`metrics/<role>/<id>`) and logs at exit: these, the
+    /// transport's (`wire`) and the messages its bus refused.
+    pub fn metrics(
+        &self,
+        update: &PolicyUpdate,
+        rejected: u64,
+        wire: serde_json::Map<String, serde_json::Value>,
+    ) -> serde_json::Value {
+        let busy = self.busy.as_secs_f64();
+        let mut value = serde_json::json!({
+            "version": update.version,
+            "beta": update.beta,
+            "versions_seen": self.versions,
+            "steps": self.steps,
+            "steps_per_s": if busy > 0.0 { self.steps as f64 / busy } else { 0.0 },
+            "rejected_messages": rejected,
+            "refused_policies": self.refused_policies,
+        });
+        if let Some(object) = value.as_object_mut() {
+            object.extend(wire);
+        }
+        value
+    }
+}
+
 /// pi_theta(y) for a batch of observations (states, or images with the velocities).
 pub fn act(policy: &Policy, input: &Observations) -> Result<Vec<[f32; 2]>, ModelError> {
     let observations: Vec<Observation> = if input.images.is_empty() {

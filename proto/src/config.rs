@@ -13,7 +13,7 @@ mod overrides;
 mod security;
 mod validate;
 pub use choices::{
-    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
+    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush, ObservationKind,
     Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction, TrackKind, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};

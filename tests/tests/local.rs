@@ -271,3 +271,52 @@ fn an_overlapped_distributed_run_gives_the_local_runs_numbers() {
     let config = std::fs::read_to_string(dist.dir.join("config.toml")).unwrap();
     assert!(config.contains("overlap = true"), "{config}");
 }
+
+/// The actors solving their own relabellings (`expert.placement = "in-actor"`, issue 46): no expert server runs, and
+/// the run has the numbers of the in-process run, whose actors ask the same relabelling code.
+#[test]
+fn actors_that_solve_their_own_relabellings_give_the_local_runs_numbers() {
+    let tmp = cabc_tests::test_dir();
+    let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\n";
+    let epochs = 4;
+    let in_actor = |cluster: &Cluster| {
+        let text = std::fs::read_to_string(&cluster.config).unwrap();
+        let text = text.replacen("[expert]\n", "[expert]\nplacement = \"in-actor\"\n", 1);
+        std::fs::write(&cluster.config, text).unwrap();
+    };
+    let mut dist = Cluster::new(tmp.path(), "dist", epochs, extra).unwrap();
+    in_actor(&dist);
+    dist.start_learner("learner", false).unwrap();
+    let config = dist.config.display().to_string();
+    for id in ["actor-0", "actor-1"] {
+        dist.start(id, "actor", &["--config", &config, "--id", id])
+            .unwrap();
+    }
+    dist.start(
+        "eval",
+        "actor",
+        &["--config", &config, "--id", "eval", "--eval"],
+    )
+    .unwrap();
+    assert_eq!(dist.summary("learner")["epochs"], epochs);
+    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
+    let (config, dir) = (
+        local.config.display().to_string(),
+        local.dir.display().to_string(),
+    );
+    local
+        .start(
+            "learner",
+            "learner",
+            &["run", "--local", "--config", &config, "--run-dir", &dir],
+        )
+        .unwrap();
+    assert_eq!(local.summary("learner")["epochs"], epochs);
+    let a = numbers(&dist.dir.join("metrics.csv"), METRICS);
+    let b = numbers(&local.dir.join("metrics.csv"), METRICS);
+    assert_eq!(a.len(), epochs as usize);
+    assert_eq!(
+        a, b,
+        "metrics.csv: in-actor experts (left) and local (right)"
+    );
+}

@@ -23,6 +23,27 @@ impl ExpertKind {
     }
 }
 
+/// Where the expert's relabellings are solved (`expert.placement`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExpertPlacement {
+    /// Expert server processes (`expert-server serve`) answer the actors' queries over the bus.
+    #[default]
+    Server,
+    /// Each actor solves its own queries in its process, with the servers' code: the same answers (while the
+    /// environments in flight fit in `expert.max_streams`), without a round trip over the bus each step.
+    InActor,
+}
+
+impl ExpertPlacement {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ExpertPlacement::Server => "server",
+            ExpertPlacement::InActor => "in-actor",
+        }
+    }
+}
+
 /// What the policy observes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -1,7 +1,7 @@
 //! The sections of the run configuration ([`super::RunConfig`]), one struct per TOML table, with their defaults.
 
 use super::{
-    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, Flush, ObservationKind,
+    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush, ObservationKind,
     Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn, StoredAction,
     TrackKind, VisionTrunk,
 };
@@ -56,6 +56,9 @@ pub struct ExpertSection {
     pub max_batch: usize,
     /// Seconds an actor waits for an expert reply before it asks again.
     pub timeout_s: f64,
+    /// `server` (expert server processes, over the bus) or `in-actor` (each actor solves its own queries: no round
+    /// trip, and `deploy/run-local.sh` starts no server). The answers are the same; only the wall clock differs.
+    pub placement: ExpertPlacement,
 }
 
 impl Default for ExpertSection {
@@ -67,6 +70,7 @@ impl Default for ExpertSection {
             max_streams: 256,
             max_batch: 1024,
             timeout_s: 10.0,
+            placement: ExpertPlacement::Server,
         }
     }
 }
