@@ -13,8 +13,9 @@ mod overrides;
 mod security;
 mod validate;
 pub use choices::{
-    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush, ObservationKind,
-    Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction, TrackKind, VisionTrunk,
+    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
+    ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction,
+    TrackKind, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};
 

@@ -1,9 +1,9 @@
 //! The sections of the run configuration ([`super::RunConfig`]), one struct per TOML table, with their defaults.
 
 use super::{
-    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush, ObservationKind,
-    Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn, StoredAction,
-    TrackKind, VisionTrunk,
+    ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
+    ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn,
+    StoredAction, TrackKind, VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
