@@ -23,21 +23,25 @@ logs="$root/target/test-logs"
 mkdir -p "$logs"
 failed=()
 
-# step NAME COMMAND...: runs it with its output on the terminal and in $logs/NAME.log; a failure is remembered.
+# step NAME COMMAND...: runs it with its output on the terminal and in $logs/NAME.log; a failure is remembered, and
+# the step's time goes to $logs/times.txt (issue 46: the suite's steps before and after a change).
 step() {
-  local name=$1
+  local name=$1 began
   shift
+  began=$(date +%s)
   echo "[test] $name: $*" >&2
   if ! "$@" 2>&1 | tee "$logs/$name.log"; then
     failed+=("$name")
   fi
+  echo "$name $(( $(date +%s) - began )) s" | tee -a "$logs/times.txt" >&2
 }
 
 start=$(date +%s)
+: > "$logs/times.txt"
 # The end-to-end tests start the release binaries (zenohd among them, third_party/zenohd), so build them first: the
 # one step whose failure stops the rest.
 cargo build --release --workspace --bins
-echo "[test] release build took $(( $(date +%s) - start )) s" >&2
+echo "build $(( $(date +%s) - start )) s" | tee -a "$logs/times.txt" >&2
 step workspace cargo test --release --workspace --no-fail-fast "$@"
 
 if [ "${CABC_OLDEST_KERNELS:-1}" != 0 ]; then
@@ -62,7 +66,7 @@ python_tests() {
 }
 step python python_tests
 
-echo "[test] all steps took $(( $(date +%s) - start )) s" >&2
+echo "all $(( $(date +%s) - start )) s" | tee -a "$logs/times.txt" >&2
 if [ ${#failed[@]} -eq 0 ]; then
   echo "[test] every step passed" >&2
   exit 0
