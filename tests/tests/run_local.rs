@@ -1,6 +1,7 @@
 //! `deploy/run-local.sh`, the README's first command, on the release binaries (`CABC_BIN`: nothing is built): it
-//! trains a run to its summary with every process's log in the run folder, and a bus endpoint that another run
-//! already holds stops it before any of its processes starts.
+//! trains a run to its summary with every process's log in the run folder (with no expert server when the actors
+//! solve their own relabellings), and a bus endpoint that another run already holds stops it before any of its
+//! processes starts.
 
 use std::net::TcpListener;
 use std::path::Path;
@@ -64,6 +65,29 @@ fn run_local_trains_a_run_to_its_summary() {
         let path = run.join("logs").join(format!("{log}.log"));
         assert!(path.exists(), "{} missing; {stderr}", path.display());
     }
+}
+
+/// Under `expert.placement = "in-actor"` (issue 46) the script starts no expert server: the actors solve their own
+/// relabellings, and the run trains to its summary all the same.
+#[test]
+fn run_local_starts_no_expert_server_for_actors_that_solve_their_own() {
+    let tmp = cabc_tests::test_dir();
+    let placement = "expert.placement=\"in-actor\"";
+    let args = ["--set", "run.max_epochs=2", "--set", placement];
+    let out = run_local(tmp.path(), "in-actor", cabc_tests::free_port(), &args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let run = tmp.path().join("in-actor");
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["epochs"], 2, "{summary:#}");
+    for log in ["learner", "actor-0", "actor-1", "eval"] {
+        assert!(
+            run.join("logs").join(format!("{log}.log")).exists(),
+            "{log}: {stderr}"
+        );
+    }
+    assert!(!run.join("logs/expert-server-0.log").exists(), "{stderr}");
 }
 
 #[test]
