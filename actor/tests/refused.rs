@@ -3,6 +3,7 @@
 
 use cabc_actor::collect::Collector;
 use cabc_actor::run::run_actor;
+use cabc_fixtures::policy_update as update;
 use cabc_models::{Network, Policy, PolicyArch, PolicyCheck};
 use cabc_proto::config::{MlpSize, RunConfig};
 use cabc_proto::messages::{ExpertAnswer, ExpertQuery, PolicyUpdate, TrajMessage};
@@ -17,18 +18,6 @@ fn bare_weights(architecture: &str) -> Vec<u8> {
     let mut out = (header.len() as u64).to_le_bytes().to_vec();
     out.extend_from_slice(header.as_bytes());
     out
-}
-
-fn update(version: u64, architecture: &str, weights: Vec<u8>) -> PolicyUpdate {
-    PolicyUpdate {
-        version,
-        beta: 0.5,
-        architecture: architecture.into(),
-        weights,
-        steps_per_actor: 120,
-        published_unix_ms: 0,
-        shield: None,
-    }
 }
 
 #[test]

@@ -114,12 +114,11 @@ mod tests {
     /// A run folder with the files `compare` reads.
     fn run(dir: &Path, name: &str, lambda: f64, evals: &[(u64, u32, f64)]) -> PathBuf {
         let folder = dir.join(name);
-        std::fs::create_dir_all(&folder).unwrap();
         let mut config = RunConfig::load("smoke").unwrap();
         config.run.name = name.into();
         config.algorithm.lambda = lambda;
         config.collection.eval_laps = 3;
-        std::fs::write(folder.join("config.toml"), config.to_toml()).unwrap();
+        cabc_fixtures::run_folder(&folder, &config);
         let mut metrics = String::from(
             "epoch,imitation_loss,epoch_s,incomplete_share,steps_collected,uncertain_failed_lap,uncertain_truncating\n",
         );
@@ -133,8 +132,7 @@ mod tests {
             ));
         }
         std::fs::write(folder.join("metrics.csv"), metrics).unwrap();
-        let mut text =
-            String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+        let mut text = format!("{}\n", cabc_outputs::rundir::EVALS_HEADER);
         for &(v, laps, mean) in evals {
             let (m, s) = if laps > 0 {
                 (format!("{mean}"), "0.1".to_string())

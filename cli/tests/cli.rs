@@ -1,21 +1,14 @@
 //! `cabc`: --help and --version like the other binaries, `cabc export`'s errors name what is wrong (a run exported
 //! end to end: export/tests/export.rs and python/tests/test_export.py), and `cabc plots` on a kept run folder.
 
+use cabc_outputs::rundir::EVALS_HEADER;
 use std::ffi::OsStr;
 use std::path::Path;
 use std::process::Command;
 
 /// `cabc ARGS`: whether it succeeded, its stdout and its stderr.
 fn cabc<S: AsRef<OsStr>>(args: &[S]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cabc"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    cabc_fixtures::output(Command::new(env!("CARGO_BIN_EXE_cabc")).args(args))
 }
 
 #[test]
@@ -56,13 +49,11 @@ fn export_refuses_what_is_not_a_run() {
 
 /// A kept run folder as docs/reproduction/<run>/ holds it: config.toml, metrics.csv, evals.csv, summary.json.
 fn kept_run(dir: &Path) {
-    std::fs::create_dir_all(dir).unwrap();
     let mut config = cabc_proto::config::RunConfig::load("smoke").unwrap();
     config.collection.eval_laps = 2;
-    std::fs::write(dir.join("config.toml"), config.to_toml()).unwrap();
+    cabc_fixtures::run_folder(dir, &config);
     let mut metrics = String::from("epoch,beta,imitation_loss,safety_loss,epoch_s\n");
-    let mut evals =
-        String::from("version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps\n");
+    let mut evals = format!("{EVALS_HEADER}\n");
     for e in 0..6 {
         metrics.push_str(&format!(
             "{e},0.500000,{:.6},0.010000,1.000\n",

@@ -9,23 +9,14 @@ use std::process::Command;
 
 /// `cabc ARGS`: whether it succeeded, its stdout and its stderr.
 fn cabc<S: AsRef<OsStr>>(args: &[S]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cabc"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    cabc_fixtures::output(Command::new(env!("CARGO_BIN_EXE_cabc")).args(args))
 }
 
 /// A run folder with the smoke configuration and an untrained policy as its final one.
 fn run_folder(dir: &Path) -> std::path::PathBuf {
     let run = dir.join("run");
-    std::fs::create_dir_all(&run).unwrap();
     let config = RunConfig::load("smoke").unwrap();
-    std::fs::write(run.join("config.toml"), config.to_toml()).unwrap();
+    cabc_fixtures::run_folder(&run, &config);
     let policy = Policy::new(PolicyArch::from_config(&config), tch::Device::Cpu, 3);
     std::fs::write(run.join("final-policy.safetensors"), policy.to_bytes()).unwrap();
     run

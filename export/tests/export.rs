@@ -9,7 +9,7 @@ use cabc_export::{export, ExportError};
 use cabc_learning::checkpoint::CheckpointWriter;
 use cabc_learning::replay::{ImageLog, Replay};
 use cabc_proto::config::{ObservationKind, RunConfig};
-use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
+use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use std::fs::File;
 use std::io::Write;
@@ -24,18 +24,13 @@ fn steps(from: f32, n: usize) -> Vec<Step> {
     (0..n)
         .map(|k| {
             let v = from + k as f32;
+            let (state, next) = (
+                [v, 0.0, 0.0, v, 0.1, 0.0],
+                [v + 1.0, 0.0, 0.0, v + 1.0, 0.1, 0.0],
+            );
             Step {
-                state: [v, 0.0, 0.0, v, 0.1, 0.0],
-                pose: [0.0; 3],
-                image: Some(Image {
-                    width: W,
-                    height: H,
-                    rgb: vec![v as u8; W as usize * H as usize * 3],
-                }),
-                expert_action: [v, -v],
-                applied_action: [0.5 * v, 0.0],
-                next_state: [v + 1.0, 0.0, 0.0, v + 1.0, 0.1, 0.0],
-                expert_ok: true,
+                image: Some(cabc_fixtures::image(W, H, v as u8)),
+                ..cabc_fixtures::step(state, [v, -v], [0.5 * v, 0.0], next)
             }
         })
         .collect()
@@ -44,9 +39,8 @@ fn steps(from: f32, n: usize) -> Vec<Step> {
 fn segment(env: u32, seq: u64, version: u64, outcome: Outcome, steps: Vec<Step>) -> Segment {
     Segment {
         env,
-        seq,
         policy_version: version,
-        ..Segment::of("actor-0", outcome, steps)
+        ..cabc_fixtures::segment("actor-0", seq, outcome, steps)
     }
 }
 
@@ -57,7 +51,7 @@ fn make_run(dir: &Path) {
     config.observation.kind = ObservationKind::Camera;
     config.observation.width = W;
     config.observation.height = H;
-    std::fs::write(dir.join("config.toml"), config.to_toml()).unwrap();
+    cabc_fixtures::run_folder(dir, &config);
     let mut replay = Replay::from_config(&config);
     let fail = Outcome::Failure(EndReason::OutOfTrack);
     for s in [

@@ -8,7 +8,7 @@ use cabc_learning::replay::Replay;
 use cabc_learning::train::Trainer;
 use cabc_models::Network;
 use cabc_proto::config::{ObservationKind, Precision, RunConfig, VisionTrunk};
-use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
+use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use std::io::Write;
 use support::train;
 use tch::Device;
@@ -17,21 +17,14 @@ fn replay(side: u16) -> Replay {
     let mut r = Replay::new(10_000, 1);
     let step = |i: usize, safe: bool| {
         let x = i as f32 / 100.0;
-        let rgb = (0..side as usize * side as usize * 3)
-            .map(|k| ((k + i) % 251) as u8)
-            .collect();
+        let (x_tran, next_x_tran) = if safe { (0.0, 0.0) } else { (0.6, 0.7) };
+        let state = [1.0, 0.0, 0.0, x, x_tran, 0.0];
+        let next = [1.0, 0.0, 0.0, x + 0.1, next_x_tran, 0.0];
         Step {
-            state: [1.0, 0.0, 0.0, x, if safe { 0.0 } else { 0.6 }, 0.0],
-            pose: [0.0; 3],
-            image: Some(Image {
-                width: side,
-                height: side,
-                rgb,
-            }),
-            expert_action: [0.5, -0.1],
-            applied_action: [0.5, -0.1],
-            next_state: [1.0, 0.0, 0.0, x + 0.1, if safe { 0.0 } else { 0.7 }, 0.0],
-            expert_ok: true,
+            image: Some(cabc_fixtures::image_of(side, side, |k| {
+                ((k + i) % 251) as u8
+            })),
+            ..cabc_fixtures::step(state, [0.5, -0.1], [0.5, -0.1], next)
         }
     };
     let segment = |outcome, steps| Segment::of("t", outcome, steps);

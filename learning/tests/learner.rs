@@ -6,7 +6,7 @@ use cabc_learning::learner::{AclDenials, Learner};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{Sink, SinkError};
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{Image, Outcome, Segment, Step};
+use cabc_proto::messages::{Outcome, Segment};
 use cabc_proto::ports::Collected;
 use std::cell::{Cell, RefCell};
 use std::collections::BTreeMap;
@@ -15,29 +15,8 @@ use std::rc::Rc;
 
 /// A segment of `actor-0` with one step, with an image (refused in a full-state run) or without.
 fn segment(seq: u64, image: bool) -> Segment {
-    let step = Step {
-        state: [1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-        pose: [0.0; 3],
-        image: image.then(|| Image {
-            width: 2,
-            height: 1,
-            rgb: vec![7; 6],
-        }),
-        expert_action: [0.1, 0.0],
-        applied_action: [0.1, 0.0],
-        next_state: [1.0, 0.0, 0.0, 1.1, 0.0, 0.0],
-        expert_ok: true,
-    };
-    Segment {
-        actor: "actor-0".into(),
-        incarnation: 0,
-        env: 0,
-        episode: 0,
-        seq,
-        policy_version: 0,
-        outcome: Outcome::Lap,
-        steps: vec![step],
-    }
+    let step = cabc_fixtures::step_ahead(image.then(|| cabc_fixtures::image(2, 1, 7)));
+    cabc_fixtures::segment("actor-0", seq, Outcome::Lap, vec![step])
 }
 
 /// What a sink was told, in order.

@@ -10,17 +10,14 @@ use cabc_learning::replay::Replay;
 use cabc_learning::train::Trainer;
 use cabc_models::Network;
 use cabc_proto::config::{RunConfig, ScheduleKind};
-use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
+use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::{train, Resumed};
 use tch::{Device, Tensor};
 
 fn config(seed: u64) -> RunConfig {
-    let mut c = RunConfig::default();
-    c.run.seed = seed;
-    c.training.device = "cpu".into();
-    c.training.schedule = ScheduleKind::EveryEpoch;
+    let mut c = cabc_fixtures::training_config(seed);
     c.algorithm.lambda = 1.0;
     c
 }
@@ -34,15 +31,8 @@ fn steps(n: usize, rng: &mut ChaCha8Rng, s0: f32) -> Vec<Step> {
             state[3] = s0 + rng.gen_range(0.0..20.0);
             let mut next = state;
             next[3] += 0.1;
-            Step {
-                state,
-                pose: [0.0; 3],
-                image: None,
-                expert_action: [(state[3] / 10.0).sin(), 0.1 * state[0]],
-                applied_action: [0.0, 0.0],
-                next_state: next,
-                expert_ok: true,
-            }
+            let expert = [(state[3] / 10.0).sin(), 0.1 * state[0]];
+            cabc_fixtures::step(state, expert, [0.0, 0.0], next)
         })
         .collect()
 }
@@ -251,13 +241,10 @@ fn a_camera_policy_clones_d_uncertain_through_its_images() {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let with_image = |mut steps: Vec<Step>, fill: &dyn Fn(usize) -> u8| {
             for (i, s) in steps.iter_mut().enumerate() {
-                s.image = Some(Image {
-                    width: side as u16,
-                    height: side as u16,
-                    rgb: (0..side * side * 3)
-                        .map(|k| fill(i).wrapping_add(k as u8))
-                        .collect(),
-                });
+                let side = side as u16;
+                s.image = Some(cabc_fixtures::image_of(side, side, |k| {
+                    fill(i).wrapping_add(k as u8)
+                }));
             }
             steps
         };

@@ -1,17 +1,15 @@
 //! Replay: partition by outcome, random eviction, images, auto-labelling removal and D-, bytes round trip.
 
+use cabc_fixtures::image;
 use cabc_learning::replay::{Replay, ReplayError};
 use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
 
 fn step(v: f32, ok: bool, image: Option<Image>) -> Step {
+    let (state, next) = ([v, 0.0, 0.0, v, 0.0, 0.0], [v + 1.0, 0.0, 0.0, v, 0.0, 0.0]);
     Step {
-        state: [v, 0.0, 0.0, v, 0.0, 0.0],
-        pose: [0.0; 3],
         image,
-        expert_action: [v, -v],
-        applied_action: [0.5 * v, 0.0],
-        next_state: [v + 1.0, 0.0, 0.0, v, 0.0, 0.0],
         expert_ok: ok,
+        ..cabc_fixtures::step(state, [v, -v], [0.5 * v, 0.0], next)
     }
 }
 
@@ -90,14 +88,6 @@ fn random_eviction_keeps_capacity_and_mixes_ages() {
     assert!(ages.iter().filter(|&&a| a >= 900.0).count() > 40);
     assert_eq!(run(7).plus, r.plus, "seeded eviction is reproducible");
     assert_ne!(run(8).plus, r.plus);
-}
-
-fn image(w: u16, h: u16, fill: u8) -> Image {
-    Image {
-        width: w,
-        height: h,
-        rgb: vec![fill; w as usize * h as usize * 3],
-    }
 }
 
 #[test]

@@ -11,18 +11,15 @@ use cabc_learning::record::Record;
 use cabc_learning::replay::Replay;
 use cabc_learning::train::{heldout, l_safety_hinged, Trainer};
 use cabc_models::{Critic, Network};
-use cabc_proto::config::{ClipScope, RunConfig, SafetyStates, SafetyTerm, ScheduleKind};
+use cabc_proto::config::{ClipScope, RunConfig, SafetyStates, SafetyTerm};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use support::train;
 use tch::{Device, Kind, Tensor};
 
 fn config(seed: u64) -> RunConfig {
-    let mut c = RunConfig::default();
-    c.run.seed = seed;
-    c.training.device = "cpu".into();
-    c.training.schedule = ScheduleKind::EveryEpoch;
+    let mut c = cabc_fixtures::training_config(seed);
     c.algorithm.lambda = 10.0;
     c
 }
@@ -37,22 +34,7 @@ fn next(x: [f32; 6], u: [f32; 2]) -> [f32; 6] {
 
 /// `n` steps with x0 in `x0`, the other dimensions in [-1, 1], the expert's action [0.5, 0.2], random applied actions.
 fn steps(n: usize, rng: &mut ChaCha8Rng, x0: std::ops::Range<f32>) -> Vec<Step> {
-    (0..n)
-        .map(|_| {
-            let mut state: [f32; 6] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
-            state[0] = rng.gen_range(x0.clone());
-            let applied = [rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0)];
-            Step {
-                state,
-                pose: [0.0; 3],
-                image: None,
-                expert_action: [0.5, 0.2],
-                applied_action: applied,
-                next_state: next(state, applied),
-                expert_ok: true,
-            }
-        })
-        .collect()
+    cabc_fixtures::random_steps(n, rng, x0, [0.5, 0.2], next)
 }
 
 fn lap(steps: Vec<Step>) -> Segment {

@@ -3,6 +3,7 @@
 //! and the checkpoint round-trips (a resumed run continues bit for bit).
 
 mod support;
+use cabc_fixtures::training_config as config;
 use cabc_learning::record::Record;
 use cabc_learning::replay::Replay;
 use cabc_learning::train::{critic_examples, CriticTrainer, Trainer};
@@ -13,14 +14,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::{train, Resumed};
 use tch::{Device, Kind, Tensor};
-
-fn config(seed: u64) -> RunConfig {
-    let mut c = RunConfig::default();
-    c.run.seed = seed;
-    c.training.device = "cpu".into();
-    c.training.schedule = ScheduleKind::EveryEpoch;
-    c
-}
 
 fn segment(outcome: Outcome, steps: Vec<Step>) -> Segment {
     Segment::of("t", outcome, steps)
@@ -44,22 +37,7 @@ fn random_steps(
     x0: std::ops::Range<f32>,
     expert: [f32; 2],
 ) -> Vec<Step> {
-    (0..n)
-        .map(|_| {
-            let mut state: [f32; 6] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
-            state[0] = rng.gen_range(x0.clone());
-            let applied = [rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0)];
-            Step {
-                state,
-                pose: [0.0; 3],
-                image: None,
-                expert_action: expert,
-                applied_action: applied,
-                next_state: linear(state, applied),
-                expert_ok: true,
-            }
-        })
-        .collect()
+    cabc_fixtures::random_steps(n, rng, x0, expert, linear)
 }
 
 fn replay(seed: u64) -> Replay {
@@ -277,14 +255,9 @@ fn trainer_save_and_load_round_trip() {
             Outcome::Failure(EndReason::Spin)
         };
         let steps = (0..store.len())
-            .map(|i| Step {
-                state: store.states[i],
-                pose: [0.0; 3],
-                image: None,
-                expert_action: store.expert_actions[i],
-                applied_action: store.applied_actions[i],
-                next_state: store.next_states[i],
-                expert_ok: true,
+            .map(|i| {
+                let (x, u) = (store.states[i], store.applied_actions[i]);
+                cabc_fixtures::step(x, store.expert_actions[i], u, store.next_states[i])
             })
             .collect();
         unlabelled.add_segment(&segment(outcome, steps)).unwrap();

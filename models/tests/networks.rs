@@ -91,13 +91,7 @@ fn weights_of_another_architecture_are_refused() {
 }
 
 fn image(w: u16, h: u16, seed: u8) -> Image {
-    Image {
-        width: w,
-        height: h,
-        rgb: (0..w as usize * h as usize * 3)
-            .map(|i| (i as u8).wrapping_mul(seed))
-            .collect(),
-    }
+    cabc_fixtures::image_of(w, h, |i| (i as u8).wrapping_mul(seed))
 }
 
 #[test]

@@ -7,19 +7,12 @@ use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EndReason, EvalReport};
 
 fn report(version: u64, lap_times: &[f64]) -> EvalReport {
-    EvalReport {
-        actor: "eval-0".into(),
-        version,
-        laps: lap_times.len() as u32,
-        lap_times: lap_times.to_vec(),
-        end_reason: if lap_times.len() >= 2 {
-            EndReason::MaxLaps
-        } else {
-            EndReason::OutOfTrack
-        },
-        steps: 100,
-        line: Vec::new(),
-    }
+    let end = if lap_times.len() >= 2 {
+        EndReason::MaxLaps
+    } else {
+        EndReason::OutOfTrack
+    };
+    cabc_fixtures::eval_report("eval-0", version, lap_times, end, 100)
 }
 
 #[test]

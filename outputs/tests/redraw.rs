@@ -17,13 +17,8 @@ use std::path::Path;
 
 fn report(version: u64, lap_times: Vec<f64>) -> EvalReport {
     EvalReport {
-        actor: "eval".into(),
-        version,
-        laps: lap_times.len() as u32,
-        lap_times,
-        end_reason: EndReason::OutOfTrack,
-        steps: 40,
         line: (0..40).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+        ..cabc_fixtures::eval_report("eval", version, &lap_times, EndReason::OutOfTrack, 40)
     }
 }
 
@@ -106,10 +101,7 @@ fn a_kept_run_folder_gives_the_live_plots_byte_for_byte() {
     live_run(&live);
     // The kept copy: the four small files, as the campaign copies them.
     let kept = tmp.path().join("docs/reproduction/r-s1");
-    std::fs::create_dir_all(&kept).unwrap();
-    for file in ["config.toml", "metrics.csv", "evals.csv", "summary.json"] {
-        std::fs::copy(live.join(file), kept.join(file)).unwrap();
-    }
+    cabc_fixtures::keep(&live, &kept);
     let redrawn = redraw(&kept, None).unwrap();
     assert_eq!(
         redrawn.drawn,
@@ -212,10 +204,7 @@ fn what_is_not_a_run_folder_or_malformed_is_refused() {
     ];
     for (file, text, what) in cases {
         let kept = tmp.path().join(format!("bad-{file}"));
-        std::fs::create_dir_all(&kept).unwrap();
-        for f in ["config.toml", "metrics.csv", "evals.csv", "summary.json"] {
-            std::fs::copy(run.join(f), kept.join(f)).unwrap();
-        }
+        cabc_fixtures::keep(&run, &kept);
         std::fs::write(kept.join(file), &text).unwrap();
         let e = message(redraw(&kept, None).unwrap_err());
         assert!(e.contains(what), "{file} {text:?}: {e}");

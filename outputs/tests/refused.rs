@@ -1,35 +1,15 @@
 //! What the learner refuses from the bus (issue 13, item 2): segments whose images are not of the run's observation
 //! size, and evaluation reports of versions not published yet; both counted in `summary.json`.
 
+use cabc_fixtures::step_ahead as step;
 use cabc_learning::replay::{Frames, Replay, ReplayError};
 use cabc_outputs::rundir::RunDir;
 use cabc_proto::config::{ObservationKind, RunConfig};
-use cabc_proto::messages::{EndReason, EvalReport, Image, Outcome, Segment, Step};
+use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
 use cabc_proto::ports::Collected;
 
-fn step(image: Option<Image>) -> Step {
-    Step {
-        state: [1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-        pose: [0.0; 3],
-        image,
-        expert_action: [0.1, 0.0],
-        applied_action: [0.1, 0.0],
-        next_state: [1.0, 0.0, 0.0, 1.1, 0.0, 0.0],
-        expert_ok: true,
-    }
-}
-
 fn segment(seq: u64, steps: Vec<Step>) -> Segment {
-    Segment {
-        actor: "actor-0".into(),
-        incarnation: 0,
-        env: 0,
-        episode: 0,
-        seq,
-        policy_version: 0,
-        outcome: Outcome::Lap,
-        steps,
-    }
+    cabc_fixtures::segment("actor-0", seq, Outcome::Lap, steps)
 }
 
 fn image(w: u16, h: u16, len: usize) -> Option<Image> {
@@ -89,15 +69,8 @@ fn bad_segments_and_unpublished_evaluations_are_refused_and_counted() {
     let config = RunConfig::load("smoke").unwrap();
     let run_dir = RunDir::create(tmp.path()).unwrap();
     let mut learner = cabc_outputs::learner(config, run_dir, false).unwrap();
-    let report = |version| EvalReport {
-        actor: "eval-0".into(),
-        version,
-        laps: 0,
-        lap_times: Vec::new(),
-        end_reason: EndReason::OutOfTrack,
-        steps: 3,
-        line: Vec::new(),
-    };
+    let report =
+        |version| cabc_fixtures::eval_report("eval-0", version, &[], EndReason::OutOfTrack, 3);
     // Nothing published yet: no report counts.
     learner.on_eval(report(0));
     let _ = learner.policy_update(0);

@@ -65,11 +65,7 @@ fn a_smoke_run_completes_survives_faults_and_resumes() {
         std::thread::sleep(Duration::from_millis(100));
     }
     cluster.kill("actor-2").unwrap();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = cabc_fixtures::runtime();
     runtime.block_on(publish_garbage(&endpoint, "cabc/e2e/traj/x"));
 
     let summary = cluster.summary("learner");
@@ -216,11 +212,7 @@ fn the_expert_server_refuses_bad_requests_and_keeps_serving() {
             &["--config", &config, "serve"],
         )
         .unwrap();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = cabc_fixtures::runtime();
     runtime.block_on(async {
         let mut zc = zenoh::Config::default();
         zc.insert_json5("mode", "\"client\"").unwrap();

@@ -8,7 +8,7 @@ use cabc_proto::codec::{decode, encode};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::{
-    EndReason, EpochDone, EvalReport, Outcome, PolicyUpdate, Segment, Step, Stop, TrajMessage,
+    EndReason, EvalReport, Outcome, PolicyUpdate, Segment, Step, Stop, TrajMessage,
 };
 use cabc_tests::netns::{NetnsPair, SERVER_IP};
 use cabc_tests::{free_port, make_certs, Cluster};
@@ -125,15 +125,11 @@ fn note(seen: &Mutex<Seen>, key: &str, bytes: &[u8]) {
 }
 
 fn step() -> Step {
-    Step {
-        state: [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
-        pose: [0.0; 3],
-        image: None,
-        expert_action: [0.0; 2],
-        applied_action: [0.0; 2],
-        next_state: [0.6, 0.0, 0.0, 0.1, 0.0, 0.0],
-        expert_ok: true,
-    }
+    let (state, next) = (
+        [0.5, 0.0, 0.0, 0.1, 0.0, 0.0],
+        [0.6, 0.0, 0.0, 0.1, 0.0, 0.0],
+    );
+    cabc_fixtures::step(state, [0.0; 2], [0.0; 2], next)
 }
 
 /// The forged messages (key, payload) that actor-0's certificate tries: what only the learner (policy, control),
@@ -146,47 +142,23 @@ fn forgeries(keys: &Keys, per_kind: u64) -> Vec<(String, Vec<u8>)> {
         };
         out.push((keys.control(), encode(&stop)));
         let update = PolicyUpdate {
-            version: FORGED + i,
             beta: 0.0,
-            architecture: "forged".into(),
-            weights: vec![0; 64],
             steps_per_actor: 1,
-            published_unix_ms: 0,
-            shield: None,
+            ..cabc_fixtures::policy_update(FORGED + i, "forged", vec![0; 64])
         };
         out.push((keys.policy(), encode(&update)));
         // A perfect evaluation of version 1: through, it would end the run by early stop.
         let report = EvalReport {
-            actor: "eval".into(),
-            version: 1,
-            laps: 50,
-            lap_times: vec![1.0; 50],
-            end_reason: EndReason::MaxLaps,
-            steps: FORGED + i,
             line: vec![[0.0, 0.0]],
+            ..cabc_fixtures::eval_report("eval", 1, &[1.0; 50], EndReason::MaxLaps, FORGED + i)
         };
         out.push((keys.eval("eval"), encode(&report)));
         let segment = TrajMessage::Segment(Segment {
-            actor: "actor-1".into(),
-            incarnation: 0,
-            env: 0,
             episode: FORGED,
-            seq: FORGED + i,
-            policy_version: 0,
-            outcome: Outcome::Lap,
-            steps: vec![step(); 7],
+            ..cabc_fixtures::segment("actor-1", FORGED + i, Outcome::Lap, vec![step(); 7])
         });
         out.push((keys.traj("actor-1"), encode(&segment)));
-        let done = TrajMessage::EpochDone(EpochDone {
-            actor: "actor-1".into(),
-            version: i,
-            published_unix_ms: 0,
-            segments: 1,
-            steps: FORGED + i,
-            taken: FORGED + i,
-            staged: 0,
-            shielded: 0,
-        });
+        let done = TrajMessage::EpochDone(cabc_fixtures::marker("actor-1", i, 1, FORGED + i));
         out.push((keys.traj("actor-1"), encode(&done)));
     }
     out
@@ -222,11 +194,7 @@ fn an_mtls_run_completes_and_refuses_forged_messages() {
     let keys = Keys::new("sec").unwrap();
     let config = cluster.config.clone();
 
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = cabc_fixtures::runtime();
     let (tried, refused, connections) = runtime.block_on(async {
         // Without a certificate, and over plain tcp to the TLS port: no session at all (tried while the forger
         // works, as each attempt takes its connect timeout).
@@ -482,11 +450,7 @@ fn a_denied_client_leaving_logs_no_error() {
     wait_for_epochs(&cluster, 1);
     let keys = Keys::new("quiet").unwrap();
     let config = cluster.config.clone();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = cabc_fixtures::runtime();
     runtime.block_on(async {
         let observer = zenoh::open(client(&config, "observer", false))
             .await
@@ -695,11 +659,7 @@ fn a_password_run_completes_and_refuses_wrong_passwords() {
     let mut cluster = Cluster::on(tmp.path(), "pw", 80, &endpoint, &endpoint, &extra).unwrap();
     cluster.start_all(2, false).unwrap();
     wait_for_epochs(&cluster, 1);
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = cabc_fixtures::runtime();
     let refused = runtime.block_on(async {
         let mut wrong = client(&cluster.config, "actor/actor-0", false);
         wrong
