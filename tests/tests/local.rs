@@ -29,6 +29,40 @@ fn numbers(path: &std::path::Path, names: &[&str]) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// Adds `line` to table `[table]` of the cluster's configuration file.
+fn set_in(cluster: &Cluster, table: &str, line: &str) {
+    let header = format!("[{table}]\n");
+    let text = std::fs::read_to_string(&cluster.config).unwrap();
+    let text = text.replacen(&header, &format!("{header}{line}\n"), 1);
+    std::fs::write(&cluster.config, text).unwrap();
+}
+
+/// `learner run --local` of a cluster named `local` (configured by `configure`) to its summary of `epochs` epochs:
+/// the cluster and the summary.
+fn local_run(
+    dir: &std::path::Path,
+    epochs: u64,
+    extra: &str,
+    configure: impl Fn(&Cluster),
+) -> (Cluster, serde_json::Value) {
+    let mut local = Cluster::new(dir, "local", epochs, extra).unwrap();
+    configure(&local);
+    let (config, run_dir) = (
+        local.config.display().to_string(),
+        local.dir.display().to_string(),
+    );
+    local
+        .start(
+            "learner",
+            "learner",
+            &["run", "--local", "--config", &config, "--run-dir", &run_dir],
+        )
+        .unwrap();
+    let summary = local.summary("learner");
+    assert_eq!(summary["epochs"], epochs);
+    (local, summary)
+}
+
 const METRICS: &[&str] = &[
     "epoch",
     "steps_collected",
@@ -55,20 +89,7 @@ fn a_local_run_gives_the_distributed_runs_numbers() {
     let dist_summary = dist.summary("learner");
     assert_eq!(dist_summary["epochs"], epochs);
 
-    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
-    let (config, dir) = (
-        local.config.display().to_string(),
-        local.dir.display().to_string(),
-    );
-    local
-        .start(
-            "learner",
-            "learner",
-            &["run", "--local", "--config", &config, "--run-dir", &dir],
-        )
-        .unwrap();
-    let local_summary = local.summary("learner");
-    assert_eq!(local_summary["epochs"], epochs);
+    let (local, local_summary) = local_run(tmp.path(), epochs, extra, |_| {});
     assert_eq!(
         local_summary["versions_not_evaluated"],
         serde_json::json!([])
@@ -241,29 +262,12 @@ fn an_overlapped_distributed_run_gives_the_local_runs_numbers() {
     let tmp = cabc_tests::test_dir();
     let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\n";
     let epochs = 4;
-    let overlap = |cluster: &Cluster| {
-        let text = std::fs::read_to_string(&cluster.config).unwrap();
-        let text = text.replacen("[collection]\n", "[collection]\noverlap = true\n", 1);
-        std::fs::write(&cluster.config, text).unwrap();
-    };
+    let overlap = |cluster: &Cluster| set_in(cluster, "collection", "overlap = true");
     let mut dist = Cluster::new(tmp.path(), "dist", epochs, extra).unwrap();
     overlap(&dist);
     dist.start_all(2, false).unwrap();
     assert_eq!(dist.summary("learner")["epochs"], epochs);
-    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
-    overlap(&local);
-    let (config, dir) = (
-        local.config.display().to_string(),
-        local.dir.display().to_string(),
-    );
-    local
-        .start(
-            "learner",
-            "learner",
-            &["run", "--local", "--config", &config, "--run-dir", &dir],
-        )
-        .unwrap();
-    assert_eq!(local.summary("learner")["epochs"], epochs);
+    let (local, _) = local_run(tmp.path(), epochs, extra, overlap);
     let a = numbers(&dist.dir.join("metrics.csv"), METRICS);
     let b = numbers(&local.dir.join("metrics.csv"), METRICS);
     assert_eq!(a.len(), epochs as usize);
@@ -279,13 +283,8 @@ fn actors_that_solve_their_own_relabellings_give_the_local_runs_numbers() {
     let tmp = cabc_tests::test_dir();
     let extra = "[actors]\ncount = 2\nenvs_per_actor = 2\n";
     let epochs = 4;
-    let in_actor = |cluster: &Cluster| {
-        let text = std::fs::read_to_string(&cluster.config).unwrap();
-        let text = text.replacen("[expert]\n", "[expert]\nplacement = \"in-actor\"\n", 1);
-        std::fs::write(&cluster.config, text).unwrap();
-    };
     let mut dist = Cluster::new(tmp.path(), "dist", epochs, extra).unwrap();
-    in_actor(&dist);
+    set_in(&dist, "expert", "placement = \"in-actor\"");
     dist.start_learner("learner", false).unwrap();
     let config = dist.config.display().to_string();
     for id in ["actor-0", "actor-1"] {
@@ -299,19 +298,7 @@ fn actors_that_solve_their_own_relabellings_give_the_local_runs_numbers() {
     )
     .unwrap();
     assert_eq!(dist.summary("learner")["epochs"], epochs);
-    let mut local = Cluster::new(tmp.path(), "local", epochs, extra).unwrap();
-    let (config, dir) = (
-        local.config.display().to_string(),
-        local.dir.display().to_string(),
-    );
-    local
-        .start(
-            "learner",
-            "learner",
-            &["run", "--local", "--config", &config, "--run-dir", &dir],
-        )
-        .unwrap();
-    assert_eq!(local.summary("learner")["epochs"], epochs);
+    let (local, _) = local_run(tmp.path(), epochs, extra, |_| {});
     let a = numbers(&dist.dir.join("metrics.csv"), METRICS);
     let b = numbers(&local.dir.join("metrics.csv"), METRICS);
     assert_eq!(a.len(), epochs as usize);
