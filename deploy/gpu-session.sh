@@ -1,36 +1,43 @@
 #!/usr/bin/env bash
-# Issue 31's device checks as one prepared call, sized to the device tool's budget (15 minutes of device time a
+# The GPU issue's device checks as prepared calls, sized to the device tool's budget (15 minutes of device time a
 # session, 10 minutes a call): run on the lent GPU machine from the repository root, after `deploy/gpu-pack.sh` here,
 # with the device tool's `carry: [".gpu"]`:
 #
-#   bash deploy/gpu-session.sh --seconds 560          # the call's timeout_s 600
+#   bash deploy/gpu-session.sh --part checks --seconds 240    # first call: what can fail, quickly
+#   bash deploy/gpu-session.sh --part vc --seconds 500        # then at once, on the warm machine: V-C
 #
 # In order, each step bounded so that the next always runs and the results always come back:
-#   1. nvidia-smi and the CUDA test (learning/tests/cuda.rs)                      -> $OUT/gpu.log
-#   2. `cabc bench-vision` fp32 and bf16, each set against PyTorch 2.11's anchor  -> $OUT/bench-{fp32,bf16}.json, gpu.log
-#   3. V-C at 224x224 with ResNet-18 (`v-c-ref` at the paper's size, bf16) for the seconds left, ended by SIGINT
-#      (the run's summary says "interrupted"; its checkpoint stays on the machine)
-#                                  -> $OUT/{metrics.csv,evals.csv,summary.json,laps.png,run.log}
-# --seconds is the whole script's budget (default 560); --side changes the image side of steps 2 and 3 (224; a
-# smaller one checks the script itself on a CPU), --bench-args replaces bench-vision's timing arguments. Anywhere
-# else than the device tool, OUT names the folder for the results (TORCH_LIB: see .gpu/run.sh).
+#   1. (checks) nvidia-smi and the CUDA test (learning/tests/cuda.rs)            -> $OUT/gpu.log
+#   2. (checks) `cabc bench-vision` fp32 and bf16, each beside PyTorch's own figure for the same network and step,
+#      measured in the same call (bench/anchor/vision.py), and against issue 31's anchor
+#                                                       -> $OUT/bench.jsonl (ours, PyTorch's; fp32, bf16), gpu.log
+#   3. (vc) V-C at 224x224 with ResNet-18 (`v-c-ref` at the paper's size, bf16) for the seconds left, ended by
+#      SIGINT (the run's summary says "interrupted"; its checkpoint stays on the machine, and a later call on the
+#      same warm machine resumes it)    -> $OUT/{metrics.csv,evals.csv,summary.json,laps.png,run.log}
+# --part is checks, vc or all (the default); --seconds is the whole script's budget (default 560); --side changes
+# the image side of steps 2 and 3 (224; a smaller one checks the script itself on a CPU), --bench-args replaces
+# bench-vision's timing arguments (the anchor's too). Anywhere else than the device tool, OUT names the folder for
+# the results (TORCH_LIB: see .gpu/run.sh; PYTHON the Python with torch and torchvision, default python3).
 set -uo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
 
 seconds=560
+part=all
 side=224
 bench_args=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds=$2; shift ;;
+    --part) part=$2; shift ;;
     --side) side=$2; shift ;;
     --bench-args) bench_args=$2; shift ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
 done
+case "$part" in checks|vc|all) ;; *) echo "--part: checks, vc or all" >&2; exit 2 ;; esac
 [ -n "${OUT:-}" ] || { echo "OUT is unset: name the folder for the results" >&2; exit 2; }
 [ -x .gpu/run.sh ] || { echo "no .gpu/run.sh: run deploy/gpu-pack.sh here and carry .gpu" >&2; exit 2; }
 mkdir -p "$OUT"
@@ -44,26 +51,36 @@ declare -A anchor=([fp32]=4256 [bf16]=5635)
 
 step "nvidia-smi"
 nvidia-smi >> "$log" 2>&1 || echo "nvidia-smi: rc $?" >> "$log"
-
+[ "$part" = vc ] || {
 step "the CUDA test"
 timeout 150 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
 echo "cuda-test: rc $?" >> "$log"
 
 for precision in fp32 bf16; do
-  step "bench-vision $precision"
+  step "bench-vision $precision, ours then PyTorch's"
   # shellcheck disable=SC2086 # bench_args is a list of words
   timeout 90 .gpu/run.sh cabc bench-vision --side "$side" --precision "$precision" $bench_args \
-    > "$OUT/bench-$precision.json" 2>> "$log"
+    > "$OUT/ours.json" 2>> "$log"
   echo "bench-vision $precision: rc $?" >> "$log"
-  python3 - "$OUT/bench-$precision.json" "${anchor[$precision]}" >> "$log" 2>&1 <<'PY'
+  # shellcheck disable=SC2086
+  timeout 90 "${PYTHON:-python3}" bench/anchor/vision.py --side "$side" --precision "$precision" $bench_args \
+    > "$OUT/theirs.json" 2>> "$log"
+  echo "PyTorch $precision: rc $?" >> "$log"
+  python3 - "$OUT/ours.json" "$OUT/theirs.json" "${anchor[$precision]}" "$OUT/bench.jsonl" >> "$log" 2>&1 <<'PY'
 import json, sys
-bench = json.load(open(sys.argv[1]))
-ours, theirs = bench["train_images_per_s"], float(sys.argv[2])
-print(f"{bench['precision']} on {bench['device']}: {ours:.0f} training images/s at batch {bench['batch']}, "
-      f"side {bench['side']}; PyTorch's {theirs:.0f}: {ours / theirs:.1%}; inference {bench['infer_images_per_s']}")
+ours, theirs = (json.load(open(f)) for f in sys.argv[1:3])
+with open(sys.argv[4], "a") as lines:
+    lines.write(json.dumps(ours) + "\n" + json.dumps(theirs) + "\n")
+a, b, fixed = ours["train_images_per_s"], theirs["train_images_per_s"], float(sys.argv[3])
+print(f"{ours['precision']} on {ours['device']}: {a:.0f} training images/s at batch {ours['batch']}, side "
+      f"{ours['side']}; PyTorch's here {b:.0f}: {a / b:.1%}; issue 31's anchor {fixed:.0f}: {a / fixed:.1%}; "
+      f"inference ours {ours['infer_images_per_s']}, PyTorch's {theirs['infer_images_per_s']}")
 PY
+  rm -f "$OUT/ours.json" "$OUT/theirs.json"
 done
+}
 
+[ "$part" = checks ] || {
 run=v-c-ref-$side
 budget=$(( $(left) - 25 ))
 step "V-C at ${side}x${side} for ${budget}s"
@@ -83,5 +100,6 @@ if [ "$budget" -gt 30 ]; then
 else
   echo "no time left for V-C" >> "$log"
 fi
+}
 step "done"
 cat "$log"
