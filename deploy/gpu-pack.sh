@@ -29,6 +29,21 @@ strip -o .gpu/cuda-test "$test_bin"
     *) case "$path" in "$root"/.deps/*) ;; *) cp -L "$path" ".gpu/lib/$name" ;; esac ;;
   esac
 done
+# A font and a fontconfig file that names it alone: that machine has no fonts, and the plots need one (the first
+# CUDA run's log: "No such font: sans-serif").
+font=$(fc-match -f '%{file}' sans-serif 2>/dev/null || true)
+[ -f "$font" ] || { echo "[gpu-pack] error: no sans-serif font here (fc-match)" >&2; exit 1; }
+mkdir -p .gpu/fonts
+cp -L "$font" .gpu/fonts/
+cat > .gpu/fonts/fonts.conf <<'CONF'
+<?xml version="1.0"?>
+<!DOCTYPE fontconfig SYSTEM "fonts.dtd">
+<fontconfig>
+  <dir prefix="relative">.</dir>
+  <cachedir>/tmp/cabc-fontconfig</cachedir>
+  <alias><family>sans-serif</family><prefer><family>DejaVu Sans</family></prefer></alias>
+</fontconfig>
+CONF
 cat > .gpu/run.sh <<'RUN'
 #!/usr/bin/env bash
 # Runs a packed binary (deploy/gpu-pack.sh) against the machine's libtorch: .gpu/run.sh learner|cabc ARGS...
@@ -37,6 +52,7 @@ here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 torch_lib=${TORCH_LIB:-/opt/torch/.venv/lib/python3.12/site-packages/torch/lib}
 [ -f "$torch_lib/libtorch_cuda.so" ] || { echo "no libtorch_cuda.so in $torch_lib (set TORCH_LIB)" >&2; exit 1; }
 export LD_LIBRARY_PATH="$torch_lib:$here/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+export FONTCONFIG_FILE="$here/fonts/fonts.conf"
 bin=$1; shift
 exec "$here/$bin" "$@"
 RUN

@@ -8,12 +8,13 @@
 #
 # In order, each step bounded so that the next always runs and the results always come back:
 #   1. (checks) nvidia-smi and the CUDA test (learning/tests/cuda.rs)            -> $OUT/gpu.log
-#   2. (checks) `cabc bench-vision` fp32 and bf16, each beside PyTorch's own figure for the same network and step,
-#      measured in the same call (bench/anchor/vision.py), and against issue 31's anchor
+#   2. (checks) `cabc bench-vision` fp32 and bf16 with the run's Adam and with tch's, each beside PyTorch's own
+#      figure for the same network and step, measured in the same call (bench/anchor/vision.py), and against issue
+#      31's anchor
 #                                                       -> $OUT/bench.jsonl (ours, PyTorch's; fp32, bf16), gpu.log
 #   3. (vc) V-C at 224x224 with ResNet-18 (`v-c-ref` at the paper's size, bf16) for the seconds left, ended by
 #      SIGINT (the run's summary says "interrupted"; its checkpoint stays on the machine, and a later call on the
-#      same warm machine resumes it)    -> $OUT/{metrics.csv,evals.csv,summary.json,laps.png,run.log}
+#      same warm machine resumes it)    -> $OUT/{metrics.csv,evals.csv,summary.json,config.toml,laps.png,run.log}
 # --part is checks, vc or all (the default); --seconds is the whole script's budget (default 560); --side changes
 # the image side of steps 2 and 3 (224; a smaller one checks the script itself on a CPU), --bench-args replaces
 # bench-vision's timing arguments (the anchor's too). Anywhere else than the device tool, OUT names the folder for
@@ -32,7 +33,7 @@ while [ $# -gt 0 ]; do
     --part) part=$2; shift ;;
     --side) side=$2; shift ;;
     --bench-args) bench_args=$2; shift ;;
-    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -57,26 +58,34 @@ timeout 150 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
 echo "cuda-test: rc $?" >> "$log"
 
 for precision in fp32 bf16; do
-  step "bench-vision $precision, ours then PyTorch's"
-  # shellcheck disable=SC2086 # bench_args is a list of words
-  timeout 90 .gpu/run.sh cabc bench-vision --side "$side" --precision "$precision" $bench_args \
-    > "$OUT/ours.json" 2>> "$log"
-  echo "bench-vision $precision: rc $?" >> "$log"
+  for optimiser in run tch; do
+    step "bench-vision $precision, optimiser $optimiser"
+    # shellcheck disable=SC2086 # bench_args is a list of words
+    timeout 90 .gpu/run.sh cabc bench-vision --side "$side" --precision "$precision" --optimiser "$optimiser" \
+      $bench_args > "$OUT/ours-$optimiser.json" 2>> "$log"
+    echo "bench-vision $precision $optimiser: rc $?" >> "$log"
+  done
+  step "PyTorch $precision"
   # shellcheck disable=SC2086
   timeout 90 "${PYTHON:-python3}" bench/anchor/vision.py --side "$side" --precision "$precision" $bench_args \
     > "$OUT/theirs.json" 2>> "$log"
   echo "PyTorch $precision: rc $?" >> "$log"
-  python3 - "$OUT/ours.json" "$OUT/theirs.json" "${anchor[$precision]}" "$OUT/bench.jsonl" >> "$log" 2>&1 <<'PY'
+  python3 - "$OUT/theirs.json" "${anchor[$precision]}" "$OUT/bench.jsonl" "$OUT"/ours-*.json >> "$log" 2>&1 <<'PY'
 import json, sys
-ours, theirs = (json.load(open(f)) for f in sys.argv[1:3])
-with open(sys.argv[4], "a") as lines:
-    lines.write(json.dumps(ours) + "\n" + json.dumps(theirs) + "\n")
-a, b, fixed = ours["train_images_per_s"], theirs["train_images_per_s"], float(sys.argv[3])
-print(f"{ours['precision']} on {ours['device']}: {a:.0f} training images/s at batch {ours['batch']}, side "
-      f"{ours['side']}; PyTorch's here {b:.0f}: {a / b:.1%}; issue 31's anchor {fixed:.0f}: {a / fixed:.1%}; "
-      f"inference ours {ours['infer_images_per_s']}, PyTorch's {theirs['infer_images_per_s']}")
+theirs, fixed, out = json.load(open(sys.argv[1])), float(sys.argv[2]), sys.argv[3]
+b = theirs["train_images_per_s"]
+with open(out, "a") as lines:
+    lines.write(json.dumps(theirs) + "\n")
+    for f in sys.argv[4:]:
+        ours = json.load(open(f))
+        lines.write(json.dumps(ours) + "\n")
+        a = ours["train_images_per_s"]
+        print(f"{ours['precision']} on {ours['device']}, optimiser {ours['optimiser']}: {a:.0f} training images/s "
+              f"at batch {ours['batch']}, side {ours['side']}; PyTorch's here {b:.0f}: {a / b:.1%}; issue 31's "
+              f"anchor {fixed:.0f}: {a / fixed:.1%}; inference ours {ours['infer_images_per_s']}, PyTorch's "
+              f"{theirs['infer_images_per_s']}")
 PY
-  rm -f "$OUT/ours.json" "$OUT/theirs.json"
+  rm -f "$OUT"/ours-*.json "$OUT/theirs.json"
 done
 }
 
@@ -94,7 +103,7 @@ if [ "$budget" -gt 30 ]; then
   echo "learner: rc $? (124 or 130: ended by the budget)" >> "$log"
   tail -n 400 "$OUT/run.full.log" > "$OUT/run.log"
   rm -f "$OUT/run.full.log"
-  for f in metrics.csv evals.csv summary.json plots/laps.png; do
+  for f in metrics.csv evals.csv summary.json config.toml plots/laps.png; do
     cp "runs/$run/$f" "$OUT/" 2>> "$log" || true
   done
 else

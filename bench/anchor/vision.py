@@ -25,7 +25,11 @@ def main():
     p.add_argument("--warmup", type=int, default=10)
     p.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
     p.add_argument("--infer", default="1,8,64")
+    p.add_argument("--tf32", choices=["default", "on", "off"], default="default",
+                   help="cuDNN's TF32 for fp32 convolutions (PyTorch's default: on)")
     o = p.parse_args()
+    if o.tf32 != "default":
+        torch.backends.cudnn.allow_tf32 = o.tf32 == "on"
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     torch.manual_seed(1)
     trunk = torchvision.models.resnet18()
@@ -89,6 +93,7 @@ def main():
         "side": o.side,
         "batch": o.batch,
         "precision": o.precision,
+        "cudnn_tf32": torch.backends.cudnn.allow_tf32,
         "train_images_per_s": statistics.median_high(rates),
         "infer_images_per_s": infer,
     }))

@@ -30,6 +30,7 @@ mod policy;
 mod standardise;
 mod state;
 
+pub use adam::Adam;
 pub use critic::{critic_examples, heldout, CriticFit, CriticTrainer, Heldout, ECE_BINS};
 pub use dynamics::Fit;
 pub use fit::{profiled, FitProfile};

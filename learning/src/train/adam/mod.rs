@@ -28,7 +28,7 @@ mod flat;
 mod tests;
 
 use flat::Flat;
-use tch::{nn, Tensor};
+use tch::{nn, Kind, Tensor};
 
 /// libtorch's defaults (`AdamOptions`).
 const BETA1: f64 = 0.9;
@@ -58,7 +58,7 @@ struct Param {
 /// the per-variable step gives it (`flat_and_per_variable_steps_agree`, and a recipe run's `metrics.csv` and
 /// `evals.csv` bit for bit, issue 46). Each stretch starts 64-byte aligned, as a tensor of its own does: with
 /// unaligned weights a recipe run's GEMMs rounded differently from its tenth epoch on (measured).
-pub(crate) struct Adam {
+pub struct Adam {
     params: Vec<Param>,
     flat: Flat,
     /// The learning rate of the next steps.
@@ -70,6 +70,9 @@ pub(crate) struct Adam {
     /// Every step parameter by parameter, the gradients where autograd puts them (the flat step's reference, for
     /// tests).
     pub per_variable: bool,
+    /// Whether the clip's coefficient stays on the device (the default where the variables live on a GPU) rather
+    /// than being read back to the host; the same bits either way (`the_clip_on_the_device_gives_the_hosts_bits`).
+    pub device_clip: bool,
 }
 
 impl Adam {
@@ -93,6 +96,7 @@ impl Adam {
             })
             .collect();
         let flat = Flat::of(&mut params);
+        let device_clip = flat.params.device().is_cuda();
         Adam {
             params,
             flat,
@@ -100,6 +104,7 @@ impl Adam {
             weight_decay,
             keep_grads: false,
             per_variable: false,
+            device_clip,
         }
     }
 
@@ -133,15 +138,33 @@ impl Adam {
             if norms.is_empty() {
                 return;
             }
-            let total_norm = f64::try_from(Tensor::stack(&norms, 0).norm()).expect("a scalar");
+            let total_norm = Tensor::stack(&norms, 0).norm();
+            let own: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
+            let in_place = self.flat.holds(&own);
+            let others = grads.into_iter().skip(if in_place { own.len() } else { 0 });
+            if self.device_clip {
+                // On a GPU, reading the norm back would wait for the backward pass to finish and leave the GPU idle
+                // while the step's kernels are queued, so the coefficient stays there: min(1, max / (norm + 1e-6)) in
+                // f64 rounded to the gradients' kind, the very factor the host's branch multiplies by (x * 1 = x).
+                let max = Tensor::full([], max, (Kind::Double, total_norm.device()));
+                let coef = (max / total_norm.to_kind(Kind::Double).g_add_scalar(1e-6))
+                    .clamp_max(1.0)
+                    .to_kind(total_norm.kind());
+                if in_place {
+                    let _ = self.flat.grads.shallow_clone().g_mul_(&coef);
+                }
+                for mut grad in others {
+                    let _ = grad.g_mul_(&coef);
+                }
+                return;
+            }
+            let total_norm = f64::try_from(total_norm).expect("a scalar");
             let clip_coef = max / (total_norm + 1e-6);
             if clip_coef < 1.0 {
-                let own: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
-                let in_place = self.flat.holds(&own);
                 if in_place {
                     let _ = self.flat.grads.shallow_clone().g_mul_scalar_(clip_coef);
                 }
-                for mut grad in grads.into_iter().skip(if in_place { own.len() } else { 0 }) {
+                for mut grad in others {
                     let _ = grad.g_mul_scalar_(clip_coef);
                 }
             }

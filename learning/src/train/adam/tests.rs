@@ -245,3 +245,49 @@ fn the_clip_counts_other_gradients_and_gradients_survive_a_checkpoint() {
         "no gradients unless kept"
     );
 }
+
+/// The clip's coefficient computed where the gradients live (a GPU's path, forced here on the CPU) scales them by the
+/// very bits the host's branch does, clipping or not, with another network's gradients in the norm too.
+#[test]
+fn the_clip_on_the_device_gives_the_hosts_bits() {
+    tch::set_num_threads(1);
+    let (a, b, na, nb) = pair();
+    let (c, nc) = copy_of(&a);
+    let (d, nd) = copy_of(&a);
+    let mut host = Adam::new(&a, 1e-2, 1e-4);
+    let mut device = Adam::new(&b, 1e-2, 1e-4);
+    assert!(!host.device_clip, "on the CPU the host reads the norm");
+    device.device_clip = true;
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+    let mut clipped = 0;
+    for i in 0..120 {
+        let x = inputs(&mut rng);
+        // Alternately a bound that clips and one that does not.
+        let max = if i % 2 == 0 { 0.05 } else { 50.0 };
+        for (opt, n, other, no) in [(&mut host, &na, &c, &nc), (&mut device, &nb, &d, &nd)] {
+            opt.zero_grad();
+            for mut t in other.trainable_variables() {
+                t.zero_grad();
+            }
+            (n.forward(&x).square().mean(Kind::Float) + no.forward(&x).abs().mean(Kind::Float))
+                .backward();
+            let before = other.trainable_variables()[0].grad().copy();
+            opt.clip_grad_norm(max, &other.trainable_variables());
+            if !before.equal(&other.trainable_variables()[0].grad()) {
+                clipped += 1;
+            }
+            opt.step();
+        }
+    }
+    assert!(clipped >= 2 * 60, "the bound 0.05 clips: {clipped}");
+    for (name, t) in &a.variables() {
+        assert!(t.equal(&b.variables()[name]), "{name} differs");
+    }
+    let dv = d.variables();
+    for (name, t) in &c.variables() {
+        assert!(
+            t.grad().equal(&dv[name].grad()),
+            "{name}'s clipped gradient differs"
+        );
+    }
+}
