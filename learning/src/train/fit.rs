@@ -168,11 +168,16 @@ pub(crate) fn fit<M: Default>(
         let mut batches = shuffled_batches(n, t.batch_size, rng);
         batches.truncate(left);
         left -= batches.len();
-        for rows in batches {
+        // The pass's indices go to the device in one copy: a copy from the host waits for the device's queue to
+        // drain (libtorch synchronises after a blocking upload), which once per batch would idle a GPU each step.
+        let indices = Tensor::from_slice(&batches.concat())
+            .view([batches.len() as i64, t.batch_size.max(1) as i64])
+            .to_device(device);
+        for (i, rows) in batches.iter().enumerate() {
             let mut clock = Clock::start();
             let batch = Batch {
-                idx: Tensor::from_slice(&rows).to_device(device),
-                rows: &rows,
+                idx: indices.get(i as i64),
+                rows,
             };
             let l = with_precision(t.precision, device, || loss(&batch, &mut last))?;
             clock.lap(|p| &mut p.forward_s);
