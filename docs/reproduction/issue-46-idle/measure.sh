@@ -1,10 +1,14 @@
 #!/bin/bash
 # Idle measurements for issue 46 (run alone: nothing else on the 2 cores), as run on 2026-11-27 from a checkout at
 # /work/main with the binaries of d2c3feb pinned (deploy/campaign.sh --pin d2c3feb); its output is measure.txt.
-# usage: measure46.sh ab|cand SEED...
+# usage: measure.sh ab | cand SEED... | recipe SEED...
+#   recipe: the main job as it is (`deploy/run-local.sh` on the preset v-b, the in-actor expert), per seed, to the
+#   early stop, with the binaries of RECIPE_BIN (default: this checkout's target/release, built by run-local.sh's
+#   set-up when absent).
 set -u
 cd /work/main
 export CABC_BIN=/work/main/.deps/campaign-bin/d2c3feb
+[ "${1:-}" = recipe ] && export CABC_BIN=${RECIPE_BIN:-/work/main/target/release}
 out=/work/measure46.txt
 what=$1; shift
 port=7460
@@ -26,6 +30,21 @@ ms.sort()
 print(f"ab {name} placement={p} epochs={len(rows)} collect_ms_per_step_median={ms[len(ms)//2]:.3f} wall_s={t1-t0:.1f}")
 PY
     done
+  done
+elif [ "$what" = recipe ]; then
+  for seed in "$@"; do
+    name=m46-recipe-$seed
+    t0=$(date +%s.%N)
+    deploy/run-local.sh --fresh "${bus[@]}" --set run.name=$name --set run.seed=$seed v-b > /dev/null 2>&1
+    t1=$(date +%s.%N)
+    python3 - "$name" "$t0" "$t1" >> $out <<'PY'
+import csv,sys,json
+name,t0,t1=sys.argv[1],float(sys.argv[2]),float(sys.argv[3])
+d=json.load(open(f"/work/main/runs/{name}/summary.json"))
+rows=list(csv.DictReader(open(f"/work/main/runs/{name}/metrics.csv")))
+ms=sorted(1000*float(r['collect_s'])/max(1,int(r['steps_taken'])) for r in rows)
+print(f"recipe {name} epochs={d['epochs']} ended={d['ended'][:40]!r} first50={d.get('first_version_with_eval_laps')} wall_min={(t1-t0)/60:.2f} collect_s={sum(float(r['collect_s']) for r in rows):.0f} train_s={sum(float(r['train_s']) for r in rows):.0f} collect_ms_per_step_median={ms[len(ms)//2]:.3f}")
+PY
   done
 else
   # The candidate: both speed keys and the in-actor expert, per seed, to the early stop.
