@@ -139,34 +139,33 @@ impl Adam {
                 return;
             }
             let total_norm = Tensor::stack(&norms, 0).norm();
-            let own: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
-            let in_place = self.flat.holds(&own);
-            let others = grads.into_iter().skip(if in_place { own.len() } else { 0 });
-            if self.device_clip {
+            // The factor min(1, max / (norm + 1e-6)), in f64 and rounded to the gradients' kind as a scalar is.
+            let scale: Box<dyn Fn(&mut Tensor)> = if self.device_clip {
                 // On a GPU, reading the norm back would wait for the backward pass to finish and leave the GPU idle
-                // while the step's kernels are queued, so the coefficient stays there: min(1, max / (norm + 1e-6)) in
-                // f64 rounded to the gradients' kind, the very factor the host's branch multiplies by (x * 1 = x).
+                // while the step's kernels are queued, so the factor stays there (the host's bits: x * 1 = x).
                 let max = Tensor::full([], max, (Kind::Double, total_norm.device()));
                 let coef = (max / total_norm.to_kind(Kind::Double).g_add_scalar(1e-6))
                     .clamp_max(1.0)
                     .to_kind(total_norm.kind());
-                if in_place {
-                    let _ = self.flat.grads.shallow_clone().g_mul_(&coef);
+                Box::new(move |g| {
+                    let _ = g.g_mul_(&coef);
+                })
+            } else {
+                let coef = max / (f64::try_from(total_norm).expect("a scalar") + 1e-6);
+                if coef >= 1.0 || coef.is_nan() {
+                    return; // as tch's clip: scaled only when the factor is below 1
                 }
-                for mut grad in others {
-                    let _ = grad.g_mul_(&coef);
-                }
-                return;
+                Box::new(move |g| {
+                    let _ = g.g_mul_scalar_(coef);
+                })
+            };
+            let own: Vec<Tensor> = self.params.iter().map(|p| p.var.grad()).collect();
+            let in_place = self.flat.holds(&own);
+            if in_place {
+                scale(&mut self.flat.grads.shallow_clone());
             }
-            let total_norm = f64::try_from(total_norm).expect("a scalar");
-            let clip_coef = max / (total_norm + 1e-6);
-            if clip_coef < 1.0 {
-                if in_place {
-                    let _ = self.flat.grads.shallow_clone().g_mul_scalar_(clip_coef);
-                }
-                for mut grad in others {
-                    let _ = grad.g_mul_scalar_(clip_coef);
-                }
+            for mut grad in grads.into_iter().skip(if in_place { own.len() } else { 0 }) {
+                scale(&mut grad);
             }
         })
     }
