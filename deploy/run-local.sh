@@ -86,6 +86,7 @@ done
 export CABC_NO_LOG_FILE=1
 
 pids=()
+started=$SECONDS
 cleanup() {
   trap - INT TERM EXIT
   echo "[run-local] stopping" >&2
@@ -139,5 +140,7 @@ fi
 
 status=0
 wait "$learner_pid" || status=$?
-echo "[run-local] learner finished (exit $status); summary: $run_dir/summary.json" >&2
+# The wall clock from the first process started (SECONDS counts from this script's start; the build is before it).
+elapsed=$((SECONDS - started))
+echo "[run-local] learner finished (exit $status) after $((elapsed / 60)) min $((elapsed % 60)) s; summary: $run_dir/summary.json" >&2
 exit "$status"

@@ -1,7 +1,7 @@
 //! `deploy/run-local.sh`, the README's first command, on the release binaries (`CABC_BIN`: nothing is built): it
-//! trains a run to its summary with every process's log in the run folder (with no expert server when the actors
-//! solve their own relabellings), and a bus endpoint that another run already holds stops it before any of its
-//! processes starts.
+//! trains a run to its summary with every process's log in the run folder and says its wall clock (with no expert
+//! server when the actors solve their own relabellings), and a bus endpoint that another run already holds stops it
+//! before any of its processes starts.
 
 use std::net::TcpListener;
 use std::path::Path;
@@ -60,6 +60,15 @@ fn run_local_trains_a_run_to_its_summary() {
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["epochs"], 2, "{summary:#}");
+    // The run's wall clock, said when it ends (issue 46: the figure a user compares).
+    let end = stderr
+        .lines()
+        .find(|l| l.contains("learner finished"))
+        .unwrap_or_else(|| panic!("no end line: {stderr}"));
+    assert!(
+        end.contains("(exit 0) after ") && end.contains(" min ") && end.contains(" s; summary: "),
+        "{end}"
+    );
     // The smoke preset: two actors, one evaluator, one expert server, each with its log.
     for log in ["learner", "expert-server-0", "actor-0", "actor-1", "eval"] {
         let path = run.join("logs").join(format!("{log}.log"));
