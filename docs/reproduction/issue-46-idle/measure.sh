@@ -13,7 +13,7 @@
 set -u
 cd /work/main
 export CABC_BIN=/work/main/.deps/campaign-bin/d2c3feb
-[ "${1:-}" = recipe ] && export CABC_BIN=${RECIPE_BIN:-/work/main/target/release}
+case "${1:-}" in recipe | actors2) export CABC_BIN=${RECIPE_BIN:-/work/main/target/release} ;; esac
 out=/work/measure46.txt
 what=$1; shift
 port=7460
@@ -39,10 +39,7 @@ PY
 elif [ "$what" = recipe ] || [ "$what" = before ] || [ "$what" = actors2 ]; then
   checkout=/work/main
   key=()
-  if [ "$what" = actors2 ]; then
-    export CABC_BIN=${RECIPE_BIN:-/work/main/target/release}
-    key=(--set actors.count=2)
-  fi
+  [ "$what" = actors2 ] && key=(--set actors.count=2)
   if [ "$what" = before ]; then
     checkout=/work/main/.deps/campaign-src-b7b5da9
     export CABC_BIN=/work/main/.deps/campaign-bin/b7b5da9
