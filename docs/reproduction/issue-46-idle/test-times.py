@@ -4,9 +4,10 @@
     test-times.py LABEL=DIR [LABEL=DIR ...]
 
 Each DIR is a copy of a run's target/test-logs/: workspace.log and learning-oldest-kernels.log (cargo's output, whose
-"finished in" lines time each test binary) and times.txt (the steps' seconds, which test.sh writes from d2c3feb on;
-for an older test.sh, a times.txt of the same form written from its logs' modification times). Prints a Markdown
-table of the steps, then one of the test binaries that take a second or more in any run.
+"finished in" lines time each test binary) and times.txt (the steps' seconds, which test.sh writes from d2c3feb on).
+An older test.sh wrote no times.txt: then DIR also holds its output as test.log, and the logs copied with their
+modification times (`cp -p`), which end the steps. Prints a Markdown table of the steps, then one of the test
+binaries that take a second or more in any run.
 """
 import re
 import sys
@@ -38,11 +39,19 @@ def binaries(log):
 
 
 def steps(folder):
-    """{step: seconds} from times.txt."""
-    out = {}
-    for line in (folder / "times.txt").read_text().splitlines():
-        name, seconds, _ = line.split()
-        out[name] = int(seconds)
+    """{step: seconds} from times.txt, or from test.log and the logs' modification times (an older test.sh)."""
+    times = folder / "times.txt"
+    if times.exists():
+        return {name: int(seconds) for name, seconds, _ in map(str.split, times.read_text().splitlines())}
+    log = (folder / "test.log").read_text(errors="replace")
+    total = int(re.search(r"all steps took (\d+) s", log).group(1))
+    build = int(re.search(r"release build took (\d+) s", log).group(1))
+    ends = [(n, (folder / f"{n}.log").stat().st_mtime) for n in ("workspace", "learning-oldest-kernels", "python")]
+    begin = ends[-1][1] - total + build
+    out = {"build": build}
+    for name, end in ends:
+        out[name], begin = round(end - begin), end
+    out["all"] = total
     return out
 
 
@@ -51,14 +60,14 @@ def main(args):
         sys.exit(__doc__)
     runs = [(label, Path(folder)) for label, folder in (a.split("=", 1) for a in args)]
     for _, folder in runs:
-        if not (folder / "times.txt").exists():
-            sys.exit(f"{folder}/times.txt is missing")
+        if not (folder / "times.txt").exists() and not (folder / "test.log").exists():
+            sys.exit(f"{folder} has neither times.txt nor test.log")
     labels = [label for label, _ in runs]
     head = "| {} | " + " | ".join(labels) + " |"
     rule = "|---|" + "---|" * len(runs)
 
     table = [steps(folder) for _, folder in runs]
-    names = [n for n in ("build", "workspace", "learning-oldest-kernels", "python", "all") if any(n in t for t in table)]
+    names = list(dict.fromkeys(n for t in table for n in t))
     print(head.format("step (s)"))
     print(rule)
     for n in names:
