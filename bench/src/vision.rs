@@ -8,7 +8,7 @@
 
 use cabc_learning::train::Adam;
 use cabc_models::precision::with_precision;
-use cabc_models::{parse_device, Network, Policy, PolicyArch, PolicyInput};
+use cabc_models::{parse_device, Network, Policy, PolicyArch, PolicyInput, VelocityMask};
 use cabc_proto::config::{MlpSize, Precision, VisionTrunk};
 use serde::Serialize;
 use std::time::Instant;
@@ -134,6 +134,7 @@ pub fn run(o: &VisionBenchOptions) -> anyhow::Result<VisionBench> {
             layers: 3,
             width: 128,
         },
+        sees: VelocityMask::ALL,
     };
     let policy = Policy::new(arch, device, 1);
     let mut opt = Optimiser::new(&o.optimiser, policy.var_store())?;

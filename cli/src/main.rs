@@ -3,6 +3,7 @@
 //!
 //! A subcommand is its arguments (a [`clap::Args`] struct) and one function, and one variant of [`Command`] below
 //! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], `robust` in [`robust`],
+//! `probe` in [`probe`],
 //! the rest in [`tools`].
 
 use clap::{Parser, Subcommand};
@@ -10,6 +11,7 @@ use std::path::PathBuf;
 
 mod campaign;
 mod export;
+mod probe;
 mod robust;
 mod show;
 mod tools;
@@ -79,6 +81,10 @@ enum Command {
     /// crashes (share, Wilson 95 %), laps and lap times per level as JSON on stdout and in OUT/robust.json, and a
     /// figure OUT/robust.png (crash share per level; the spawns on the track by the first level that crashes).
     Robust(robust::Args),
+    /// What a run's data lets a camera policy copy (issue 58): predictors of the expert's label fitted on the run's
+    /// D+ (a constant, the velocities alone, the run's policy, the image alone) with their held-out imitation loss,
+    /// so that a copycat policy shows before the epochs are spent.
+    Probe(probe::Args),
     /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
     Demo(tools::DemoArgs),
     /// Throughput of auto-labelling and training.
@@ -126,6 +132,7 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Export(args) => export::run(&args),
         Command::Robust(args) => robust::run(&args),
+        Command::Probe(args) => probe::run(&args),
         Command::Demo(args) => tools::demo(&args),
         Command::Bench(args) => tools::bench(&args),
         Command::BenchVision(options) => tools::bench_vision(&options),

@@ -17,6 +17,7 @@
 //! | the evaluations from the fixed spawn, early stopping, the best version | [`evaluations`] |
 //! | an epoch's metrics, one line where each is computed | [`record`], written through [`sink`] |
 //! | the run's summary (`summary.json`) | [`summary`] |
+//! | what a run's data lets a policy copy (`cabc probe`, issue 58) | [`probe`] |
 //! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `replay::migrate` and `record::rows` |
 //!
 //! The actors are a port (`cabc_proto::ports::Rollouts`): over zenoh in a run (the `learner` binary), in-process
@@ -32,6 +33,7 @@ pub mod hull;
 pub mod kdtree;
 pub mod learner;
 pub mod ledger;
+pub mod probe;
 pub mod provenance;
 pub mod record;
 pub mod replay;

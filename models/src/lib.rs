@@ -26,5 +26,5 @@ pub use device::{cuda_available, flush_denormals, parse_device};
 pub use dynamics::Dynamics;
 pub use error::ModelError;
 pub use mlp::Mlp;
-pub use policy::{Observation, Policy, PolicyArch, PolicyCheck, PolicyInput};
+pub use policy::{Observation, Policy, PolicyArch, PolicyCheck, PolicyInput, VelocityMask};
 pub use weights::Network;

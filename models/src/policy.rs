@@ -10,7 +10,7 @@ use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
 use crate::weights::Network;
 use crate::{mlp, weights, Mlp, ModelError};
-use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, VisionTrunk};
+use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, Velocity, VisionTrunk};
 use cabc_proto::messages::{velocity_of, Image, ACTION_DIM, STATE_DIM};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -20,11 +20,75 @@ use tch::{nn, nn::Module, nn::ModuleT, Device, Kind, Tensor};
 pub use cabc_proto::messages::VELOCITY_DIM;
 
 /// The policy's architecture; its [`Display`](fmt::Display) is the name stored with the weights and sent in
-/// `PolicyUpdate.architecture`, e.g. `policy-state-mlp-3x128` or `policy-camera-resnet18-mlp-3x128`.
+/// `PolicyUpdate.architecture`, e.g. `policy-state-mlp-3x128` or `policy-camera-resnet18-mlp-3x128` (a camera policy
+/// that sees fewer than the three velocities says which: `policy-camera-small-cnn-mlp-3x128-sees-v_long`,
+/// `...-sees-none`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PolicyArch {
-    State { mlp: MlpSize },
-    Camera { trunk: VisionTrunk, mlp: MlpSize },
+    State {
+        mlp: MlpSize,
+    },
+    Camera {
+        trunk: VisionTrunk,
+        mlp: MlpSize,
+        /// The velocities the network sees ([`velocity_of`]'s order, `observation.velocity_inputs`); the others are
+        /// zero in its input.
+        sees: VelocityMask,
+    },
+}
+
+/// Which of [v_long, v_tran, omega] a camera policy sees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VelocityMask(pub [bool; VELOCITY_DIM]);
+
+impl VelocityMask {
+    /// All three: the paper's camera policy.
+    pub const ALL: VelocityMask = VelocityMask([true; VELOCITY_DIM]);
+
+    pub fn of(seen: &[Velocity]) -> Self {
+        let mut mask = [false; VELOCITY_DIM];
+        for v in seen {
+            mask[v.index()] = true;
+        }
+        VelocityMask(mask)
+    }
+
+    /// 1 for a velocity seen, 0 for one masked: what multiplies the velocities before the head.
+    fn factors(self) -> [f32; VELOCITY_DIM] {
+        self.0.map(|seen| if seen { 1.0 } else { 0.0 })
+    }
+
+    /// The name's suffix: empty for all three, else `-sees-` and the names joined by `+` (or `none`).
+    fn suffix(self) -> String {
+        if self == VelocityMask::ALL {
+            return String::new();
+        }
+        let names: Vec<&str> = Velocity::ALL
+            .iter()
+            .filter(|v| self.0[v.index()])
+            .map(|v| v.as_str())
+            .collect();
+        match names.is_empty() {
+            true => "-sees-none".into(),
+            false => format!("-sees-{}", names.join("+")),
+        }
+    }
+
+    fn parse(suffix: &str) -> Option<Self> {
+        if suffix == "none" {
+            return Some(VelocityMask([false; VELOCITY_DIM]));
+        }
+        let mut seen = Vec::new();
+        for name in suffix.split('+') {
+            let v = Velocity::ALL.into_iter().find(|v| v.as_str() == name)?;
+            if seen.last().is_some_and(|last| *last >= v) {
+                return None;
+            }
+            seen.push(v);
+        }
+        let mask = VelocityMask::of(&seen);
+        (mask != VelocityMask::ALL).then_some(mask)
+    }
 }
 
 impl PolicyArch {
@@ -36,6 +100,7 @@ impl PolicyArch {
             ObservationKind::Camera => PolicyArch::Camera {
                 trunk: config.observation.trunk,
                 mlp,
+                sees: VelocityMask::of(&config.observation.velocity_inputs),
             },
         }
     }
@@ -52,12 +117,13 @@ impl fmt::Display for PolicyArch {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             PolicyArch::State { mlp } => write!(f, "policy-state-mlp-{}x{}", mlp.layers, mlp.width),
-            PolicyArch::Camera { trunk, mlp } => write!(
+            PolicyArch::Camera { trunk, mlp, sees } => write!(
                 f,
-                "policy-camera-{}-mlp-{}x{}",
+                "policy-camera-{}-mlp-{}x{}{}",
                 trunk_name(*trunk),
                 mlp.layers,
-                mlp.width
+                mlp.width,
+                sees.suffix()
             ),
         }
     }
@@ -84,6 +150,10 @@ impl FromStr for PolicyArch {
             });
         }
         let rest = s.strip_prefix("policy-camera-").ok_or_else(unknown)?;
+        let (rest, sees) = match rest.split_once("-sees-") {
+            Some((rest, seen)) => (rest, VelocityMask::parse(seen).ok_or_else(unknown)?),
+            None => (rest, VelocityMask::ALL),
+        };
         for trunk in [VisionTrunk::Resnet18, VisionTrunk::SmallCnn] {
             if let Some(mlp) = rest
                 .strip_prefix(trunk_name(trunk))
@@ -92,6 +162,7 @@ impl FromStr for PolicyArch {
                 return Ok(PolicyArch::Camera {
                     trunk,
                     mlp: parse_mlp(mlp).ok_or_else(unknown)?,
+                    sees,
                 });
             }
         }
@@ -172,7 +243,12 @@ pub fn images_to_float(images_nhwc_u8: &Tensor) -> Tensor {
 #[derive(Debug)]
 enum Net {
     State(Mlp),
-    Camera { trunk: Box<Trunk>, head: Mlp },
+    Camera {
+        trunk: Box<Trunk>,
+        head: Mlp,
+        /// [1, 3]: 1 for a velocity the policy sees, 0 for one masked ([`VelocityMask`]).
+        sees: Tensor,
+    },
 }
 
 /// pi_theta with its variables.
@@ -193,7 +269,7 @@ impl Policy {
             PolicyArch::State { mlp } => {
                 Net::State(Mlp::new(&(&root / "mlp"), STATE_DIM as i64, out, mlp))
             }
-            PolicyArch::Camera { trunk, mlp } => Net::Camera {
+            PolicyArch::Camera { trunk, mlp, sees } => Net::Camera {
                 trunk: Box::new(Trunk::new(&(&root / "trunk"), trunk)),
                 head: Mlp::new(
                     &(&root / "mlp"),
@@ -201,6 +277,9 @@ impl Policy {
                     out,
                     mlp,
                 ),
+                sees: Tensor::from_slice(&sees.factors())
+                    .view([1, VELOCITY_DIM as i64])
+                    .to_device(device),
             },
         };
         // Linear layers: fan-in (the reference's init_weights); convolutions: fan-out (torchvision's ResNet).
@@ -220,7 +299,7 @@ impl Policy {
         let arch: PolicyArch = weights::architecture_of(bytes)?.parse()?;
         let (in_dim, mlp) = match arch {
             PolicyArch::State { mlp } => (STATE_DIM, mlp),
-            PolicyArch::Camera { trunk, mlp } => {
+            PolicyArch::Camera { trunk, mlp, .. } => {
                 (Trunk::features(trunk) as usize + VELOCITY_DIM, mlp)
             }
         };
@@ -245,9 +324,10 @@ impl Policy {
         let device = self.device();
         match (&self.net, input) {
             (Net::State(mlp), PolicyInput::State(x)) => mlp.forward(&x.to_device(device)),
-            (Net::Camera { trunk, head }, PolicyInput::Camera { images, velocity }) => {
+            (Net::Camera { trunk, head, sees }, PolicyInput::Camera { images, velocity }) => {
                 let features = trunk.forward_t(&images_to_float(&images.to_device(device)), train);
-                head.forward(&Tensor::cat(&[features, velocity.to_device(device)], 1))
+                let velocity = velocity.to_device(device) * sees.to_device(device);
+                head.forward(&Tensor::cat(&[features, velocity], 1))
             }
             _ => panic!(
                 "policy {} given the other kind of input (use Policy::act for checked input)",

@@ -94,6 +94,7 @@ impl Policy {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::VelocityMask;
     use cabc_proto::config::{MlpSize, VisionTrunk};
     use serde_json::{json, Map};
     use tch::Device;
@@ -105,6 +106,7 @@ mod tests {
                 layers: 1,
                 width: 8,
             },
+            sees: VelocityMask::ALL,
         };
         Policy::new(arch, Device::Cpu, seed)
     }
@@ -217,6 +219,7 @@ mod tests {
                 layers: 1,
                 width: 8,
             },
+            sees: VelocityMask::ALL,
         };
         let mut small = Policy::new(arch, Device::Cpu, 3);
         assert!(small

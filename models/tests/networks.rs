@@ -1,8 +1,11 @@
 //! Shapes, weights round trips and the architecture check of the three networks.
 
 use cabc_models::Network;
-use cabc_models::{Critic, Dynamics, ModelError, Observation, Policy, PolicyArch, PolicyInput};
-use cabc_proto::config::{MlpSize, NetworksSection, VisionTrunk};
+use cabc_models::{
+    Critic, Dynamics, ModelError, Observation, Policy, PolicyArch, PolicyCheck, PolicyInput,
+    VelocityMask,
+};
+use cabc_proto::config::{MlpSize, NetworksSection, RunConfig, VisionTrunk};
 use cabc_proto::messages::Image;
 use tch::{Device, Kind, Tensor};
 
@@ -24,10 +27,12 @@ fn architecture_names_round_trip() {
         PolicyArch::Camera {
             trunk: VisionTrunk::Resnet18,
             mlp,
+            sees: VelocityMask::ALL,
         },
         PolicyArch::Camera {
             trunk: VisionTrunk::SmallCnn,
             mlp,
+            sees: VelocityMask::ALL,
         },
     ] {
         assert_eq!(arch.to_string().parse::<PolicyArch>().unwrap(), arch);
@@ -100,6 +105,7 @@ fn camera_policies_take_images_and_velocities() {
         let arch = PolicyArch::Camera {
             trunk,
             mlp: sizes().policy,
+            sees: VelocityMask::ALL,
         };
         let policy = Policy::new(arch, Device::Cpu, 3);
         let (a, b) = (image(32, 24, 3), image(32, 24, 7));
@@ -148,6 +154,7 @@ fn resnet18_has_the_torchvision_parameter_count() {
     let arch = PolicyArch::Camera {
         trunk: VisionTrunk::Resnet18,
         mlp: sizes().policy,
+        sees: VelocityMask::ALL,
     };
     let policy = Policy::new(arch, Device::Cpu, 0);
     let trunk: i64 = policy
@@ -176,4 +183,75 @@ fn dynamics_is_residual_and_critic_is_a_logit() {
     assert!(d2
         .forward(&x, &u)
         .allclose(&dynamics.forward(&x, &u), 0.0, 0.0, false));
+}
+
+/// Issue 58 (`observation.velocity_inputs`): a masked velocity is zero in what the network sees, so the policy's
+/// action does not move with it, while a velocity it sees does; the mask travels in the architecture's name, so the
+/// actor's policy built from the learner's weights masks the same velocities.
+#[test]
+fn masked_velocities_are_zero_in_what_the_policy_sees() {
+    let config = RunConfig::load("v-a-cpu")
+        .unwrap()
+        .with_overrides(&["observation.velocity_inputs=[\"v_long\"]".to_string()])
+        .unwrap();
+    let arch = PolicyArch::from_config(&config);
+    assert_eq!(
+        arch.to_string(),
+        "policy-camera-small-cnn-mlp-3x128-sees-v_long"
+    );
+    assert_eq!(arch.to_string().parse::<PolicyArch>().unwrap(), arch);
+    let policy = Policy::new(arch, Device::Cpu, 5);
+    let frame = image(32, 32, 3);
+    let act = |velocity: [f32; 3]| {
+        policy
+            .act(&[Observation::Camera {
+                image: &frame,
+                velocity,
+            }])
+            .unwrap()[0]
+    };
+    let base = act([1.0, 0.0, 0.0]);
+    assert_eq!(act([1.0, 0.7, -2.0]), base, "v_tran and omega are masked");
+    assert_ne!(act([2.0, 0.0, 0.0]), base, "v_long is seen");
+    // The same with all three masked: the image alone.
+    let none = PolicyArch::Camera {
+        trunk: VisionTrunk::SmallCnn,
+        mlp: sizes().policy,
+        sees: VelocityMask([false; 3]),
+    };
+    assert_eq!(
+        none.to_string(),
+        "policy-camera-small-cnn-mlp-3x128-sees-none"
+    );
+    let blind = Policy::new(none, Device::Cpu, 5);
+    let of = |velocity: [f32; 3]| {
+        blind
+            .act(&[Observation::Camera {
+                image: &frame,
+                velocity,
+            }])
+            .unwrap()[0]
+    };
+    assert_eq!(of([3.0, -1.0, 2.0]), of([0.0; 3]));
+    // The actor's check holds weights to the run's mask: the paper's camera policy is another architecture.
+    let bytes = policy.to_bytes();
+    let check = PolicyCheck::new(arch);
+    assert!(check.policy(&arch.to_string(), &bytes, Device::Cpu).is_ok());
+    let all = PolicyArch::Camera {
+        trunk: VisionTrunk::SmallCnn,
+        mlp: sizes().policy,
+        sees: VelocityMask::ALL,
+    };
+    assert!(matches!(
+        PolicyCheck::new(all).check(&arch.to_string(), &bytes),
+        Err(ModelError::ArchitectureMismatch { .. })
+    ));
+    for bad in [
+        "-sees-omega+v_long",
+        "-sees-v_long+v_tran+omega",
+        "-sees-yaw",
+    ] {
+        let name = format!("policy-camera-small-cnn-mlp-3x128{bad}");
+        assert!(name.parse::<PolicyArch>().is_err(), "{name}");
+    }
 }

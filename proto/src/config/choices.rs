@@ -64,6 +64,36 @@ pub enum VisionTrunk {
     SmallCnn,
 }
 
+/// One of the velocities beside a camera image ([`crate::messages::velocity_of`]): `observation.velocity_inputs`
+/// names those the camera policy sees (issue 58: the copycat shortcut, a policy that reads its last steering off the
+/// yaw rate and the lateral velocity).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Velocity {
+    VLong,
+    VTran,
+    Omega,
+}
+
+impl Velocity {
+    /// In the order of [`crate::messages::velocity_of`].
+    pub const ALL: [Velocity; crate::messages::VELOCITY_DIM] =
+        [Velocity::VLong, Velocity::VTran, Velocity::Omega];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Velocity::VLong => "v_long",
+            Velocity::VTran => "v_tran",
+            Velocity::Omega => "omega",
+        }
+    }
+
+    /// Its index in [`crate::messages::velocity_of`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
 /// Where an episode starts (simulator.md §3.2): the run's training spawns, and the simulator's `reset`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

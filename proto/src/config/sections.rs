@@ -3,7 +3,7 @@
 use super::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn,
-    StoredAction, TrackKind, VisionTrunk,
+    StoredAction, TrackKind, Velocity, VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
@@ -94,6 +94,11 @@ pub struct ObservationSection {
     /// reference starts from them; they cannot be fetched here). Absent: random initialisation, which the run's
     /// summary states (`trunk_init`).
     pub pretrained: Option<String>,
+    /// The velocities beside the image that the camera policy sees (`v_long`, `v_tran`, `omega`; all three by
+    /// default, the paper's); the others are zero in what the network sees, in the actor and in training alike.
+    /// Issue 58's probe of the copycat shortcut: `[]` (the image alone) or `["v_long"]` (no yaw rate or lateral
+    /// velocity to read the last steering from). A full-state policy sees the whole state: only the default there.
+    pub velocity_inputs: Vec<Velocity>,
 }
 
 impl Default for ObservationSection {
@@ -107,6 +112,7 @@ impl Default for ObservationSection {
             state_noise_std: [0.0; 6],
             pixel_noise_std: 0.0,
             pretrained: None,
+            velocity_inputs: Velocity::ALL.to_vec(),
         }
     }
 }

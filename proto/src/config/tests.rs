@@ -244,10 +244,11 @@ fn reference_presets_follow_the_reference_protocol() {
     assert_eq!(RunConfig::load("v-a-ref").unwrap().run.max_epochs, 50);
 }
 
-/// Issue 30: the V-B recipe (`v-b`) is the reference protocol (`v-b-ref`) with the recipe's keys alone changed.
+/// Issue 30: the V-B recipe (`v-b-recipe`) is the reference protocol (`v-b-ref`) with the recipe's keys alone
+/// changed.
 #[test]
 fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
-    let recipe = RunConfig::load("v-b").unwrap();
+    let recipe = RunConfig::load("v-b-recipe").unwrap();
     let mut r = RunConfig::load("v-b-ref").unwrap();
     assert!(!r.training.clone_uncertain);
     assert_eq!(r.algorithm.lambda_start, None);
@@ -269,9 +270,31 @@ fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
     assert!(recipe.training.clone_uncertain);
     assert_eq!((a.lambda_start, a.lambda_growth), (Some(1.0), 1.007));
     assert_eq!(a.critic_negatives, CriticNegatives::DMinus);
-    // The main job's default is the recipe.
+}
+
+/// Issue 59: the main job's default (`v-b`) is the recipe with issue 45's three keys (the term as the paper writes
+/// it): the frozen networks' clip, eq. (14)'s rows and the hinged term; nothing else differs.
+#[test]
+fn the_default_is_the_recipe_and_the_term_as_the_paper_writes_it() {
     let default = RunConfig::load(DEFAULT_PRESET).unwrap();
-    assert_eq!(default.to_toml(), recipe.to_toml());
+    assert_eq!(DEFAULT_PRESET, "v-b");
+    let mut r = RunConfig::load("v-b-recipe").unwrap();
+    assert_eq!(r.training.clip_scope, ClipScope::PolicyCriticDynamics);
+    assert_eq!(r.training.safety_states, SafetyStates::DPlus);
+    assert_eq!(r.training.safety_term, SafetyTerm::Absolute);
+    r = r
+        .with_overrides(&[
+            "run.name=v-b".to_string(),
+            "training.clip_scope=policy".to_string(),
+            "training.safety_states=clone".to_string(),
+            "training.safety_term=hinged".to_string(),
+        ])
+        .unwrap();
+    assert_eq!(
+        default.to_toml(),
+        r.to_toml(),
+        "only the term's three keys differ"
+    );
 }
 
 #[test]
@@ -289,6 +312,19 @@ fn the_recipe_keys_are_checked() {
         (
             "collection.action_noise_std=[nan,0]",
             "collection.action_noise_std",
+        ),
+        (
+            "observation.velocity_inputs=[\"omega\",\"v_long\"]",
+            "observation.velocity_inputs",
+        ),
+        (
+            "observation.velocity_inputs=[\"v_long\",\"v_long\"]",
+            "observation.velocity_inputs",
+        ),
+        // The full-state policy (the default observation) sees the whole state.
+        (
+            "observation.velocity_inputs=[]",
+            "observation.velocity_inputs",
         ),
     ] {
         let e = RunConfig::default()
@@ -358,4 +394,32 @@ fn the_track_key_defaults_to_the_l_track_and_refuses_an_unknown_track() {
         err.contains("oval") && err.contains("l-track-barc"),
         "{err}"
     );
+}
+
+/// Issue 58: the velocities a camera policy sees are a key; all three by default, and written back as set.
+#[test]
+fn the_camera_policy_velocity_inputs_are_a_key() {
+    assert_eq!(
+        RunConfig::load("v-a-cpu")
+            .unwrap()
+            .observation
+            .velocity_inputs,
+        Velocity::ALL.to_vec()
+    );
+    for (set, seen) in [
+        ("[]", vec![]),
+        ("[\"v_long\"]", vec![Velocity::VLong]),
+        (
+            "[\"v_tran\",\"omega\"]",
+            vec![Velocity::VTran, Velocity::Omega],
+        ),
+    ] {
+        let config = RunConfig::load("v-a-cpu")
+            .unwrap()
+            .with_overrides(&[format!("observation.velocity_inputs={set}")])
+            .unwrap();
+        assert_eq!(config.observation.velocity_inputs, seen, "{set}");
+        let again = RunConfig::from_toml(&config.to_toml(), "test").unwrap();
+        assert_eq!(again.observation.velocity_inputs, seen, "{set}");
+    }
 }

@@ -1,6 +1,6 @@
 //! What the types of the run configuration cannot check.
 
-use super::{ConfigError, ObservationKind, RunConfig, REPLAY_STEP_BYTES};
+use super::{ConfigError, ObservationKind, RunConfig, Velocity, REPLAY_STEP_BYTES};
 
 impl RunConfig {
     /// Checks values that types cannot.
@@ -131,6 +131,17 @@ impl RunConfig {
                 "observation.width/height",
                 format!("{}x{}", self.observation.width, self.observation.height),
                 "images must be at least 16x16",
+            );
+        }
+        let seen = &self.observation.velocity_inputs;
+        let all = seen.len() == Velocity::ALL.len();
+        if seen.windows(2).any(|w| w[0] >= w[1])
+            || (self.observation.kind == ObservationKind::State && !all)
+        {
+            return invalid(
+                "observation.velocity_inputs",
+                format!("{:?}", seen.iter().map(|v| v.as_str()).collect::<Vec<_>>()),
+                "names each of v_long, v_tran, omega at most once, in that order; a full-state policy sees all three",
             );
         }
         let noise = &self.observation;
