@@ -48,7 +48,7 @@ if [ "${CABC_OLDEST_KERNELS:-1}" != 0 ]; then
   oldest=(env ATEN_CPU_CAPABILITY=default MKL_ENABLE_INSTRUCTIONS=AVX)
   # --workspace, as the step above: `-p` would resolve the dependencies' features anew and rebuild them (minutes).
   step learning-oldest-kernels "${oldest[@]}" cargo test --release --no-fail-fast --workspace \
-    --test train --test recipe --test autolabel --test demo --test algorithm --test local
+    --test train --test recipe --test autolabel --test demo --test algorithm --test local --test probe
 fi
 
 # The Python package (python/, a member of the workspace whose lib has no Rust tests; issue 20): the wheel (maturin,

@@ -15,6 +15,7 @@
 //! of [`ProbeOptions::block`]), so that a neighbour of a training row is rarely a held-out one.
 
 use crate::replay::{ReplayError, ReplaySnapshot};
+use cabc_models::init::{kaiming_normal, Fan};
 use cabc_models::{Mlp, ModelError, Network, Policy, PolicyArch, PolicyInput, VelocityMask};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{velocity_of, ACTION_DIM, STATE_DIM, VELOCITY_DIM};
@@ -334,6 +335,8 @@ pub fn probe_rows(
         ),
         vs,
     };
+    // Linear layers: fan-in, as the policy's head (the builder leaves them at zero).
+    kaiming_normal(&velocities.vs, o.seed, |_, _| Fan::In);
     let loss = fit(&velocities, rows, &train, o, &mut rng)?;
     let losses = held_out(&|at| velocities.forward(rows, at), rows, &test)?;
     push("velocities", "v_long, v_tran, omega".into(), loss, losses);

@@ -64,6 +64,7 @@ fn share(report: &ProbeReport, predictor: &str) -> f64 {
 fn a_copycat_label_is_read_off_the_velocities() {
     let report = probe_rows(&config(), &rows(|v, _| 0.3 * v[2]), N, &options()).unwrap();
     let table = report.table();
+    eprintln!("{table}");
     assert_eq!(report.train_rows + report.held_out_rows, N);
     assert_eq!(report.held_out_rows, N / 5);
     assert!((share(&report, "constant") - 1.0).abs() < 1e-9, "{table}");
@@ -82,6 +83,7 @@ fn a_label_in_the_image_is_not_in_the_velocities() {
     )
     .unwrap();
     let table = report.table();
+    eprintln!("{table}");
     assert!(share(&report, "velocities") > 0.7, "{table}");
     assert!(share(&report, "image") < 0.5, "{table}");
     assert!(share(&report, "camera") < 0.5, "{table}");
