@@ -1,16 +1,22 @@
 #!/usr/bin/env bash
 # README command 1: a local multi-process training run on loopback.
 #
-#   deploy/run-local.sh [--baseline] [--resume|--fresh] [--set KEY=VALUE ...] [PRESET|CONFIG.toml] [-- extra learner args]
+#   deploy/run-local.sh [--baseline] [--resume|--fresh] [--verbose] [--set KEY=VALUE ...] [PRESET|CONFIG.toml]
+#                       [-- extra learner args]
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server (none under
 # expert.placement = "in-actor"), N actors and an eval actor as separate processes. Logs of every process go to
 # runs/<run>/logs/. One Ctrl-C stops them all.
 # With CABC_BIN=DIR the binaries in DIR are used and nothing is built.
-# Default preset: the binaries' (cabc_proto::config::DEFAULT_PRESET: v-b, experiment V-B under its recipe, the
-# reference implementation's protocol with DAgger's aggregate, lambda's warm-up and D- as the critic's negatives,
-# which reached the early stop on every seed of its campaign; docs/REPRODUCTION.md). --baseline runs the same with
-# lambda = 0; v-b-ref is the reference's protocol alone.
+# Default preset: the binaries' (cabc_proto::config::DEFAULT_PRESET: v-b, experiment V-B: the recipe `v-b-recipe`,
+# the reference implementation's protocol with DAgger's aggregate, lambda's warm-up and D- as the critic's negatives,
+# with the safety term as the paper writes it: frozen f_hat and p_hat, eq. (14)'s rows, the hinged term; it reached
+# the early stop on every seed of its campaign; docs/REPRODUCTION.md). --baseline runs the same with lambda = 0;
+# v-b-ref is the reference's protocol alone.
+# On a terminal the learner draws a progress bar (epoch of the budget, elapsed, time per epoch, beta, D+/D?/D-, the
+# last evaluation) and one short line per evaluation that completes laps, with warnings and errors; its whole log
+# goes to runs/<run>/logs/learner.log as always. --verbose (or RUST_LOG) brings the full lines to the terminal. Not
+# on a terminal (a pipe, CI): the full lines, as the log.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
 set -euo pipefail
@@ -19,6 +25,7 @@ cd "$root"
 
 config=""
 baseline=0
+verbose=0
 learner_args=()
 sets=()
 while [ $# -gt 0 ]; do
@@ -26,8 +33,9 @@ while [ $# -gt 0 ]; do
     --baseline) baseline=1 ;;
     --resume) learner_args+=(--resume) ;;
     --fresh) learner_args+=(--fresh) ;;
+    --verbose) verbose=1 ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
@@ -97,8 +105,15 @@ cleanup() {
 }
 trap cleanup INT TERM EXIT
 
-# The learner's log also goes to this terminal: one line per epoch and per evaluation.
-"$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee -a "$logs/learner.log" >&2) &
+if [ -t 2 ] && [ "$verbose" = 0 ] && [ -z "${RUST_LOG:-}" ]; then
+  # A terminal: the learner writes its own log file and draws its progress bar here, with warnings, errors and a
+  # short line per evaluation that completes laps (cabc_proto::telemetry::BRIEF).
+  env -u CABC_NO_LOG_FILE CABC_TERMINAL_BRIEF=1 \
+    "$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" &
+else
+  # Not a terminal, or --verbose: the learner's log also goes to stderr, one line per epoch and per evaluation.
+  "$bin/learner" run --config "$cfg" --run-dir "$run_dir" "${learner_args[@]}" 2> >(tee -a "$logs/learner.log" >&2) &
+fi
 learner_pid=$!
 pids+=("$learner_pid")
 # The others start once the learner's bus accepts connections (up to 60 s; without a TCP endpoint, after 1 s); a

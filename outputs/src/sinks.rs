@@ -7,7 +7,7 @@ use crate::plots;
 use crate::rundir::RunDir;
 use crate::tensorboard::EventWriter;
 use crate::video::{eval_gif, CameraView};
-use cabc_learning::evaluations::Taken;
+use cabc_learning::evaluations::{EvalSummary, Taken};
 use cabc_learning::learner::{AclDenials, Learner, LearnerError};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{History, Sink, SinkError, Sinks};
@@ -15,7 +15,7 @@ use cabc_learning::summary::Summary;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::collections::BTreeMap;
 
 /// The learner of `run_dir` (its checkpoint there) in one process (a test, `learner run --local`), writing the run
@@ -219,16 +219,30 @@ impl Sink for Tensorboard {
     }
 }
 
-/// The progress bar: the epoch, the phase, and the last record's beta, D+, D?, D- and evaluation.
+/// The progress bar: the epoch of the budget and the time elapsed, the phase, and the last record's beta, D+, D?,
+/// D-, time per epoch and evaluation; with `short_lines` (a terminal that shows the learner's warnings alone,
+/// [`cabc_proto::telemetry::brief`]), one line above the bar per evaluation that completes laps. indicatif draws
+/// nothing where stderr is not a terminal.
 pub struct Progress {
     bar: ProgressBar,
     /// The last record, as the bar shows it.
     last: String,
+    short_lines: bool,
 }
 
 impl Progress {
+    /// The bar on stderr, with short lines when the process's terminal is brief.
     pub fn new(epochs: u64) -> Self {
-        let bar = ProgressBar::new(epochs);
+        Progress::on(
+            epochs,
+            ProgressDrawTarget::stderr(),
+            cabc_proto::telemetry::brief(),
+        )
+    }
+
+    /// The bar on `target`.
+    pub fn on(epochs: u64, target: ProgressDrawTarget, short_lines: bool) -> Self {
+        let bar = ProgressBar::with_draw_target(Some(epochs), target);
         bar.set_style(
             ProgressStyle::with_template("{elapsed_precise} epoch {pos}/{len} {bar:30} {msg}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
@@ -236,7 +250,17 @@ impl Progress {
         Progress {
             bar,
             last: String::new(),
+            short_lines,
         }
+    }
+
+    /// The short line of an evaluation: its version, laps and mean lap time.
+    fn short_line(s: &EvalSummary) -> String {
+        let lap = s
+            .lap_mean
+            .map(|m| format!(", {m:.2} s a lap"))
+            .unwrap_or_default();
+        format!("version {}: {} laps{lap}", s.version, s.laps)
     }
 }
 
@@ -256,14 +280,23 @@ impl Sink for Progress {
             _ => "none".into(),
         };
         self.last = format!(
-            " | beta {:.3} | D+ {} D? {} D- {} | last eval {eval}",
+            " | {:.1} s/epoch | beta {:.3} | D+ {} D? {} D- {} | last eval {eval}",
+            r.f64("epoch_s").unwrap_or(f64::NAN),
             r.f64("beta").unwrap_or(f64::NAN),
             n("d_plus"),
             n("d_uncertain"),
             n("d_minus")
         );
         self.bar.set_position(r.epoch() + 1);
+        self.bar
+            .set_message(self.last.trim_start_matches(" | ").to_string());
         Ok(())
+    }
+
+    fn evaluation(&mut self, taken: &Taken<'_>) {
+        if self.short_lines && taken.summary.laps > 0 {
+            self.bar.println(Progress::short_line(taken.summary));
+        }
     }
 
     fn close(&mut self, _: &Summary, _: Option<&[u8]>) -> Result<(), SinkError> {
@@ -277,6 +310,7 @@ mod tests {
     use super::*;
     use cabc_learning::evaluations::EvalSummary;
     use cabc_proto::messages::EndReason;
+    use indicatif::InMemoryTerm;
 
     fn report(version: u64, laps: u32) -> EvalReport {
         EvalReport {
@@ -342,6 +376,54 @@ mod tests {
         );
         for plot in ["laps.png", "losses.png", "lap_times.png", "line.png"] {
             assert!(run_dir.plots().join(plot).is_file(), "{plot}");
+        }
+    }
+
+    /// Issue 59 item 4: on a brief terminal the bar shows the epoch of the budget, the time per epoch, beta, D+, D?,
+    /// D- and the last evaluation, and one short line per evaluation that completes laps (none for one that does
+    /// not); without short lines (a terminal that shows the log lines) an evaluation adds no line.
+    #[test]
+    fn the_progress_bar_shows_the_run_and_one_line_per_evaluation_with_laps() {
+        for short_lines in [true, false] {
+            let term = InMemoryTerm::new(10, 160);
+            let mut progress = Progress::on(
+                200,
+                ProgressDrawTarget::term_like(Box::new(term.clone())),
+                short_lines,
+            );
+            let mut r = record(2);
+            r.real("epoch_s", 4.31, 3);
+            r.real("beta", 0.857375, 4);
+            r.count("d_plus", 1200);
+            r.count("d_uncertain", 7);
+            r.count("d_minus", 3);
+            r.count("eval_version", 2);
+            r.count("eval_laps", 0);
+            progress.write(&r).unwrap();
+            for report in [report(2, 0), report(3, 50)] {
+                progress.evaluation(&Taken {
+                    report: &report,
+                    summary: &EvalSummary::of(&report),
+                    best: true,
+                    completed: false,
+                    weights: None,
+                });
+            }
+            progress.bar.tick();
+            let screen = term.contents();
+            assert!(screen.contains("epoch 3/200"), "{screen}");
+            assert!(
+                screen.contains(
+                    "4.3 s/epoch | beta 0.857 | D+ 1200 D? 7 D- 3 | last eval v2: 0 laps"
+                ),
+                "{screen}"
+            );
+            assert_eq!(
+                screen.contains("version 3: 50 laps, 5.00 s a lap"),
+                short_lines,
+                "{screen}"
+            );
+            assert!(!screen.contains("version 2:"), "{screen}");
         }
     }
 }

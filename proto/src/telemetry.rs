@@ -20,6 +20,19 @@ use tracing_subscriber::{fmt, EnvFilter};
 /// copy.
 pub const NO_LOG_FILE: &str = "CABC_NO_LOG_FILE";
 
+/// Set by `deploy/run-local.sh` for a learner whose stderr is a terminal (issue 59): there its stderr shows
+/// warnings and errors alone, beside the progress bar and the short lines the learner draws itself, while its log
+/// file (which it then writes itself) keeps every line. Ignored when stderr is not a terminal or `RUST_LOG` is set.
+pub const BRIEF: &str = "CABC_TERMINAL_BRIEF";
+
+/// Whether this process's stderr is brief ([`BRIEF`]): set, stderr a terminal, and no `RUST_LOG`.
+pub fn brief() -> bool {
+    use std::io::IsTerminal;
+    std::env::var_os(BRIEF).is_some()
+        && std::env::var_os("RUST_LOG").is_none()
+        && std::io::stderr().is_terminal()
+}
+
 /// The log file, once known.
 static FILE: OnceLock<Mutex<Option<File>>> = OnceLock::new();
 
@@ -56,17 +69,26 @@ impl<'a> MakeWriter<'a> for ToFile {
 
 /// Installs the global subscriber and the panic hook. Safe to call twice (the second call is a no-op).
 pub fn init() {
+    fn env() -> EnvFilter {
+        EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"))
+    }
     fn filter<S: Subscriber>() -> impl Filter<S> {
-        let env = EnvFilter::try_from_default_env()
-            .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"));
-        quiet(env)
+        quiet(env())
+    }
+    // On a terminal that the process draws on itself ([`brief`]): warnings and errors alone.
+    fn terminal<S: Subscriber>() -> impl Filter<S> {
+        quiet(match brief() {
+            true => EnvFilter::new("warn"),
+            false => env(),
+        })
     }
     let installed = tracing_subscriber::registry()
         .with(
             fmt::layer()
                 .with_writer(std::io::stderr)
                 .with_target(false)
-                .with_filter(filter()),
+                .with_filter(terminal()),
         )
         .with(
             fmt::layer()
