@@ -44,8 +44,8 @@ fn the_plans_keep_the_bash_campaigns_slices() {
 
 #[test]
 fn the_plans_views_are_the_bash_campaigns() {
-    // Issues 45's and 46's plans came after the translation: their views are their own (below).
-    let after = ["issue-45", "issue-46"];
+    // Issues 45's, 46's and 58's plans came after the translation: their views are their own (below).
+    let after = ["issue-45", "issue-46", "issue-58"];
     let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
         .unwrap()
         .into_iter()
@@ -62,7 +62,13 @@ fn the_plans_views_are_the_bash_campaigns() {
         views[bash.len()..],
         ["v-a-v-c-recipe-view v-a-ref v-a-ref-clone-warmup-dminus v-c-ref v-c-ref-clone-warmup-dminus"]
     );
-    for name in after {
+    let v_a = plan("issue-58");
+    assert_eq!(v_a.views.len(), 1);
+    assert_eq!(
+        v_a.views[0].groups[0], "v-a-cpu-rerun",
+        "issue-58: V-A's runs without the keys first, the keys beside them"
+    );
+    for name in &after[..2] {
         let plan = plan(name);
         assert_eq!(plan.views.len(), 1, "{name}");
         assert_eq!(

@@ -193,6 +193,11 @@ impl Evaluations {
         record.count("duplicate_evals", self.duplicates);
     }
 
+    /// The newest version published (none before the first [`Evaluations::publish`]).
+    pub fn published(&self) -> Option<u64> {
+        self.published
+    }
+
     /// The version that stopped the run early, once decided.
     pub fn early_stop(&self) -> Option<u64> {
         self.early_stop

@@ -243,12 +243,25 @@ impl Learner {
         self.epoch.record.real("beta", self.config.beta(epoch), 6);
     }
 
-    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment the replay would not
-    /// take (images not of the run's observation size, [`Replay::check_segment`]) is refused and counted in
-    /// `segments_not_stored` before the ledger sees it. This is the one check of a segment: it waits in D_new as
-    /// [`Checked`], and [`Learner::partition`] stores it and counts it stored.
+    /// Takes in a segment of D_new, exactly once (the ledger drops a duplicate). A segment tagged with a policy
+    /// version this learner never published (a forged or replayed update's, issue 57), or that the replay would
+    /// not take (images not of the run's observation size, [`Replay::check_segment`]), is refused and counted in
+    /// `segments_not_stored` before the ledger sees it, as an evaluation of such a version is. This is the one check
+    /// of a segment: it waits in D_new as [`Checked`], and [`Learner::partition`] stores it and counts it stored.
     pub fn store(&mut self, segment: Segment) {
         let (actor, seq) = (segment.actor.clone(), segment.seq);
+        let published = self.state.evaluations.published();
+        if published.is_none_or(|published| segment.policy_version > published) {
+            self.state.segments_not_stored += 1;
+            tracing::warn!(
+                actor,
+                seq,
+                version = segment.policy_version,
+                published = ?published,
+                "segment of a policy version not published: refused"
+            );
+            return;
+        }
         let checked = match self.replay.checked(segment) {
             Ok(checked) => checked,
             Err(e) => {

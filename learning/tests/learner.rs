@@ -1,6 +1,7 @@
 //! The learner's state across epochs and resumes, and what it is given at construction: the count of segments not
-//! stored goes with the checkpoint (a resumed learner writes the count the run had), and the access control's
-//! refusals come from the source the bus side passes in (none in process).
+//! stored goes with the checkpoint (a resumed learner writes the count the run had), a segment of a version never
+//! published is refused, and the access control's refusals come from the source the bus side passes in (none in
+//! process).
 
 use cabc_learning::learner::{AclDenials, Learner};
 use cabc_learning::record::Record;
@@ -42,9 +43,11 @@ fn open(dir: &Path, sink: Told, acl_denials: AclDenials, resume: bool) -> Learne
     Learner::open(config, dir.into(), Box::new(sink), acl_denials, resume).unwrap()
 }
 
-/// Epoch `j` of Algorithm 1 without actors or training: `segments` arrive, the collection closes with `live`.
+/// Epoch `j` of Algorithm 1 without actors or training: pi_j is published, `segments` arrive, the collection closes
+/// with `live`.
 fn epoch(learner: &mut Learner, j: u64, segments: Vec<Segment>, live: &[&str]) -> Record {
     learner.begin_epoch(j);
+    let _ = learner.policy_update(j);
     segments.into_iter().for_each(|s| learner.store(s));
     learner.partition(&Collected {
         live: live.iter().map(|a| a.to_string()).collect(),
@@ -82,6 +85,47 @@ fn segments_not_stored_survive_a_resume() {
     let summary = learner.finish("test", true, 0).unwrap();
     assert_eq!(summary.segments_not_stored, 2);
     assert_eq!(summary.segments_stored, 2);
+}
+
+/// Issue 57: a segment tagged with a version the learner never published (a replayed policy update with its version
+/// raised) is refused and counted, and its steps never reach the replay; one of the version published, or an older
+/// one, is stored.
+#[test]
+fn a_segment_of_a_version_never_published_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut learner = open(dir.path(), Told::default(), Box::new(BTreeMap::new), false);
+    let forged = |seq: u64, version: u64| {
+        let mut s = segment(seq, false);
+        s.policy_version = version;
+        s
+    };
+    let first = epoch(&mut learner, 0, vec![forged(0, 0), forged(1, 1_004)], &[]);
+    assert_eq!(first.u64("segments_not_stored"), Some(1), "{first}");
+    assert_eq!(first.u64("segments"), Some(1), "{first}");
+    assert_eq!(first.u64("steps_collected"), Some(1), "{first}");
+    let second = epoch(
+        &mut learner,
+        1,
+        vec![forged(2, 0), forged(3, 1), forged(4, 2)],
+        &[],
+    );
+    assert_eq!(second.u64("segments_not_stored"), Some(2), "{second}");
+    assert_eq!(second.u64("segments"), Some(2), "{second}");
+    // Before any version is published, no segment is believed.
+    let other = tempfile::tempdir().unwrap();
+    let mut fresh = open(
+        other.path(),
+        Told::default(),
+        Box::new(BTreeMap::new),
+        false,
+    );
+    fresh.begin_epoch(0);
+    fresh.store(forged(0, 0));
+    fresh.partition(&Collected::default());
+    fresh.autolabel(false);
+    fresh.end_epoch().unwrap();
+    let row = fresh.rows().last().unwrap();
+    assert_eq!(row.u64("segments_not_stored"), Some(1), "{row}");
 }
 
 #[test]

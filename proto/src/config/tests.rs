@@ -423,3 +423,30 @@ fn the_camera_policy_velocity_inputs_are_a_key() {
         assert_eq!(again.observation.velocity_inputs, seen, "{set}");
     }
 }
+
+/// Issue 58: V-A's recipe is DART in collection, on `v-a` and `v-a-cpu` alike (they differ in the image and the
+/// trunk alone); the reference's protocol, `v-a-ref`, has no noise.
+#[test]
+fn v_a_collects_with_darts_noise_and_the_reference_without() {
+    let (a, cpu) = (
+        RunConfig::load("v-a").unwrap(),
+        RunConfig::load("v-a-cpu").unwrap(),
+    );
+    assert_eq!(a.collection.action_noise_std, [0.0, 0.15]);
+    assert_eq!(cpu.collection.action_noise_std, [0.0, 0.15]);
+    assert_eq!(
+        RunConfig::load("v-a-ref")
+            .unwrap()
+            .collection
+            .action_noise_std,
+        [0.0, 0.0]
+    );
+    let mut same = cpu.clone();
+    same.run.name = a.run.name.clone();
+    same.observation.width = a.observation.width;
+    same.observation.height = a.observation.height;
+    same.observation.trunk = a.observation.trunk;
+    same.training.policy_max_batches = a.training.policy_max_batches;
+    same.replay.max_bytes = a.replay.max_bytes;
+    assert_eq!(same.to_toml(), a.to_toml(), "the image and the trunk alone");
+}
