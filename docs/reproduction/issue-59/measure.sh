@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Issue 59 item 2: the main job, as a user runs it, idle, seeds 42-44, one after another.
+# Issue 59 item 2: the main job, as a user runs it, idle, seeds 42-44, one after another. Its runs are kept as
+# docs/reproduction/v-b-main-s<k> (the first reproduction holds docs/reproduction/v-b-s<k>).
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)
 cd "$root"
 mkdir -p /tmp/logs
