@@ -81,9 +81,8 @@ enum Command {
     /// crashes (share, Wilson 95 %), laps and lap times per level as JSON on stdout and in OUT/robust.json, and a
     /// figure OUT/robust.png (crash share per level; the spawns on the track by the first level that crashes).
     Robust(robust::Args),
-    /// What a run's data lets a camera policy copy (issue 58): predictors of the expert's label fitted on the run's
-    /// D+ (a constant, the velocities alone, the run's policy, the image alone) with their held-out imitation loss,
-    /// so that a copycat policy shows before the epochs are spent.
+    /// What a run's data lets a camera policy copy (issue 58): a constant, the velocities alone, the run's policy and
+    /// the image alone fitted on its D+, with their held-out imitation loss (a copycat shows before the epochs go).
     Probe(probe::Args),
     /// The paper's Fig. 3: auto-labelling and the critic it trains on a constructed 2-d example.
     Demo(tools::DemoArgs),
