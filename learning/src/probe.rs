@@ -128,12 +128,12 @@ pub struct Rows {
 }
 
 impl Rows {
-    /// At most `max` rows of `replay`'s D+, evenly spaced, with D+'s size.
+    /// At most `max` rows of `replay`'s D+, evenly spaced.
     pub fn read(
         replay: &ReplaySnapshot,
         config: &RunConfig,
         max: usize,
-    ) -> Result<(Self, usize), ProbeError> {
+    ) -> Result<Self, ProbeError> {
         let held = replay.plus.len();
         let stride = held.div_ceil(max.max(1)).max(1);
         let picked: Vec<usize> = (0..held).step_by(stride).collect();
@@ -151,17 +151,14 @@ impl Rows {
             }
             _ => None,
         };
-        Ok((
-            Rows {
-                states: picked.iter().map(|&i| replay.plus.states[i]).collect(),
-                labels: picked
-                    .iter()
-                    .map(|&i| replay.plus.expert_actions[i])
-                    .collect(),
-                images,
-            },
-            held,
-        ))
+        Ok(Rows {
+            states: picked.iter().map(|&i| replay.plus.states[i]).collect(),
+            labels: picked
+                .iter()
+                .map(|&i| replay.plus.expert_actions[i])
+                .collect(),
+            images,
+        })
     }
 
     fn labels(&self, rows: &[usize]) -> Tensor {
@@ -271,8 +268,8 @@ pub fn probe(
     replay: &ReplaySnapshot,
     o: &ProbeOptions,
 ) -> Result<ProbeReport, ProbeError> {
-    let (rows, held) = Rows::read(replay, config, o.max_rows)?;
-    probe_rows(config, &rows, held, o)
+    let rows = Rows::read(replay, config, o.max_rows)?;
+    probe_rows(config, &rows, replay.plus.len(), o)
 }
 
 /// [`probe`] on rows already read (`held`: D+'s size, for the report).
