@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Packs what a session with the lent GPU machine carries there (issue 22): the learner and cabc (its bench-vision), stripped, and the C
+# Packs what a session with the lent GPU machine carries there (issue 22): the learner, cabc (its bench-vision) and
+# cabc-sim (its camera bench), stripped, and the C
 # libraries of its plots that the machine may lack, and the CUDA test, into .gpu/ (git-ignored), with .gpu/run.sh,
 # which runs them
 # against the machine's own libtorch 2.11.0 (the version this source builds against).
@@ -13,13 +14,14 @@ set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
 "$root/deploy/setup.sh"
-cargo build --release --quiet --bin learner --bin cabc
+cargo build --release --quiet --bin learner --bin cabc --bin cabc-sim
 # The CUDA test (learning/tests/cuda.rs), which runs there as `.gpu/run.sh cuda-test`.
 test_bin=$(cargo test --release --workspace --test cuda --no-run 2>&1 | grep -o 'target/release/deps/cuda-[0-9a-f]*' | head -1)
 [ -x "$test_bin" ] || { echo "[gpu-pack] error: the CUDA test was not built" >&2; exit 1; }
 rm -rf .gpu && mkdir -p .gpu/lib
 strip -o .gpu/learner target/release/learner
 strip -o .gpu/cabc target/release/cabc
+strip -o .gpu/cabc-sim target/release/cabc-sim
 strip -o .gpu/cuda-test "$test_bin"
 # Everything the binary needs besides glibc, the C++ runtime and libtorch: the plots' fontconfig and freetype and
 # what they pull in.

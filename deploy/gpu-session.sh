@@ -7,12 +7,14 @@
 #   bash deploy/gpu-session.sh --part vc --seconds 500        # then at once, on the warm machine: V-C
 #
 # In order, each step bounded so that the next always runs and the results always come back:
-#   1. (checks) nvidia-smi and the CUDA test (learning/tests/cuda.rs)            -> $OUT/gpu.log
+#   1. (checks) nvidia-smi, the camera's frames/s on one core and on all, the CUDA test (learning/tests/cuda.rs)
+#                                                                                -> $OUT/gpu.log
 #   2. (checks) `cabc bench-vision` fp32 and bf16 with the run's Adam and with tch's, each beside PyTorch's own
 #      figure for the same network and step, measured in the same call (bench/anchor/vision.py), and against issue
 #      31's anchor
 #                                                       -> $OUT/bench.jsonl (ours, PyTorch's; fp32, bf16), gpu.log
-#   3. (vc) V-C at 224x224 with ResNet-18 (`v-c-ref` at the paper's size, bf16) for the seconds left, ended by
+#   3. (vc) V-C at 224x224 with ResNet-18 (the preset `v-c-224`: `v-c-ref` at the paper's size, bf16, eight
+#      environments) for the seconds left, ended by
 #      SIGINT (the run's summary says "interrupted"; its checkpoint stays on the machine, and a later call on the
 #      same warm machine resumes it)    -> $OUT/{metrics.csv,evals.csv,summary.json,config.toml,laps.png,run.log}
 # --part is checks, vc or all (the default); --seconds is the whole script's budget (default 560); --side changes
@@ -53,6 +55,9 @@ declare -A anchor=([fp32]=4256 [bf16]=5635)
 step "nvidia-smi"
 nvidia-smi >> "$log" 2>&1 || echo "nvidia-smi: rc $?" >> "$log"
 [ "$part" = vc ] || {
+step "the camera on one core and on all (cabc-sim bench)"
+timeout 30 .gpu/run.sh cabc-sim bench --seconds 1 >> "$log" 2>&1
+echo "cabc-sim bench: rc $?" >> "$log"
 step "the CUDA test"
 timeout 150 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
 echo "cuda-test: rc $?" >> "$log"
@@ -90,16 +95,16 @@ done
 }
 
 [ "$part" = checks ] || {
-run=v-c-ref-$side
+run=v-c-224
+[ "$side" = 224 ] || run=v-c-224-side$side
 budget=$(( $(left) - 25 ))
-step "V-C at ${side}x${side} for ${budget}s"
+step "V-C at ${side}x${side} (v-c-224) for ${budget}s"
 if [ "$budget" -gt 30 ]; then
   resume=()
   [ -d "runs/$run/checkpoint" ] && resume=(--resume)
-  timeout -s INT -k 20 "$budget" .gpu/run.sh learner run --local --config v-c-ref \
-    --set observation.width="$side" --set observation.height="$side" --set 'observation.trunk="resnet18"' \
-    --set training.policy_max_batches=0 --set replay.max_bytes=16_000_000_000 --set 'training.precision="bf16"' \
-    --set run.name="$run" "${resume[@]}" > "$OUT/run.full.log" 2>&1
+  timeout -s INT -k 20 "$budget" .gpu/run.sh learner run --local --config v-c-224 \
+    --set observation.width="$side" --set observation.height="$side" --set run.name="$run" "${resume[@]}" \
+    > "$OUT/run.full.log" 2>&1
   echo "learner: rc $? (124 or 130: ended by the budget)" >> "$log"
   tail -n 400 "$OUT/run.full.log" > "$OUT/run.log"
   rm -f "$OUT/run.full.log"

@@ -171,11 +171,17 @@ impl Collector {
         self.shielded
     }
 
-    /// Sets the incarnation every segment carries (the `actor` binary: the time it started), so that the learner
-    /// tells a restarted actor's segments from duplicates. In-process actors keep 0.
+    /// Sets the incarnation every segment carries (the `actor` binary: the time it started; in-process actors: the
+    /// policy version they start with, 0 for a fresh run), so that the learner tells a restarted actor's segments
+    /// from duplicates.
     pub fn with_incarnation(mut self, incarnation: u64) -> Self {
-        self.seq.incarnation = incarnation;
+        self.set_incarnation(incarnation);
         self
+    }
+
+    /// [`Collector::with_incarnation`] in place, before the first step.
+    pub fn set_incarnation(&mut self, incarnation: u64) {
+        self.seq.incarnation = incarnation;
     }
 
     /// The actor's name (the `actor` of its segments).

@@ -27,6 +27,8 @@ pub struct LocalActors<E: ExpertClient> {
     /// Where the policy runs for collection and evaluation (the learner's device in `learner run --local`).
     device: Device,
     interrupt: Option<Interrupt>,
+    /// Whether a version was gathered yet: the first one names the collectors' incarnation.
+    started: bool,
 }
 
 impl<E: ExpertClient> LocalActors<E> {
@@ -44,6 +46,7 @@ impl<E: ExpertClient> LocalActors<E> {
             reports: Vec::new(),
             device: Device::Cpu,
             interrupt: None,
+            started: false,
         }
     }
 
@@ -118,6 +121,16 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
     ) -> Result<Option<Collected>, PortError> {
         if self.is_interrupted() {
             return Ok(None);
+        }
+        // The collectors' incarnation is the first version they collect with: 0 in a fresh run, the epoch it goes
+        // on from in a resumed one. Their segments' seqs start again at 0 either way, and the resumed run's ledger
+        // holds the first incarnation's: under the same one, every new segment would be dropped as a duplicate
+        // until its seq passed the old ones (issue 56's resumed V-C at 224x224 lost its last 13 epochs' data so).
+        if !self.started {
+            self.started = true;
+            for collector in &mut self.collectors {
+                collector.set_incarnation(update.version);
+            }
         }
         let policy = Policy::from_bytes(&update.weights, self.device)
             .map_err(|e| PortError::Transport(format!("policy version {}: {e}", update.version)))?;

@@ -517,6 +517,8 @@ impl Learner {
             best_eval: evaluations.best().cloned(),
             last_eval: evaluations.evals.last().cloned(),
             trunk_init: state.trunk_init.clone(),
+            device: cabc_models::device_name(self.device()),
+            precision: cabc_models::precision::effective(config.training.precision, self.device()),
             expert_lap_time: expert.map(|(mean, std)| LapTime {
                 laps: state.expert_lap_times.len(),
                 mean,

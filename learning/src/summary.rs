@@ -4,6 +4,7 @@
 //! [`Learner::finish`]: crate::learner::Learner::finish
 
 use crate::evaluations::EvalSummary;
+use cabc_proto::config::Precision;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -19,6 +20,9 @@ pub struct Summary {
     pub d_minus: usize,
     pub d_plus: usize,
     pub d_uncertain: usize,
+    /// The device the networks trained on ("cpu", "cuda:0"), and the collection's and evaluation's policy with them
+    /// in `learner run --local`.
+    pub device: String,
     /// Evaluation reports of a version evaluated before.
     pub duplicate_evals: u64,
     /// Segments the ledger dropped as copies of one stored.
@@ -38,6 +42,9 @@ pub struct Summary {
     pub last_eval: Option<EvalSummary>,
     pub learner_peak_rss_mb: Option<f64>,
     pub mean_epoch_s: f64,
+    /// The arithmetic the networks trained in: "bf16" (autocast, CUDA alone) or "fp32" (`training.precision` on a
+    /// CPU is fp32).
+    pub precision: Precision,
     /// Evaluation reports of versions not published.
     pub refused_evals: u64,
     /// Messages the bus refused (foreign, malformed).
@@ -76,6 +83,7 @@ mod tests {
             d_minus: 1,
             d_plus: 2,
             d_uncertain: 3,
+            device: "cuda:0".into(),
             duplicate_evals: 4,
             duplicate_segments: 5,
             early_stop_version: Some(6),
@@ -92,6 +100,7 @@ mod tests {
             last_eval: None,
             learner_peak_rss_mb: Some(f64::NAN),
             mean_epoch_s: 0.5,
+            precision: Precision::Bf16,
             refused_evals: 8,
             rejected_messages: 9,
             rho: 0.5,
@@ -109,5 +118,7 @@ mod tests {
         );
         assert_eq!(value["learner_peak_rss_mb"], serde_json::Value::Null);
         assert_eq!(value["expert_lap_time"]["laps"], 2);
+        assert_eq!(value["device"], "cuda:0");
+        assert_eq!(value["precision"], "bf16");
     }
 }

@@ -8,6 +8,15 @@ pub fn cuda_available() -> bool {
     tch::Cuda::is_available()
 }
 
+/// A device as `training.device` names it: "cpu" or "cuda:N" (what a run's summary says it trained on).
+pub fn device_name(device: Device) -> String {
+    match device {
+        Device::Cpu => "cpu".into(),
+        Device::Cuda(i) => format!("cuda:{i}"),
+        other => format!("{other:?}").to_lowercase(),
+    }
+}
+
 /// Parses "auto" | "cpu" | "cuda" | "cuda:N".
 pub fn parse_device(spec: &str) -> Result<Device, ModelError> {
     let spec = spec.trim();

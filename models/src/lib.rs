@@ -22,7 +22,7 @@ pub mod vision;
 pub mod weights;
 
 pub use critic::Critic;
-pub use device::{cuda_available, flush_denormals, parse_device};
+pub use device::{cuda_available, device_name, flush_denormals, parse_device};
 pub use dynamics::Dynamics;
 pub use error::ModelError;
 pub use mlp::Mlp;

@@ -38,6 +38,15 @@ pub fn mixed(precision: Precision, device: Device) -> bool {
     precision == Precision::Bf16 && device.is_cuda()
 }
 
+/// The precision `precision` trains at on `device`: bf16 on CUDA alone, fp32 elsewhere.
+pub fn effective(precision: Precision, device: Device) -> Precision {
+    if mixed(precision, device) {
+        Precision::Bf16
+    } else {
+        Precision::Fp32
+    }
+}
+
 /// Runs `f` (a forward pass and its loss) at `precision` on `device`: under bf16 autocast for bf16 on CUDA, as it
 /// is otherwise.
 pub fn with_precision<T>(precision: Precision, device: Device, f: impl FnOnce() -> T) -> T {

@@ -89,6 +89,7 @@ pub const PRESETS: &[(&str, &str)] = &[
         include_str!("../../deploy/configs/v-b-recipe.toml"),
     ),
     ("v-c-ref", include_str!("../../deploy/configs/v-c-ref.toml")),
+    ("v-c-224", include_str!("../../deploy/configs/v-c-224.toml")),
 ];
 
 impl RunConfig {
@@ -105,7 +106,7 @@ impl RunConfig {
     }
 
     /// A preset name ([`PRESETS`]: `v-a`, `v-b`, `v-c`, `smoke`, `v-a-cpu`, `v-c-cpu`, `smoke-camera`, and the
-    /// reference protocol's `v-a-ref`, `v-b-ref`, `v-c-ref`) or a path to a TOML file.
+    /// reference protocol's `v-a-ref`, `v-b-ref`, `v-c-ref`, and `v-c-224` on a GPU) or a path to a TOML file.
     pub fn load(name_or_path: &str) -> Result<Self, ConfigError> {
         if let Some((name, text)) = PRESETS.iter().find(|(n, _)| *n == name_or_path) {
             return Self::from_toml(text, &format!("preset {name}"));

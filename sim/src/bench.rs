@@ -1,4 +1,5 @@
-//! Throughput of the simulator on one core: env steps per second under the PID, and camera frames per second.
+//! Throughput of the simulator: env steps per second under the PID on one core, and camera frames per second on one
+//! core and on all of them (frames of at least `camera::PARALLEL_PIXELS` pixels are drawn on every core).
 
 use std::fmt;
 use std::time::Instant;
@@ -11,10 +12,11 @@ use crate::track::Pose;
 /// Camera sizes measured (square images, pixels a side).
 pub const CAMERA_SIZES: [usize; 2] = [64, 224];
 
-/// Frames per second of one camera size.
+/// Frames per second of one camera size on `threads` cores.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct CameraRate {
     pub size: usize,
+    pub threads: usize,
     pub frames_per_s: f64,
     /// A sum of pixels, so the renderer cannot be optimised away (and frames can be compared).
     pub checksum: u64,
@@ -44,8 +46,8 @@ impl fmt::Display for BenchReport {
         for c in &self.camera {
             writeln!(
                 f,
-                "camera {0}x{0}: {1:.0} frames/s (one core) [checksum {2}]",
-                c.size, c.frames_per_s, c.checksum
+                "camera {0}x{0}: {1:.0} frames/s ({2} threads) [checksum {3}]",
+                c.size, c.frames_per_s, c.threads, c.checksum
             )?;
         }
         Ok(())
@@ -88,22 +90,29 @@ pub fn run(seconds: f64) -> BenchReport {
     let lookup = TrackLookup::new(&track, 0.01);
     let lookup_build_ms = t0.elapsed().as_secs_f64() * 1e3;
     let sun = Sun::default();
+    let all = rayon::current_num_threads();
     let camera = CAMERA_SIZES
         .iter()
-        .map(|&size| {
+        .flat_map(|&size| [(size, 1), (size, all)])
+        .filter_map(|(size, threads)| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .ok()?;
             let mut cam = Camera::new(size, size, REFERENCE_FOV_DEG);
             let (start, mut n) = (Instant::now(), 0usize);
             let mut checksum = 0u64;
             while start.elapsed().as_secs_f64() < seconds {
-                let img = cam.render(&lookup, poses[n % poses.len()], sun);
+                let img = pool.install(|| cam.render(&lookup, poses[n % poses.len()], sun));
                 checksum = checksum.wrapping_add(img.rgb[img.rgb.len() / 2] as u64);
                 n += 1;
             }
-            CameraRate {
+            Some(CameraRate {
                 size,
+                threads,
                 frames_per_s: n as f64 / start.elapsed().as_secs_f64(),
                 checksum,
-            }
+            })
         })
         .collect();
     BenchReport {

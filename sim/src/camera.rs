@@ -19,6 +19,7 @@ use std::f64::consts::PI;
 use std::path::Path;
 
 use rand::Rng;
+use rayon::prelude::*;
 
 use crate::track::{Pose, Track};
 
@@ -297,74 +298,48 @@ impl Camera {
 
     /// Render the view from `pose` under `sun` into the camera's buffer and return it.
     pub fn render(&mut self, lookup: &TrackLookup, pose: Pose, sun: Sun) -> &Frame {
-        let (sp, cp) = pose.psi.sin_cos();
-        let s = sun.direction();
-        let (sun_dx, sun_dy) = (sun.azimuth.cos(), sun.azimuth.sin());
-        let sun_up = s[2].max(0.0);
-        // Horizontal distance over which a ray towards the sun stays below the wall top.
-        let shadow_len = if s[2] > 1e-6 {
-            WALL_HEIGHT * (1.0 - s[2] * s[2]).sqrt() / s[2]
-        } else {
-            1e3
-        };
-        let flat_lit = AMBIENT + DIFFUSE * sun_up;
-        let road_lit = to_u8(ROAD_RGB.map(|c| c * flat_lit));
-        let road_dark = to_u8(ROAD_RGB.map(|c| c * AMBIENT));
-        let ground_lit = to_u8(GROUND_RGB.map(|c| c * flat_lit));
-        let ground_dark = to_u8(GROUND_RGB.map(|c| c * AMBIENT));
-        let wall_top = to_u8(WALL_RGB.map(|c| c * flat_lit));
-        let (w, h) = (self.width, self.height);
-        let max_view = 30.0;
-        for i in 0..w {
-            let l = self.col_left[i];
-            let hlen = (1.0 + l * l).sqrt();
-            let (dx, dy) = ((cp - l * sp) / hlen, (sp + l * cp) / hlen);
-            let wall_t = lookup.trace_wall(pose.x, pose.y, dx, dy, max_view);
-            let wall_rgb = wall_t.map(|t| {
-                let (hx, hy) = (pose.x + t * dx, pose.y + t * dy);
-                let (mut nx, mut ny) = lookup.gradient(hx, hy);
-                // The visible face looks back at the camera.
-                if nx * dx + ny * dy > 0.0 {
-                    nx = -nx;
-                    ny = -ny;
-                }
-                let lambert = (nx * s[0] + ny * s[1]).max(0.0);
-                to_u8(WALL_RGB.map(|c| c * (AMBIENT + DIFFUSE * lambert)))
-            });
-            for j in 0..h {
-                let u = self.row_up[j];
-                let c = if u >= 0.0 {
-                    self.sky[j]
-                } else {
-                    let g = CAMERA_HEIGHT * hlen / (-u); // horizontal distance to the ground hit
-                    match (wall_t, wall_rgb) {
-                        (Some(t), Some(rgb)) if t < g => rgb,
-                        _ => {
-                            let (gx, gy) = (pose.x + g * dx, pose.y + g * dy);
-                            let d = lookup.distance(gx, gy);
-                            if d <= ROAD_HALF_WIDTH || d > ROAD_HALF_WIDTH + WALL_THICKNESS {
-                                let near_wall = d <= ROAD_HALF_WIDTH + WALL_THICKNESS + shadow_len;
-                                let shadowed = near_wall
-                                    && (s[2] <= 0.0
-                                        || lookup
-                                            .trace_wall(gx, gy, sun_dx, sun_dy, shadow_len)
-                                            .is_some());
-                                match (d <= ROAD_HALF_WIDTH, shadowed) {
-                                    (true, false) => road_lit,
-                                    (true, true) => road_dark,
-                                    (false, false) => ground_lit,
-                                    (false, true) => ground_dark,
-                                }
-                            } else {
-                                wall_top
-                            }
-                        }
-                    }
-                };
-                self.image.set(i, j, c);
-            }
-        }
+        let mut image = std::mem::replace(&mut self.image, Frame::new(0, 0));
+        self.render_into(lookup, pose, sun, &mut image);
+        self.image = image;
         &self.image
+    }
+
+    /// Render the view from `pose` under `sun` into `frame` (resized to the camera's). Frames of at least
+    /// [`PARALLEL_PIXELS`] pixels are drawn on all cores (rayon): the columns' wall traces, then the rows; each pixel
+    /// is the same function of the pose whichever thread draws it, so the image is the same bits as on one core.
+    pub fn render_into(&self, lookup: &TrackLookup, pose: Pose, sun: Sun, frame: &mut Frame) {
+        let (w, h) = (self.width, self.height);
+        if (frame.width, frame.height) != (w, h) {
+            *frame = Frame::new(w, h);
+        }
+        let scene = Scene::new(pose, sun);
+        // One task for a small frame: rayon's hand-offs would cost more than its pixels.
+        let (columns_per_task, rows_per_task) = if w * h >= PARALLEL_PIXELS {
+            (8, 4)
+        } else {
+            (w, h)
+        };
+        let columns: Vec<Column> = (0..w)
+            .into_par_iter()
+            .with_min_len(columns_per_task)
+            .map(|i| scene.column(lookup, self.col_left[i]))
+            .collect();
+        frame
+            .rgb
+            .par_chunks_mut(w * 3)
+            .with_min_len(rows_per_task)
+            .enumerate()
+            .for_each(|(j, row)| {
+                let (u, sky) = (self.row_up[j], self.sky[j]);
+                for (pixel, column) in row.chunks_exact_mut(3).zip(&columns) {
+                    let c = if u >= 0.0 {
+                        sky
+                    } else {
+                        scene.ground(lookup, column, u)
+                    };
+                    pixel.copy_from_slice(&c);
+                }
+            });
     }
 
     /// Render like [`Camera::render`] and hand the image over (moved, not copied; the camera takes a fresh
@@ -395,6 +370,116 @@ impl Camera {
             self.render_owned(&TrackLookup::new(track, 0.01), pose, sun),
             pose,
         ))
+    }
+}
+
+/// Frames of this many pixels or more are rendered on all cores ([`Camera::render_into`]): 128 x 128.
+pub const PARALLEL_PIXELS: usize = 128 * 128;
+
+/// What every pixel of one render shares: the pose and the sun's light.
+struct Scene {
+    pose: Pose,
+    cos_psi: f64,
+    sin_psi: f64,
+    sun: [f64; 3],
+    sun_dx: f64,
+    sun_dy: f64,
+    /// Horizontal distance over which a ray towards the sun stays below the wall top.
+    shadow_len: f64,
+    road_lit: [u8; 3],
+    road_dark: [u8; 3],
+    ground_lit: [u8; 3],
+    ground_dark: [u8; 3],
+    wall_top: [u8; 3],
+}
+
+/// One image column: its ray's horizontal direction and the wall it meets, if any, with the wall's colour.
+struct Column {
+    dx: f64,
+    dy: f64,
+    hlen: f64,
+    wall: Option<(f64, [u8; 3])>,
+}
+
+impl Scene {
+    /// Farthest distance a column's ray is traced, m.
+    const MAX_VIEW: f64 = 30.0;
+
+    fn new(pose: Pose, sun: Sun) -> Scene {
+        let (sin_psi, cos_psi) = pose.psi.sin_cos();
+        let s = sun.direction();
+        let shadow_len = if s[2] > 1e-6 {
+            WALL_HEIGHT * (1.0 - s[2] * s[2]).sqrt() / s[2]
+        } else {
+            1e3
+        };
+        let flat_lit = AMBIENT + DIFFUSE * s[2].max(0.0);
+        Scene {
+            pose,
+            cos_psi,
+            sin_psi,
+            sun: s,
+            sun_dx: sun.azimuth.cos(),
+            sun_dy: sun.azimuth.sin(),
+            shadow_len,
+            road_lit: to_u8(ROAD_RGB.map(|c| c * flat_lit)),
+            road_dark: to_u8(ROAD_RGB.map(|c| c * AMBIENT)),
+            ground_lit: to_u8(GROUND_RGB.map(|c| c * flat_lit)),
+            ground_dark: to_u8(GROUND_RGB.map(|c| c * AMBIENT)),
+            wall_top: to_u8(WALL_RGB.map(|c| c * flat_lit)),
+        }
+    }
+
+    /// The column whose ray leaves `l` to the left of the optical axis (a slope).
+    fn column(&self, lookup: &TrackLookup, l: f64) -> Column {
+        let (cp, sp, pose, s) = (self.cos_psi, self.sin_psi, self.pose, self.sun);
+        let hlen = (1.0 + l * l).sqrt();
+        let (dx, dy) = ((cp - l * sp) / hlen, (sp + l * cp) / hlen);
+        let wall = lookup
+            .trace_wall(pose.x, pose.y, dx, dy, Self::MAX_VIEW)
+            .map(|t| {
+                let (hx, hy) = (pose.x + t * dx, pose.y + t * dy);
+                let (mut nx, mut ny) = lookup.gradient(hx, hy);
+                // The visible face looks back at the camera.
+                if nx * dx + ny * dy > 0.0 {
+                    nx = -nx;
+                    ny = -ny;
+                }
+                let lambert = (nx * s[0] + ny * s[1]).max(0.0);
+                (
+                    t,
+                    to_u8(WALL_RGB.map(|c| c * (AMBIENT + DIFFUSE * lambert))),
+                )
+            });
+        Column { dx, dy, hlen, wall }
+    }
+
+    /// The colour of `column`'s pixel in a row below the horizon (`u` < 0, the row's slope).
+    fn ground(&self, lookup: &TrackLookup, column: &Column, u: f64) -> [u8; 3] {
+        let g = CAMERA_HEIGHT * column.hlen / (-u); // horizontal distance to the ground hit
+        if let Some((t, rgb)) = column.wall {
+            if t < g {
+                return rgb;
+            }
+        }
+        let (gx, gy) = (self.pose.x + g * column.dx, self.pose.y + g * column.dy);
+        let d = lookup.distance(gx, gy);
+        let on_wall_top = !(d <= ROAD_HALF_WIDTH || d > ROAD_HALF_WIDTH + WALL_THICKNESS);
+        if on_wall_top {
+            return self.wall_top;
+        }
+        let near_wall = d <= ROAD_HALF_WIDTH + WALL_THICKNESS + self.shadow_len;
+        let shadowed = near_wall
+            && (self.sun[2] <= 0.0
+                || lookup
+                    .trace_wall(gx, gy, self.sun_dx, self.sun_dy, self.shadow_len)
+                    .is_some());
+        match (d <= ROAD_HALF_WIDTH, shadowed) {
+            (true, false) => self.road_lit,
+            (true, true) => self.road_dark,
+            (false, false) => self.ground_lit,
+            (false, true) => self.ground_dark,
+        }
     }
 }
 

@@ -70,7 +70,7 @@ enum Cmd {
         #[arg(long, default_value_t = 100.0)]
         scale: f64,
     },
-    /// Measure env steps/s and camera frames/s on one core.
+    /// Measure env steps/s on one core and camera frames/s on one core and on all.
     Bench {
         /// Seconds per measurement (at least 1).
         #[arg(long, default_value_t = 1.0)]

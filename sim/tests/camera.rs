@@ -121,3 +121,44 @@ fn any_resolution_and_png() {
     assert!(std::fs::metadata(&path).unwrap().len() > 50);
     let _ = std::fs::remove_file(path);
 }
+
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    })
+}
+
+/// Issue 56: a frame of 224x224 is drawn on all cores, and its bits are those the renderer drew on one core before
+/// (the digests of `cabc-sim render --size 224x224 --s S --x-tran X --e-psi E --sun AZ,EL` at 7d4e9b9, read off its
+/// PNGs), whatever the number of threads.
+#[test]
+fn a_frame_drawn_on_all_cores_is_the_one_drawn_on_one() {
+    let track = Track::l_track_barc();
+    let cases = [
+        ((2.0, 0.3, 0.2), (30.0, 15.0), 0xf320_c498_cdc8_2e5a_u64),
+        ((11.5, -0.4, -0.3), (200.0, 8.0), 0x02f2_e2aa_f86c_92a5),
+        ((7.0, 0.0, 0.0), (100.0, 60.0), 0x9750_9e65_cedb_65f6),
+    ];
+    for threads in [1, 4] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        for (pose, (azimuth, elevation), digest) in cases {
+            let sun = Sun {
+                azimuth: f64::to_radians(azimuth),
+                elevation: f64::to_radians(elevation),
+            };
+            let camera = Camera::new(224, 224, 110.0);
+            let mut frame = Frame::new(1, 1);
+            let at = track.local_to_global(pose.0, pose.1, pose.2);
+            pool.install(|| camera.render_into(lookup(), at, sun, &mut frame));
+            assert_eq!((frame.width, frame.height), (224, 224));
+            assert_eq!(
+                fnv1a(&frame.rgb),
+                digest,
+                "{threads} threads, pose {pose:?}, sun {azimuth},{elevation}"
+            );
+        }
+    }
+}

@@ -212,3 +212,36 @@ fn an_overlapped_epoch_trains_on_the_data_of_the_epochs_before_it() {
         .collect();
     assert_eq!(versions, [0, 1, 2], "each version evaluated once");
 }
+
+/// A run of the in-process actors resumed from its checkpoint stores what the resumed epochs collect: their
+/// collectors start a new incarnation (the version they start with), so their segments, numbered from 0 again, are
+/// not taken for the first incarnation's (issue 56: a resumed `learner run --local` dropped them all as duplicates).
+#[test]
+fn a_resumed_in_process_run_stores_what_it_collects() {
+    let tmp = cabc_tests::test_dir();
+    let config = smoke(2);
+    let (first, ending) = run(&config, tmp.path());
+    assert_eq!(ending, Ending::MaxEpochs);
+    drop(first);
+    let config = smoke(4);
+    let expert = Relabeller::new(
+        Expert::Pid(config.expert.pid_target_speed),
+        config.expert.max_streams,
+        config.expert.max_batch,
+    );
+    let mut actors = LocalActors::new(&config, expert, true);
+    let run_dir = RunDir::create(tmp.path()).unwrap();
+    let mut learner = cabc_outputs::learner(config.clone(), run_dir, true).unwrap();
+    assert_eq!(learner.next_epoch(), 2);
+    let ending = algorithm::run(&mut learner, &mut actors).unwrap();
+    assert_eq!(ending, Ending::MaxEpochs);
+    let rows = learner.rows();
+    assert_eq!(rows.len(), 4, "{rows:?}");
+    for r in &rows[2..] {
+        let collected = r.u64("steps_collected").unwrap();
+        assert!(collected > 0, "{r}");
+        assert_eq!(Some(collected), r.u64("steps_published"), "{r}");
+    }
+    let summary = learner.finish("max_epochs", false, 0).unwrap();
+    assert_eq!(summary.duplicate_segments, 0, "{summary:?}");
+}

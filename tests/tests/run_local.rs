@@ -73,6 +73,15 @@ fn run_local_trains_a_run_to_its_summary() {
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["epochs"], 2, "{summary:#}");
+    // What the networks trained on and in (issue 56): CI has no GPU, and bf16 applies on CUDA alone.
+    let (device, precision) = (&summary["device"], &summary["precision"]);
+    assert!(
+        device == "cpu" || device.as_str().is_some_and(|d| d.starts_with("cuda:")),
+        "{summary:#}"
+    );
+    if device == "cpu" {
+        assert_eq!(precision, "fp32", "{summary:#}");
+    }
     // Not a terminal: the learner's lines as its log (issue 59 item 4).
     assert!(stderr.contains("epoch done: epoch=1"), "{stderr}");
     // The run's wall clock, said when it ends (issue 46: the figure a user compares).

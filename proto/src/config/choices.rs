@@ -142,10 +142,11 @@ pub enum ScheduleKind {
 }
 
 /// The arithmetic of training (`training.precision`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Precision {
     /// fp32 throughout (the paper's).
+    #[default]
     Fp32,
     /// Forward passes under CUDA autocast in bfloat16; weights and optimiser in fp32. CUDA only (fp32 on a CPU).
     Bf16,

@@ -297,6 +297,27 @@ fn the_default_is_the_recipe_and_the_term_as_the_paper_writes_it() {
     );
 }
 
+/// Issue 56: V-C at the paper's size on a GPU (`v-c-224`) is the reference's protocol at 64x64 (`v-c-ref`) with the
+/// image, the trunk, bf16, eight environments in the actor and the replay's budget for 224x224 images; nothing else.
+#[test]
+fn v_c_224_is_the_reference_protocol_at_the_papers_size() {
+    let big = RunConfig::load("v-c-224").unwrap();
+    let small = RunConfig::load("v-c-ref")
+        .unwrap()
+        .with_overrides(&[
+            "run.name=v-c-224".to_string(),
+            "observation.width=224".to_string(),
+            "observation.height=224".to_string(),
+            "observation.trunk=resnet18".to_string(),
+            "training.precision=bf16".to_string(),
+            "actors.envs_per_actor=8".to_string(),
+            "replay.max_bytes=16000000000".to_string(),
+        ])
+        .unwrap();
+    assert_eq!(big.to_toml(), small.to_toml(), "only those keys differ");
+    assert_eq!(big.training.policy_max_batches, 100);
+}
+
 #[test]
 fn the_recipe_keys_are_checked() {
     for (bad, says) in [
