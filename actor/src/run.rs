@@ -84,13 +84,27 @@ pub fn act(policy: &Policy, input: &Observations) -> Result<Vec<[f32; 2]>, Model
     policy.act(&observations)
 }
 
+/// How far a policy version may jump past the last one an actor admitted before it says so. The learner publishes
+/// one version per epoch, and an actor skips only those published while it finished a share or an evaluation (a
+/// handful); a jump of more is no pace of the learner's: a forged or replayed update (issue 57's was 1,000 ahead).
+pub const FAR_AHEAD: u64 = 100;
+
+/// The jump from `last` (the version admitted before, if any) to `version` when it is more than [`FAR_AHEAD`].
+pub fn far_ahead(last: Option<u64>, version: u64) -> Option<u64> {
+    let jump = version.saturating_sub(last?);
+    (jump > FAR_AHEAD).then_some(jump)
+}
+
 /// A [`PolicySource`] that lets through only the updates that pass the run's [`PolicyCheck`]; the others are logged
-/// and counted, never handed on (so they neither start nor interrupt an epoch).
+/// and counted, never handed on (so they neither start nor interrupt an epoch). A version far ahead of the last one
+/// admitted ([`far_ahead`]) is let through but logged.
 pub struct Checked<'a> {
     source: &'a mut dyn PolicySource,
     check: &'a PolicyCheck,
     /// Updates refused so far.
     pub refused: u64,
+    /// The version of the last update admitted.
+    last_version: Option<u64>,
 }
 
 impl<'a> Checked<'a> {
@@ -99,6 +113,7 @@ impl<'a> Checked<'a> {
             source,
             check,
             refused: 0,
+            last_version: None,
         }
     }
 
@@ -114,6 +129,15 @@ impl<'a> Checked<'a> {
                 );
                 return None;
             }
+            if let Some(jump) = far_ahead(self.last_version, update.version) {
+                tracing::warn!(
+                    version = update.version,
+                    last = self.last_version,
+                    jump,
+                    "a policy version far ahead of the last one followed: not the learner's pace"
+                );
+            }
+            self.last_version = Some(update.version);
         }
         Some(next)
     }
@@ -292,4 +316,22 @@ pub fn run_evaluator(
         after_epoch(&update, &stats);
     }
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{far_ahead, FAR_AHEAD};
+
+    #[test]
+    fn a_version_far_ahead_of_the_last_one_is_flagged() {
+        // The first version an actor sees (it joined late, or the learner resumed) is no jump.
+        assert_eq!(far_ahead(None, 1004), None);
+        assert_eq!(far_ahead(Some(3), 4), None);
+        assert_eq!(far_ahead(Some(3), 3 + FAR_AHEAD), None);
+        assert_eq!(far_ahead(Some(3), 4 + FAR_AHEAD), Some(FAR_AHEAD + 1));
+        // Issue 57's replayed update: version 4 raised by 1,000.
+        assert_eq!(far_ahead(Some(3), 1004), Some(1001));
+        // A version back (the learner's after a forged one) is no jump ahead.
+        assert_eq!(far_ahead(Some(1004), 5), None);
+    }
 }
