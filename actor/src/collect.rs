@@ -120,8 +120,7 @@ impl Collector {
                     .with_rules(c.flush, c.expert_failure_staged)
             })
             .collect();
-        let eyes = (config.observation.kind == ObservationKind::Camera)
-            .then(|| Eyes::new(&config.observation));
+        let eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(config));
         Collector {
             actor: actor.to_string(),
             envs,

@@ -126,7 +126,7 @@ pub fn drive(
         env.set_spawn(pose.s, pose.x_tran, pose.e_psi, v_long);
     }
     let mut eyes = (config.observation.kind == ObservationKind::Camera)
-        .then(|| Eyes::new(&config.observation));
+        .then(|| Eyes::new(config));
     // The sensor's noise, from a stream of its own per episode.
     let mut sensor = Sensor::new(
         &config.observation,
