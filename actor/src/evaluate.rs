@@ -125,8 +125,7 @@ pub fn drive(
     if let Start::At { pose, v_long } = episode.start {
         env.set_spawn(pose.s, pose.x_tran, pose.e_psi, v_long);
     }
-    let mut eyes = (config.observation.kind == ObservationKind::Camera)
-        .then(|| Eyes::new(config));
+    let mut eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(config));
     // The sensor's noise, from a stream of its own per episode.
     let mut sensor = Sensor::new(
         &config.observation,
