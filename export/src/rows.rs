@@ -7,6 +7,7 @@ use super::meta::Stats;
 use super::table::{DataFiles, EpisodeRow, Row};
 use super::ExportError;
 use cabc_learning::replay::{ReplayError, ReplaySnapshot, Store};
+use cabc_proto::messages::image_bytes;
 use std::collections::BTreeMap;
 
 /// What the rows came to.
@@ -56,7 +57,7 @@ pub fn write(
     let mut open: Option<EpisodeRow> = None;
     let mut rows = BTreeMap::new();
     let (mut index, mut minus_rows) = (0i64, 0u64);
-    let mut rgb = vec![0u8; image.map_or(0, |(w, h)| w as usize * h as usize * 3)];
+    let mut rgb = vec![0u8; image.map_or(0, |(w, h)| image_bytes(w.into(), h.into()))];
     let mut previous: Option<([f32; 6], Label)> = None;
     for (which, (store, base)) in stores.iter().enumerate() {
         for slot in 0..store.len() {

@@ -3,6 +3,7 @@
 
 use cabc_learning::probe::{probe_rows, ProbeOptions, ProbeReport, Rows};
 use cabc_proto::config::RunConfig;
+use cabc_proto::messages::image_bytes;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -30,7 +31,7 @@ fn options() -> ProbeOptions {
 /// `N` rows: velocities and a grey level per row, the steering label from `label(velocity, grey)`.
 fn rows(label: impl Fn([f32; 3], f32) -> f32) -> Rows {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let px = SIDE as usize * SIDE as usize * 3;
+    let px = image_bytes(SIDE.into(), SIDE.into());
     let mut rows = Rows {
         images: Some((SIDE, SIDE, Vec::with_capacity(N * px))),
         ..Rows::default()

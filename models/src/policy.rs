@@ -11,7 +11,7 @@ use crate::vision::Trunk;
 use crate::weights::Network;
 use crate::{mlp, weights, Mlp, ModelError};
 use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, Velocity, VisionTrunk};
-use cabc_proto::messages::{velocity_of, Image, ACTION_DIM, STATE_DIM};
+use cabc_proto::messages::{image_bytes, velocity_of, Image, ACTION_DIM, STATE_DIM};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
@@ -193,7 +193,7 @@ impl PolicyInput {
         height: u16,
         frames: impl IntoIterator<Item = (&'a [u8], [f32; VELOCITY_DIM])>,
     ) -> Result<Self, ModelError> {
-        let per = width as usize * height as usize * 3;
+        let per = image_bytes(width.into(), height.into());
         let frames = frames.into_iter();
         let mut pixels = Vec::with_capacity(per * frames.size_hint().0);
         let mut velocity = Vec::with_capacity(VELOCITY_DIM * frames.size_hint().0);

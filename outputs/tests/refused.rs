@@ -5,7 +5,7 @@ use cabc_fixtures::step_ahead as step;
 use cabc_learning::replay::{Frames, Replay, ReplayError};
 use cabc_outputs::rundir::RunDir;
 use cabc_proto::config::{ObservationKind, RunConfig};
-use cabc_proto::messages::{EndReason, Image, Outcome, Segment, Step};
+use cabc_proto::messages::{image_bytes, EndReason, Image, Outcome, Segment, Step};
 use cabc_proto::ports::Collected;
 
 fn segment(seq: u64, steps: Vec<Step>) -> Segment {
@@ -34,10 +34,10 @@ fn images_are_held_to_the_run_observation_size() {
             height: 16
         }
     );
-    let ok = 16 * 16 * 3;
+    let (ok, small) = (image_bytes(16, 16), image_bytes(8, 8));
     for bad in [
-        vec![step(image(16, 16, ok)), step(image(8, 8, 8 * 8 * 3))],
-        vec![step(image(8, 8, 8 * 8 * 3))],
+        vec![step(image(16, 16, ok)), step(image(8, 8, small))],
+        vec![step(image(8, 8, small))],
         vec![step(image(16, 16, ok - 1))],
         vec![step(None)],
     ] {

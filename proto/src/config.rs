@@ -5,6 +5,7 @@
 //!
 //! Unknown keys are refused (`deny_unknown_fields`), and every error names the key and its line.
 
+use crate::messages::image_bytes;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -171,9 +172,10 @@ impl RunConfig {
     pub fn image_bytes(&self) -> u64 {
         match self.observation.kind {
             ObservationKind::State => 0,
-            ObservationKind::Camera => {
-                self.observation.width as u64 * self.observation.height as u64 * 3
-            }
+            ObservationKind::Camera => image_bytes(
+                self.observation.width.into(),
+                self.observation.height.into(),
+            ) as u64,
         }
     }
 

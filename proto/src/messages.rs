@@ -26,6 +26,12 @@ pub struct Image {
     pub rgb: Vec<u8>,
 }
 
+/// Bytes of one RGB image of `width` x `height` pixels in the [`Image`] layout (row-major HWC, a byte a channel): the
+/// one place an image's size is written.
+pub const fn image_bytes(width: usize, height: usize) -> usize {
+    width * height * 3
+}
+
 /// One environment step, as the learner stores it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Step {

@@ -4,7 +4,7 @@
 use std::str::FromStr;
 use std::sync::{Arc, OnceLock};
 
-use cabc_proto::messages::EndReason;
+use cabc_proto::messages::{image_bytes, EndReason};
 use cabc_sim::camera::{Camera, TrackLookup, REFERENCE_FOV_DEG, REFERENCE_SIZE};
 use cabc_sim::track::Pose;
 use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, TrackKind, Truncation};
@@ -92,7 +92,7 @@ impl Lens {
 
     /// Bytes of one RGB image.
     pub fn image_len(&self) -> usize {
-        self.width * self.height * 3
+        image_bytes(self.width, self.height)
     }
 }
 

@@ -18,6 +18,7 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
+use cabc_proto::messages::image_bytes;
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -89,7 +90,7 @@ impl Frame {
         Frame {
             width,
             height,
-            rgb: vec![0; width * height * 3],
+            rgb: vec![0; image_bytes(width, height)],
         }
     }
 

@@ -5,7 +5,7 @@
 //! optimiser state missing from an older checkpoint restarts its moments, `train/state.rs`.)
 
 use super::{AddCounts, ImageStore, ReplayError, Saved, Store, MAGIC, NOT_LOGGED, VERSION};
-use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
+use cabc_proto::messages::{image_bytes, ACTION_DIM, STATE_DIM};
 use serde::Deserialize;
 
 impl Saved {
@@ -93,7 +93,7 @@ impl LegacyStore {
                 height,
                 records: vec![
                     NOT_LOGGED;
-                    bytes.len() / (width as usize * height as usize * 3).max(1)
+                    bytes.len() / image_bytes(width.into(), height.into()).max(1)
                 ],
                 bytes,
             });

@@ -27,7 +27,7 @@ pub(crate) use store::NOT_LOGGED;
 pub use store::{ImageStore, Store, STEP_BYTES};
 
 use cabc_proto::config::{ObservationKind, RunConfig};
-use cabc_proto::messages::{Image, Outcome, Segment, Step, STATE_DIM};
+use cabc_proto::messages::{image_bytes, Image, Outcome, Segment, Step, STATE_DIM};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -107,7 +107,7 @@ impl Frames {
             (Frames::Rgb { width, height }, Some(i))
                 if i.width == width
                     && i.height == height
-                    && i.rgb.len() == width as usize * height as usize * 3 =>
+                    && i.rgb.len() == image_bytes(width.into(), height.into()) =>
             {
                 Ok(())
             }

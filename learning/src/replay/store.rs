@@ -2,7 +2,7 @@
 //! steps that are read with their images (D+), in one contiguous array.
 
 use super::Frames;
-use cabc_proto::messages::{Step, ACTION_DIM, STATE_DIM};
+use cabc_proto::messages::{image_bytes, Step, ACTION_DIM, STATE_DIM};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -27,7 +27,7 @@ pub struct ImageStore {
 impl ImageStore {
     /// Bytes of one image.
     pub fn image_len(&self) -> usize {
-        self.width as usize * self.height as usize * 3
+        image_bytes(self.width.into(), self.height.into())
     }
 
     pub fn get(&self, i: usize) -> &[u8] {
