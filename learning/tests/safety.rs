@@ -15,7 +15,7 @@ use cabc_proto::config::{ClipScope, RunConfig, SafetyStates, SafetyTerm};
 use cabc_proto::messages::{EndReason, Outcome, Segment, Step};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use support::train;
+use support::{train, Resumed};
 use tch::{Device, Kind, Tensor};
 
 fn config(seed: u64) -> RunConfig {
@@ -306,4 +306,39 @@ fn the_gate_holds_l_safety_until_the_critic_passes_on_held_out_rows() {
 
     let (first, ..) = run(0.0, 0.3..1.5);
     assert!(first.safety_active, "no gate: from the first fit");
+}
+
+/// Issue 57: lambda_j's warm-up (`algorithm.lambda_start = 1`, `lambda_growth = 1.007`, the campaigns' `warmup`) has
+/// one derivation ([`Trainer::lambda`]): a trainer resumed mid-warm-up trains the epoch after its checkpoint at the
+/// lambda_j an unbroken one does (the record's `lambda`, and the same losses bit for bit), and then both read the
+/// next epoch's, through a bare policy fit too.
+#[test]
+fn a_trainer_resumed_mid_warm_up_goes_on_with_the_unbroken_runs_lambda() {
+    let r = replay(9);
+    let mut c = config(9);
+    (c.algorithm.lambda_start, c.algorithm.lambda_growth) = (Some(1.0), 1.007);
+    assert!(
+        c.lambda(0) < c.lambda(3) && c.lambda(3) < c.algorithm.lambda,
+        "mid-warm-up"
+    );
+    let run = Resumed::run(&c, &r, 2);
+    let lambdas = |losses: &[support::Losses]| losses.iter().map(|l| l.lambda).collect::<Vec<_>>();
+    let warm_up: Vec<_> = (0..3).map(|j| Some(c.lambda(j))).collect();
+    assert_eq!(lambdas(&run.straight_losses), warm_up);
+    assert_eq!(lambdas(&run.losses), warm_up);
+    assert!(
+        run.losses[2].safety_active,
+        "L_safety at lambda_2: {:?}",
+        run.losses[2]
+    );
+    assert_eq!(run.losses, run.straight_losses);
+    let (mut resumed, mut straight) = (run.resumed, run.straight);
+    assert_eq!(
+        (resumed.lambda(), straight.lambda()),
+        (c.lambda(3), c.lambda(3))
+    );
+    assert_eq!(
+        resumed.fit_policy(&r, 1).unwrap(),
+        straight.fit_policy(&r, 1).unwrap()
+    );
 }

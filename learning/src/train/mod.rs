@@ -325,7 +325,8 @@ impl Trainer {
     }
 
     /// One epoch of Algorithm 1's training part: f_hat when `due.dynamics` (eq. (15), j mod k_f = 0), p_hat when
-    /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14)). Whether each is
+    /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14), at the trainer's
+    /// lambda_j, [`Trainer::lambda`]: `epoch` names the record's and the schedule's epoch). Whether each is
     /// due is the caller's ([`crate::algorithm`] reads it from the [`Schedule`]); how many passes each makes is the
     /// schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call. The losses, and
     /// the samples each network saw, go into the epoch's `record`, the one place they are kept.
@@ -388,11 +389,10 @@ impl Trainer {
             }
         }
         record.exact("lr_policy", self.lr_policy());
-        let lambda = self.config.lambda(epoch);
         if self.config.algorithm.lambda_start.is_some() {
-            record.real("lambda", lambda, 6);
+            record.real("lambda", self.lambda(), 6);
         }
-        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch), lambda)?;
+        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
         if fit.samples > 0 {
             self.update_ema();
         }

@@ -102,13 +102,20 @@ impl Trainer {
         )
     }
 
-    /// One fit call of pi_theta on D+, eq. (14), at lambda_j of the next epoch ([`RunConfig::lambda`]). With fewer than `batch_size` steps in D+ nothing trains (the rng and
-    /// the learning-rate schedule untouched) and the fit is all zeros. A camera policy needs D+'s images (and
-    /// D?'s, when it clones D? too).
+    /// lambda_j, L_safety's weight in the epoch the trainer trains next ([`RunConfig::lambda`]: `algorithm.lambda`,
+    /// or its warm-up from `lambda_start`). The one derivation: j is the trainer's own count of the epochs it has
+    /// trained, which its checkpoint keeps, so Algorithm 1's epoch ([`Trainer::train`]), a bare policy fit
+    /// ([`Trainer::fit_policy`]: benchmarks, tests) and a resumed trainer read the same lambda_j.
+    pub fn lambda(&self) -> f64 {
+        self.config.lambda(self.epochs_trained)
+    }
+
+    /// One fit call of pi_theta on D+, eq. (14), at lambda_j ([`Trainer::lambda`]). With fewer than `batch_size`
+    /// steps in D+ nothing trains (the rng and the learning-rate schedule untouched) and the fit is all zeros. A
+    /// camera policy needs D+'s images (and D?'s, when it clones D? too).
     pub fn fit_policy(&mut self, replay: &Replay, passes: usize) -> Result<PolicyFit, TrainError> {
         let data = self.upload(replay);
-        let lambda = self.config.lambda(self.epochs_trained);
-        self.fit_policy_on(replay, &data, passes, lambda)
+        self.fit_policy_on(replay, &data, passes)
     }
 
     /// [`Trainer::fit_policy`] on the epoch's uploaded replay (D+'s images, when the policy sees them, are batched
@@ -118,12 +125,12 @@ impl Trainer {
         replay: &Replay,
         data: &Uploaded,
         passes: usize,
-        lambda: f64,
     ) -> Result<PolicyFit, TrainError> {
         let plus = &replay.plus;
         if plus.len() < self.config.training.batch_size {
             return Ok(PolicyFit::default());
         }
+        let lambda = self.lambda();
         let safety_active = lambda > 0.0 && self.critic_trusted();
         let cloned = self.cloned_uncertain(replay);
         let images = match (self.policy.arch(), &plus.images, &replay.uncertain.images) {

@@ -20,6 +20,8 @@ pub struct Losses {
     pub dynamics_samples: usize,
     pub critic_samples: usize,
     pub lr_policy: f64,
+    /// lambda_j, written while it warms up (`algorithm.lambda_start`).
+    pub lambda: Option<f64>,
 }
 
 impl Losses {
@@ -38,6 +40,7 @@ impl Losses {
             dynamics_samples: count("dynamics_samples").unwrap_or(0),
             critic_samples: count("critic_samples").unwrap_or(0),
             lr_policy: record.f64("lr_policy").expect("lr_policy"),
+            lambda: record.f64("lambda"),
         }
     }
 }
