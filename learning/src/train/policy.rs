@@ -4,8 +4,8 @@
 use super::data::Uploaded;
 use super::fit::{fit, Budget, Mean};
 use super::{TrainError, Trainer};
-use crate::replay::Replay;
-use cabc_models::{Critic, Dynamics, Network, PolicyArch, PolicyInput};
+use crate::replay::{ImageStore, Replay};
+use cabc_models::{Critic, Dynamics, ModelError, Network, PolicyArch, PolicyInput};
 #[allow(unused_imports)] // the doc link
 use cabc_proto::config::RunConfig;
 use cabc_proto::config::{ClipScope, SafetyStates, SafetyTerm};
@@ -71,7 +71,124 @@ struct Pass {
     safety: Mean,
 }
 
+/// L_safety's term as the run chooses it (`training.safety_term`), at lambda_j, through f_hat and p_hat.
+struct Safety<'a> {
+    dynamics: &'a Dynamics,
+    critic: &'a Critic,
+    term: SafetyTerm,
+    lambda: f64,
+}
+
+impl Safety<'_> {
+    /// L_safety of actions `u` at states `x`: eq. (14)'s, or relative to the expert's `label` ("hinged").
+    fn loss(&self, x: &Tensor, u: &Tensor, label: &Tensor) -> Tensor {
+        let (dynamics, critic, lambda) = (self.dynamics, self.critic, self.lambda);
+        match self.term {
+            SafetyTerm::Absolute => l_safety(dynamics, critic, x, u, lambda),
+            SafetyTerm::Hinged => l_safety_hinged(dynamics, critic, x, u, label, lambda),
+        }
+    }
+}
+
+/// A batch's rows of the clone set: the states, pi_theta's actions and the expert's labels.
+struct BatchRows {
+    x: Tensor,
+    u: Tensor,
+    label: Tensor,
+}
+
+/// L_safety's rows of a batch (`idx`, into a clone set of `n_all` rows whose first `n_plus` are D+'s): every row
+/// (eq. (14), `safety_states = "clone"`, or a clone set of D+ alone), or its D+ rows alone (the recorded runs);
+/// None when the batch holds none of them.
+fn safety_rows(
+    states: SafetyStates,
+    n_plus: usize,
+    n_all: usize,
+    idx: &Tensor,
+    rows: BatchRows,
+) -> Option<BatchRows> {
+    if states != SafetyStates::DPlus || n_all <= n_plus {
+        return Some(rows);
+    }
+    let plus = idx.lt(n_plus as i64).nonzero().squeeze_dim(1);
+    if plus.size()[0] == 0 {
+        return None;
+    }
+    let pick = |t: &Tensor| t.index_select(0, &plus);
+    Some(BatchRows {
+        x: pick(&rows.x),
+        u: pick(&rows.u),
+        label: pick(&rows.label),
+    })
+}
+
+/// What pi_theta sees of the clone set's rows: their states, or (a camera policy) each row's image and velocities,
+/// from D+'s images and, past D+, from the D? rows L_clone fits too.
+enum Inputs<'a> {
+    State,
+    Camera {
+        replay: &'a Replay,
+        plus: &'a ImageStore,
+        uncertain: Option<&'a ImageStore>,
+        /// D?'s rows in the clone set, after D+'s ([`Trainer::cloned_uncertain`]).
+        cloned: &'a [i64],
+    },
+}
+
+impl<'a> Inputs<'a> {
+    /// The inputs of `arch` for the clone set of `replay`'s D+ and D?'s `cloned` rows; a camera policy needs their
+    /// images.
+    fn of(arch: PolicyArch, replay: &'a Replay, cloned: &'a [i64]) -> Result<Self, TrainError> {
+        match (arch, &replay.plus.images, &replay.uncertain.images) {
+            (PolicyArch::Camera { .. }, None, _) => Err(TrainError::NoImages("D+")),
+            (PolicyArch::Camera { .. }, Some(_), None) if !cloned.is_empty() => {
+                Err(TrainError::NoImages("D?"))
+            }
+            (PolicyArch::Camera { .. }, Some(plus), uncertain) => Ok(Inputs::Camera {
+                replay,
+                plus,
+                uncertain: uncertain.as_ref(),
+                cloned,
+            }),
+            (PolicyArch::State { .. }, ..) => Ok(Inputs::State),
+        }
+    }
+
+    /// The input of a batch: the clone set's `rows`, whose states are `x`.
+    fn batch(&self, rows: &[i64], x: &Tensor) -> Result<PolicyInput, ModelError> {
+        let Inputs::Camera {
+            replay,
+            plus,
+            uncertain,
+            cloned,
+        } = self
+        else {
+            return Ok(PolicyInput::State(x.shallow_clone()));
+        };
+        let n_plus = replay.plus.len();
+        let frame = |i: i64| {
+            let i = i as usize;
+            match uncertain {
+                Some(u) if i >= n_plus => {
+                    let j = cloned[i - n_plus] as usize;
+                    (u.get(j), velocity_of(&replay.uncertain.states[j]))
+                }
+                _ => (plus.get(i), velocity_of(&replay.plus.states[i])),
+            }
+        };
+        PolicyInput::camera(plus.width, plus.height, rows.iter().map(|&i| frame(i)))
+    }
+}
+
 impl Trainer {
+    /// lambda_j, L_safety's weight in the epoch the trainer trains next ([`RunConfig::lambda`]: `algorithm.lambda`,
+    /// or its warm-up from `lambda_start`). The one derivation: j is the trainer's own count of the epochs it has
+    /// trained, which its checkpoint keeps, so Algorithm 1's epoch ([`Trainer::train`]), a bare policy fit
+    /// ([`Trainer::fit_policy`]: benchmarks, tests) and a resumed trainer read the same lambda_j.
+    pub fn lambda(&self) -> f64 {
+        self.config.lambda(self.epochs_trained)
+    }
+
     /// D?'s rows that L_clone fits besides D+ (Algorithm 1 and the reference: none): with
     /// `training.clone_uncertain`, the D? steps whose label is the expert's (the actor labels a step where the
     /// expert failed with [0, 0], `cabc_actor::collect`; an exact zero from MPCC has measure zero), in D?'s order.
@@ -102,12 +219,29 @@ impl Trainer {
         )
     }
 
-    /// lambda_j, L_safety's weight in the epoch the trainer trains next ([`RunConfig::lambda`]: `algorithm.lambda`,
-    /// or its warm-up from `lambda_start`). The one derivation: j is the trainer's own count of the epochs it has
-    /// trained, which its checkpoint keeps, so Algorithm 1's epoch ([`Trainer::train`]), a bare policy fit
-    /// ([`Trainer::fit_policy`]: benchmarks, tests) and a resumed trainer read the same lambda_j.
-    pub fn lambda(&self) -> f64 {
-        self.config.lambda(self.epochs_trained)
+    /// f_hat and p_hat for a policy fit, as `training.clip_scope` says; the variables the gradient clip measures
+    /// besides theta. Ours: frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
+    /// L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
+    /// measures theta's gradient together with theirs. [`Trainer::thaw`] undoes it.
+    fn freeze_for_clip(&mut self) -> Vec<Tensor> {
+        match self.config.training.clip_scope {
+            ClipScope::Policy => {
+                self.dynamics.var_store_mut().freeze();
+                self.critic.var_store_mut().freeze();
+                Vec::new()
+            }
+            ClipScope::PolicyCriticDynamics => {
+                let mut vars = self.critic.var_store().trainable_variables();
+                vars.extend(self.dynamics.var_store().trainable_variables());
+                vars
+            }
+        }
+    }
+
+    /// f_hat and p_hat trainable again after a policy fit.
+    fn thaw(&mut self) {
+        self.dynamics.var_store_mut().unfreeze();
+        self.critic.var_store_mut().unfreeze();
     }
 
     /// One fit call of pi_theta on D+, eq. (14), at lambda_j ([`Trainer::lambda`]). With fewer than `batch_size`
@@ -126,105 +260,57 @@ impl Trainer {
         data: &Uploaded,
         passes: usize,
     ) -> Result<PolicyFit, TrainError> {
-        let plus = &replay.plus;
-        if plus.len() < self.config.training.batch_size {
+        let n_plus = replay.plus.len();
+        if n_plus < self.config.training.batch_size {
             return Ok(PolicyFit::default());
         }
         let lambda = self.lambda();
         let safety_active = lambda > 0.0 && self.critic_trusted();
         let cloned = self.cloned_uncertain(replay);
-        let images = match (self.policy.arch(), &plus.images, &replay.uncertain.images) {
-            (PolicyArch::Camera { .. }, None, _) => return Err(TrainError::NoImages("D+")),
-            (PolicyArch::Camera { .. }, Some(_), None) if !cloned.is_empty() => {
-                return Err(TrainError::NoImages("D?"))
-            }
-            (PolicyArch::Camera { .. }, Some(plus), uncertain) => Some((plus, uncertain)),
-            (PolicyArch::State { .. }, ..) => None,
-        };
-        let dev = self.device;
+        let inputs = Inputs::of(self.policy.arch(), replay, &cloned)?;
         let (x_all, label_all) = self.clone_set(data, &cloned);
-        let (x_all, label_all) = (&x_all, &label_all);
-        let n_plus = plus.len();
-        // Ours: f_hat and p_hat frozen (Fig. 4), the clip over theta alone. The reference: they stay trainable, so
-        // L_safety accumulates into their gradients (never zeroed here, their optimisers do not step), and the clip
-        // measures theta's gradient together with theirs.
-        let clip_also = match self.config.training.clip_scope {
-            ClipScope::Policy => {
-                self.dynamics.var_store_mut().freeze();
-                self.critic.var_store_mut().freeze();
-                Vec::new()
-            }
-            ClipScope::PolicyCriticDynamics => {
-                let mut vars = self.critic.var_store().trainable_variables();
-                vars.extend(self.dynamics.var_store().trainable_variables());
-                vars
-            }
+        let n_all = x_all.size()[0] as usize;
+        let clip_also = self.freeze_for_clip();
+        let t = &self.config.training;
+        let policy = &self.policy;
+        let safety = Safety {
+            dynamics: &self.dynamics,
+            critic: &self.critic,
+            term: t.safety_term,
+            lambda,
         };
-        let (policy, dynamics, critic) = (&self.policy, &self.dynamics, &self.critic);
-        let (safety_states, safety_term) = (
-            self.config.training.safety_states,
-            self.config.training.safety_term,
-        );
+        let budget = Budget {
+            passes,
+            max_batches: t.policy_max_batches,
+        };
         let fitted = fit(
             &mut self.policy_opt,
-            &self.config.training,
-            dev,
+            t,
+            self.device,
             &mut self.rng,
-            x_all.size()[0] as usize,
-            Budget {
-                passes,
-                max_batches: self.config.training.policy_max_batches,
-            },
+            n_all,
+            budget,
             &clip_also,
             |b, pass: &mut Pass| {
                 let x = x_all.index_select(0, &b.idx);
-                let input = match images {
-                    Some((images, uncertain_images)) => PolicyInput::camera(
-                        images.width,
-                        images.height,
-                        b.rows.iter().map(|&i| {
-                            let i = i as usize;
-                            match uncertain_images {
-                                Some(u) if i >= n_plus => {
-                                    let j = cloned[i - n_plus] as usize;
-                                    (u.get(j), velocity_of(&replay.uncertain.states[j]))
-                                }
-                                _ => (images.get(i), velocity_of(&plus.states[i])),
-                            }
-                        }),
-                    )?,
-                    None => PolicyInput::State(x.shallow_clone()),
-                };
-                let u = policy.forward_t(&input, true);
+                let u = policy.forward_t(&inputs.batch(b.rows, &x)?, true);
                 let label = label_all.index_select(0, &b.idx);
+                // Eq. (14): L_CA = L_clone + L_safety, L_safety while active and on its rows.
                 let l_clone = l_clone(&u, &label);
                 pass.clone.add(&l_clone);
-                if !safety_active {
+                let rows = BatchRows { x, u, label };
+                let Some(rows) = safety_active
+                    .then(|| safety_rows(t.safety_states, n_plus, n_all, &b.idx, rows))
+                    .flatten()
+                else {
                     return Ok(l_clone);
-                }
-                // L_safety's rows: every row of the batch (eq. (14), `safety_states = "clone"`), or its D+ rows alone
-                // (the first `n_plus` of the clone set; the recorded runs).
-                let (x, u, label) =
-                    if safety_states == SafetyStates::DPlus && x_all.size()[0] as usize > n_plus {
-                        let rows = b.idx.lt(n_plus as i64).nonzero().squeeze_dim(1);
-                        if rows.size()[0] == 0 {
-                            return Ok(l_clone);
-                        }
-                        let pick = |t: &Tensor| t.index_select(0, &rows);
-                        (pick(&x), pick(&u), pick(&label))
-                    } else {
-                        (x, u, label)
-                    };
-                let l_safety = match safety_term {
-                    SafetyTerm::Absolute => l_safety(dynamics, critic, &x, &u, lambda),
-                    SafetyTerm::Hinged => l_safety_hinged(dynamics, critic, &x, &u, &label, lambda),
                 };
+                let l_safety = safety.loss(&rows.x, &rows.u, &rows.label);
                 pass.safety.add(&l_safety);
                 Ok(l_clone + l_safety)
             },
         );
-        self.dynamics.var_store_mut().unfreeze();
-        self.critic.var_store_mut().unfreeze();
+        self.thaw();
         let (pass, samples) = fitted?;
         Ok(PolicyFit {
             imitation: pass.clone.get(),
