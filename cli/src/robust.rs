@@ -5,6 +5,7 @@
 use crate::show::{load_policy, run_config};
 use anyhow::Context;
 use cabc_bench::robust::{self, RobustOptions};
+use cabc_sim::track::Track;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -56,7 +57,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     std::fs::write(&json, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", json.display()))?;
     let png = out.join("robust.png");
-    robust::figure::draw(&png, &report)?;
+    robust::figure::draw(&png, &Track::from_kind(config.sim.track), &report)?;
     crate::print_json(&report.summary())?;
     eprintln!(
         "{} episodes in {:.1} s; wrote {} and {}",

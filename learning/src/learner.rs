@@ -21,6 +21,7 @@ use cabc_models::Network;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, ShieldNets};
 use cabc_proto::ports::{Collected, PortError};
+use cabc_sim::track::Track;
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -164,6 +165,7 @@ impl Learner {
             (trainer, replay, None, state)
         };
         sink.open(&state.history());
+        let half_width = Track::from_kind(config.sim.track).half_width();
         Ok(Learner {
             config,
             trainer,
@@ -175,7 +177,7 @@ impl Learner {
             acl_denials,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
-            half_width: cabc_sim::track::Track::l_track_barc().half_width(),
+            half_width,
             image_log,
         })
     }

@@ -18,13 +18,13 @@ const FIRST_CRASH: [RGBColor; 5] = [
 ];
 const NO_CRASH: RGBColor = RGBColor(30, 160, 60);
 
-/// Draws the report's figure into `path`.
-pub fn draw(path: &Path, report: &RobustReport) -> Result<(), RobustError> {
+/// Draws the report's figure into `path`, the spawns on `track` (the run's, `sim.track`).
+pub fn draw(path: &Path, track: &Track, report: &RobustReport) -> Result<(), RobustError> {
     png(path, (2 * PANEL.0, PANEL.1), |root| {
         root.fill(&WHITE)?;
         let (left, right) = root.split_horizontally(PANEL.0);
         shares(&left, report)?;
-        map(&right, report)
+        map(&right, track, report)
     })
     .map_err(|e| RobustError::Figure {
         path: path.display().to_string(),
@@ -67,9 +67,8 @@ fn shares(area: &Area<'_>, report: &RobustReport) -> PlotResult {
     legend(&mut chart, SeriesLabelPosition::UpperLeft)
 }
 
-fn map(area: &Area<'_>, report: &RobustReport) -> PlotResult {
-    let track = Track::l_track_barc();
-    let [centre, left, right] = track_edges(&track, 400);
+fn map(area: &Area<'_>, track: &Track, report: &RobustReport) -> PlotResult {
+    let [centre, left, right] = track_edges(track, 400);
     let mut chart = ChartBuilder::on(area)
         .caption("Spawns by the first level that crashes", ("sans-serif", 20))
         .margin(12)

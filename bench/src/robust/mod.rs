@@ -374,7 +374,7 @@ pub fn study(
     policy: &str,
     mut act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
 ) -> Result<RobustReport, RobustError> {
-    let track = Track::l_track_barc();
+    let track = Track::from_kind(config.sim.track);
     let spawns = draw_spawns(&track, settings.spawns, settings.seed, &settings.spawn);
     let mut levels = Vec::with_capacity(settings.levels.len());
     for &level in &settings.levels {
