@@ -292,13 +292,33 @@ impl Collector {
     ) {
         let first = first.min(self.envs.len());
         let active = answers.len().min(policy.len()).min(self.envs.len() - first);
+        let answers = &answers[..active];
+        // Whether the expert solved each environment's problem: once per step, for the mixture, the shield and the
+        // stored label.
+        let solved: Vec<bool> = answers.iter().map(expert_ok).collect();
+        self.mix(first, answers, &solved, policy, beta);
+        self.shield_overrules(answers, &solved);
+        self.advance(first, answers, &solved, version, out);
+    }
+
+    /// pi_collect's actions for environments `first..first + answers.len()`: the mixture of the expert's and the
+    /// policy's (the policy's alone where the expert failed) with the action noise, clipped to the box where applied
+    /// and stored as `collection.stored_action` says; and the observations they act on.
+    fn mix(
+        &mut self,
+        first: usize,
+        answers: &[ExpertAnswer],
+        solved: &[bool],
+        policy: &[[f32; 2]],
+        beta: f64,
+    ) {
         self.before.clear();
         self.applied.clear();
         self.stored.clear();
-        // Whether the expert solved each environment's problem: once per step, for the mixture, the shield and the
-        // stored label.
-        let solved: Vec<bool> = answers[..active].iter().map(expert_ok).collect();
-        for (j, env) in self.envs.envs()[first..first + active].iter().enumerate() {
+        for (j, env) in self.envs.envs()[first..first + answers.len()]
+            .iter()
+            .enumerate()
+        {
             self.before.push(env.observation());
             let mixed = self.action_noise.add(
                 first + j,
@@ -310,23 +330,42 @@ impl Collector {
                 StoredAction::Unclipped => mixed,
             });
         }
-        if let Some(shield) = &self.shield {
-            let states: Vec<[f32; 6]> = self.before.iter().map(|o| f32s(&o.state)).collect();
-            for (j, overrule) in shield
-                .overrules(&states, &self.applied)
-                .into_iter()
-                .enumerate()
-            {
-                if overrule && solved[j] {
-                    self.applied[j] = clip_action(&answers[j].action);
-                    self.stored[j] = match self.stored_action {
-                        StoredAction::Clipped => self.applied[j],
-                        StoredAction::Unclipped => answers[j].action,
-                    };
-                    self.shielded += 1;
-                }
+    }
+
+    /// `collection.shield`: where it overrules the mixture's action and the expert solved its problem, the expert's
+    /// action is applied and stored instead (counted in [`Collector::shielded`]).
+    fn shield_overrules(&mut self, answers: &[ExpertAnswer], solved: &[bool]) {
+        let Some(shield) = &self.shield else {
+            return;
+        };
+        let states: Vec<[f32; 6]> = self.before.iter().map(|o| f32s(&o.state)).collect();
+        for (j, overrule) in shield
+            .overrules(&states, &self.applied)
+            .into_iter()
+            .enumerate()
+        {
+            if overrule && solved[j] {
+                self.applied[j] = clip_action(&answers[j].action);
+                self.stored[j] = match self.stored_action {
+                    StoredAction::Clipped => self.applied[j],
+                    StoredAction::Unclipped => answers[j].action,
+                };
+                self.shielded += 1;
             }
         }
+    }
+
+    /// The plant's step with the applied actions; each step (its image, the expert's label where it solved, the
+    /// stored action) goes to its environment's segmenter, which appends the segments it completes to `out`. An
+    /// environment whose episode ended starts the next.
+    fn advance(
+        &mut self,
+        first: usize,
+        answers: &[ExpertAnswer],
+        solved: &[bool],
+        version: u64,
+        out: &mut Vec<Segment>,
+    ) {
         let results = self
             .envs
             .step_from(first, &self.applied)
