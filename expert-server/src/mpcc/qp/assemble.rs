@@ -8,6 +8,16 @@ use super::{
 };
 use crate::rk4::NQ;
 
+/// Entries (row, column, value) of a sparse matrix, in the pattern's order.
+type Entries = Vec<(usize, usize, f64)>;
+
+/// What a stage's cost terms add to: the stage's diagonal of P (emitted after its terms), P's other entries, q.
+struct Cost<'a> {
+    diag: [f64; NZ],
+    p: &'a mut Entries,
+    q: &'a mut [f64],
+}
+
 impl QpLayout {
     /// The QP's data at `inp`: the cost (P, q), the equalities (the dynamics' transitions) and the inequalities
     /// (boxes, rates, track slabs), stage by stage in the pattern's order.
@@ -36,37 +46,35 @@ impl QpLayout {
 
     /// Stage k's cost: contouring and lag, the yaw rate, the inputs, the progress reward, the input rates and the
     /// slack.
-    fn stage_cost(&self, inp: &QpInput, k: usize, p: &mut Vec<(usize, usize, f64)>, q: &mut [f64]) {
+    fn stage_cost(&self, inp: &QpInput, k: usize, p: &mut Entries, q: &mut [f64]) {
         let (c, cfg) = (&self.scale, &self.cfg);
         let sv = |j| self.stage_var(k, j);
-        let mut diag = [cfg.hessian_reg; NZ];
-        self.contouring_cost(inp, k, &mut diag, p, q);
+        let mut cost = Cost {
+            diag: [cfg.hessian_reg; NZ],
+            p,
+            q,
+        };
+        self.contouring_cost(inp, k, &mut cost);
         let w_omega = if k == self.horizon {
             cfg.q_yaw_rate_terminal
         } else {
             cfg.q_yaw_rate
         };
-        diag[OMEGA] += 2.0 * w_omega * c[OMEGA] * c[OMEGA];
+        cost.diag[OMEGA] += 2.0 * w_omega * c[OMEGA] * c[OMEGA];
         for j in 0..3 {
-            diag[7 + j] += 2.0 * cfg.r_input[j] * c[7 + j] * c[7 + j];
+            cost.diag[7 + j] += 2.0 * cfg.r_input[j] * c[7 + j] * c[7 + j];
         }
-        q[sv(VS)] -= cfg.progress_reward * c[VS];
-        self.rate_cost(inp, k, &mut diag, p, q);
-        for (j, &d) in diag.iter().enumerate() {
-            p.push((sv(j), sv(j), d));
+        cost.q[sv(VS)] -= cfg.progress_reward * c[VS];
+        self.rate_cost(inp, k, &mut cost);
+        for (j, &d) in cost.diag.iter().enumerate() {
+            cost.p.push((sv(j), sv(j), d));
         }
-        p.push((self.slack_var(k), self.slack_var(k), cfg.slack_weight));
+        cost.p
+            .push((self.slack_var(k), self.slack_var(k), cfg.slack_weight));
     }
 
     /// Gauss–Newton contouring/lag of stage k: q_c(e_c + g_c·Δ)² + q_l(e_l + g_l·Δ)² over (X, Y, s).
-    fn contouring_cost(
-        &self,
-        inp: &QpInput,
-        k: usize,
-        diag: &mut [f64; NZ],
-        p: &mut Vec<(usize, usize, f64)>,
-        q: &mut [f64],
-    ) {
+    fn contouring_cost(&self, inp: &QpInput, k: usize, cost: &mut Cost) {
         let (c, cfg) = (&self.scale, &self.cfg);
         let (z, e) = (&inp.iterate[k], &inp.errors[k - 1]);
         let sv = |j| self.stage_var(k, j);
@@ -81,45 +89,38 @@ impl QpLayout {
                     * c[idx[i]]
                     * c[idx[j]];
                 if i == j {
-                    diag[idx[i]] += h;
+                    cost.diag[idx[i]] += h;
                 } else {
-                    p.push((sv(idx[i]), sv(idx[j]), h));
+                    cost.p.push((sv(idx[i]), sv(idx[j]), h));
                 }
             }
-            q[sv(idx[i])] += 2.0
+            cost.q[sv(idx[i])] += 2.0
                 * (cfg.q_contour * r_c * e.grad_c[i] + cfg.q_lag * r_l * e.grad_l[i])
                 * c[idx[i]];
         }
     }
 
     /// Stage k's rate cost c_r·r² with r = (w̃_{k−1} − w̃_{k−2})/dt (w̃_{−1} = w_prev is data).
-    fn rate_cost(
-        &self,
-        inp: &QpInput,
-        k: usize,
-        diag: &mut [f64; NZ],
-        p: &mut Vec<(usize, usize, f64)>,
-        q: &mut [f64],
-    ) {
+    fn rate_cost(&self, inp: &QpInput, k: usize, cost: &mut Cost) {
         let (dt, c, cfg) = (self.dt, &self.scale, &self.cfg);
         for j in 0..3 {
             let h = 2.0 * cfg.r_rate[j] / (dt * dt);
             let v = self.stage_var(k, 7 + j);
-            diag[7 + j] += h;
+            cost.diag[7 + j] += h;
             if k == 1 {
-                q[v] -= h * inp.w_prev[j] / c[7 + j];
+                cost.q[v] -= h * inp.w_prev[j] / c[7 + j];
             } else {
-                p.push((self.stage_var(k - 1, 7 + j), v, -h));
+                cost.p.push((self.stage_var(k - 1, 7 + j), v, -h));
                 // The previous stage's diagonal gets its share when that stage is emitted (below).
             }
             if k < self.horizon {
-                diag[7 + j] += 2.0 * cfg.r_rate[j] / (dt * dt);
+                cost.diag[7 + j] += 2.0 * cfg.r_rate[j] / (dt * dt);
             }
         }
     }
 
     /// The equalities of the transition k → k+1: the linearised dynamics and the exact integration of s.
-    fn transition(&self, inp: &QpInput, k: usize, a: &mut Vec<(usize, usize, f64)>, b: &mut [f64]) {
+    fn transition(&self, inp: &QpInput, k: usize, a: &mut Entries, b: &mut [f64]) {
         let (dt, c) = (self.dt, &self.scale);
         let x0 = &inp.iterate[0];
         let row0 = EQ_PER_STAGE * k;
@@ -163,13 +164,7 @@ impl QpLayout {
     }
 
     /// Stage k's box rows (Az ≤ b) from `row` on; the next free row.
-    fn box_rows(
-        &self,
-        k: usize,
-        mut row: usize,
-        a: &mut Vec<(usize, usize, f64)>,
-        b: &mut [f64],
-    ) -> usize {
+    fn box_rows(&self, k: usize, mut row: usize, a: &mut Entries, b: &mut [f64]) -> usize {
         let c = &self.scale;
         for &j in &BOXED {
             a.push((row, self.stage_var(k, j), 1.0));
@@ -188,7 +183,7 @@ impl QpLayout {
         inp: &QpInput,
         k: usize,
         mut row: usize,
-        a: &mut Vec<(usize, usize, f64)>,
+        a: &mut Entries,
         b: &mut [f64],
     ) -> usize {
         let (dt, c, cfg) = (self.dt, &self.scale, &self.cfg);
@@ -218,7 +213,7 @@ impl QpLayout {
         inp: &QpInput,
         k: usize,
         row: usize,
-        a: &mut Vec<(usize, usize, f64)>,
+        a: &mut Entries,
         b: &mut [f64],
     ) -> usize {
         let c = &self.scale;
