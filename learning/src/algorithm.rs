@@ -3,9 +3,10 @@
 //! The actors are a port ([`Rollouts`]): over zenoh in a distributed run (`cabc_bus::rollouts`), in-process in a
 //! test (`cabc_actor::local`). Everything the learner holds (D+, D?, D-, the three networks, the evaluations, the
 //! checkpoint, the epoch's record and its sinks) is in [`Learner`]; the schedule (k_f, k_p, the auto-labelling
-//! period, the passes) in [`Schedule`], read here. Each epoch's metrics are one record
-//! ([`crate::record::Record`]), each put where it is computed. Under `training.schedule = "every-epoch"` (the
-//! reference's full-state trainer) f_hat, p_hat and pi all train every epoch.
+//! period, the passes) in its trainer's [`Schedule`], built once from the run's configuration and read here. Each
+//! epoch's metrics are one record ([`crate::record::Record`]), each put where it is computed. Under
+//! `training.schedule = "every-epoch"` (the reference's full-state trainer) f_hat, p_hat and pi all train every
+//! epoch.
 //!
 //! Under `collection.overlap` (issue 46) epoch j >= 1 trains while the actors collect its D_new with pi_j, on the
 //! data of epochs < j; the collecting policy is then one version behind Algorithm 1's, and an epoch takes about the
@@ -28,7 +29,7 @@ pub enum Ending {
 
 /// Runs Algorithm 1 from the learner's next epoch until early stop, `max_epochs` or an interrupt.
 pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, LearnerError> {
-    let schedule = Schedule::from_config(learner.config());
+    let schedule: Schedule = *learner.schedule();
     for j in learner.next_epoch()..learner.config().run.max_epochs {
         learner.begin_epoch(j);
         // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j); rollout pi_collect: D_new.

@@ -11,7 +11,7 @@ use crate::ledger::Ledger;
 use crate::provenance::Provenance;
 use crate::record::Record;
 use crate::replay::{Checked, Frames, ImageLog, Replay};
-use crate::schedule::Due;
+use crate::schedule::{Due, Schedule};
 use crate::sink::{Sink, SinkError};
 use crate::state::{LearnerState, StateError, CHECKPOINT};
 use crate::summary::{LapTime, Summary};
@@ -195,6 +195,11 @@ impl Learner {
     /// The device the networks train on (`training.device`).
     pub fn device(&self) -> Device {
         self.trainer.device()
+    }
+
+    /// The run's schedule, the trainer's ([`Trainer::schedule`]).
+    pub fn schedule(&self) -> &Schedule {
+        self.trainer.schedule()
     }
 
     /// The epoch the run goes on with (0 for a fresh run).

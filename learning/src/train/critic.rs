@@ -5,7 +5,6 @@ use super::data::Uploaded;
 use super::fit::{fit, Budget, Mean, Opt};
 use super::Trainer;
 use crate::replay::Replay;
-use crate::schedule::Schedule;
 use cabc_models::{Critic, Network};
 use cabc_proto::config::{CriticNegatives, RunConfig};
 use rand::SeedableRng;
@@ -82,7 +81,7 @@ impl Trainer {
         let n_minus = negatives_of(data, a.critic_negatives).size()[0] as usize;
         let n = data.plus.len + n_minus;
         if n_minus <= t.critic_min_uncertain || n < t.batch_size {
-            if !Schedule::from_config(&self.config).safety_outlives_critic_fit() {
+            if !self.schedule.safety_outlives_critic_fit() {
                 self.critic_trained = false;
             }
             return None;

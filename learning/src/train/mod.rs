@@ -66,6 +66,8 @@ pub enum TrainError {
 /// The three networks, their optimisers, the epoch counter and the batch-shuffling RNG.
 pub struct Trainer {
     config: RunConfig,
+    /// The run's schedule, built once from `config`: what trains in an epoch and for how many passes.
+    schedule: Schedule,
     device: Device,
     policy: Policy,
     dynamics: Dynamics,
@@ -124,6 +126,7 @@ impl Trainer {
         );
         Trainer {
             config: config.clone(),
+            schedule: Schedule::from_config(config),
             device,
             policy_opt,
             dynamics_opt,
@@ -142,6 +145,11 @@ impl Trainer {
 
     pub fn device(&self) -> Device {
         self.device
+    }
+
+    /// The run's schedule (k_f, k_p, the auto-labelling period, the passes): the one Algorithm 1's loop reads.
+    pub fn schedule(&self) -> &Schedule {
+        &self.schedule
     }
 
     /// The policy as it trains: on standardised states when `training.standardise` is on ([`Trainer::standardiser`]).
@@ -320,15 +328,14 @@ impl Trainer {
         replay: &Replay,
         record: &mut Record,
     ) -> Result<(), TrainError> {
-        let due = Schedule::from_config(&self.config).due(epoch);
-        self.train(epoch, due, replay, record)
+        self.train(epoch, self.schedule.due(epoch), replay, record)
     }
 
     /// One epoch of Algorithm 1's training part: f_hat when `due.dynamics` (eq. (15), j mod k_f = 0), p_hat when
     /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14), at the trainer's
     /// lambda_j, [`Trainer::lambda`]: `epoch` names the record's and the schedule's epoch). Whether each is
-    /// due is the caller's ([`crate::algorithm`] reads it from the [`Schedule`]); how many passes each makes is the
-    /// schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call. The losses, and
+    /// due is the caller's ([`crate::algorithm`] reads it from [`Trainer::schedule`]); how many passes each makes is
+    /// the schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call. The losses, and
     /// the samples each network saw, go into the epoch's `record`, the one place they are kept.
     pub fn train(
         &mut self,
@@ -339,7 +346,6 @@ impl Trainer {
     ) -> Result<(), TrainError> {
         let start = Instant::now();
         limit_cpu_threads(self.device);
-        let schedule = Schedule::from_config(&self.config);
         if self.config.training.standardise && self.standardiser.is_none() {
             self.standardiser = Standardiser::of(&replay.plus.states);
             if let Some(s) = &self.standardiser {
@@ -369,7 +375,7 @@ impl Trainer {
             }
         }
         if due.dynamics {
-            if let Some(fit) = self.fit_dynamics_on(&data, schedule.aux_passes(epoch)) {
+            if let Some(fit) = self.fit_dynamics_on(&data, self.schedule.aux_passes(epoch)) {
                 // Eq. (15)'s MSE, a mean over the fit call's last pass.
                 record.real("dynamics_loss", fit.loss, 6);
                 // Samples each network saw this epoch (all passes).
@@ -377,7 +383,7 @@ impl Trainer {
             }
         }
         if due.critic {
-            if let Some(fit) = self.fit_critic_on(&data, schedule.aux_passes(epoch)) {
+            if let Some(fit) = self.fit_critic_on(&data, self.schedule.aux_passes(epoch)) {
                 // Eq. (16)'s BCE, and the share of its points on the right side of p = 0.5 (last pass).
                 record.real("critic_loss", fit.loss, 6);
                 record.real("critic_accuracy", fit.accuracy, 6);
@@ -392,7 +398,7 @@ impl Trainer {
         if self.config.algorithm.lambda_start.is_some() {
             record.real("lambda", self.lambda(), 6);
         }
-        let fit = self.fit_policy_on(replay, &data, schedule.policy_passes(epoch))?;
+        let fit = self.fit_policy_on(replay, &data, self.schedule.policy_passes(epoch))?;
         if fit.samples > 0 {
             self.update_ema();
         }
