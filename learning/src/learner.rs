@@ -401,8 +401,17 @@ impl Learner {
     pub fn train(&mut self, due: Due) -> Result<(), LearnerError> {
         let epoch = self.epoch.record.epoch();
         self.progress(epoch, "training");
+        self.measure_critic();
         let record = &mut self.epoch.record;
         Ok(self.trainer.train(epoch, due, &self.replay, record)?)
+    }
+
+    /// p_hat before this epoch's fits, on the epoch's new rows ([`Trainer::measure_critic`]): the record's
+    /// `critic_heldout_*` (issue 45), and what `training.safety_gate` reads in this epoch's policy fit.
+    fn measure_critic(&mut self) {
+        if let Some(heldout) = self.trainer.measure_critic(&self.replay) {
+            heldout.put(&mut self.epoch.record);
+        }
     }
 
     /// An evaluation report ([`crate::evaluations::Evaluations::take`]).

@@ -1,10 +1,11 @@
 //! Fitting the critic p_hat, eq. (16): binary cross-entropy of D+ (label 1) against D- (label `negative_label`),
 //! D- as auto-labelling left it (eq. (19), [`Replay::minus`]).
 
-use super::data::Uploaded;
+use super::data::{self, Uploaded};
 use super::fit::{fit, Budget, Mean, Opt};
 use super::Trainer;
-use crate::replay::Replay;
+use crate::record::Record;
+use crate::replay::{Replay, Store};
 use cabc_models::{Critic, Network};
 use cabc_proto::config::{CriticNegatives, RunConfig};
 use rand::SeedableRng;
@@ -101,6 +102,30 @@ impl Trainer {
     }
 }
 
+impl Trainer {
+    /// p_hat as it stands before this epoch's fits, on D_new's rows of D+ (safe) and of D? (failures, as this epoch's
+    /// labelling left them when it labelled), none of which it has trained on (issue 45): None before its first fit
+    /// or without new rows. Its balanced accuracy is what `training.safety_gate` reads until the next measure.
+    pub fn measure_critic(&mut self, replay: &Replay) -> Option<Heldout> {
+        if !self.critic_trained {
+            return None;
+        }
+        self.standardise_from(replay);
+        let new_rows = |store: &Store, rows: std::ops::Range<usize>| {
+            data::states(&store.states[rows], self.device, self.standardiser.as_ref())
+        };
+        let h = heldout(
+            &self.critic,
+            &new_rows(&replay.plus, replay.fresh_plus()),
+            &new_rows(&replay.uncertain, replay.fresh_uncertain()),
+        )?;
+        if h.balanced.is_some() {
+            self.heldout_balanced = h.balanced;
+        }
+        Some(h)
+    }
+}
+
 /// What one pass of a critic fit reports.
 #[derive(Default)]
 struct Pass {
@@ -175,6 +200,21 @@ pub struct Heldout {
     /// The expected calibration error over `ECE_BINS` equal-width bins of p: sum over bins of
     /// (points in bin / points) |mean p - mean y|.
     pub ece: f64,
+}
+
+impl Heldout {
+    /// The measure in the epoch's record: accuracy, balanced accuracy (with rows of both classes), Brier score and
+    /// calibration error.
+    pub fn put(&self, record: &mut Record) {
+        record.count("critic_heldout_points", self.points);
+        record.count("critic_heldout_positives", self.positives);
+        record.real("critic_heldout_accuracy", self.accuracy, 6);
+        if let Some(balanced) = self.balanced {
+            record.real("critic_heldout_balanced", balanced, 6);
+        }
+        record.real("critic_heldout_brier", self.brier, 6);
+        record.real("critic_heldout_ece", self.ece, 6);
+    }
 }
 
 /// The bins of [`Heldout::ece`].

@@ -19,10 +19,7 @@ pub(crate) struct Rows {
 
 impl Rows {
     fn of(store: &Store, device: Device, standardiser: Option<&Standardiser>) -> Self {
-        let states = |rows: &[[f32; STATE_DIM]]| {
-            let x = cat_rows([rows.as_flattened()], STATE_DIM, device);
-            standardiser.map_or(x.shallow_clone(), |s| s.apply(&x))
-        };
+        let states = |rows: &[[f32; STATE_DIM]]| states(rows, device, standardiser);
         Rows {
             states: states(&store.states),
             expert_actions: cat_rows([store.expert_actions.as_flattened()], ACTION_DIM, device),
@@ -31,6 +28,16 @@ impl Rows {
             len: store.len(),
         }
     }
+}
+
+/// States [N, 6] on the device, standardised when the trainer standardises.
+pub(crate) fn states(
+    rows: &[[f32; STATE_DIM]],
+    device: Device,
+    standardiser: Option<&Standardiser>,
+) -> Tensor {
+    let x = cat_rows([rows.as_flattened()], STATE_DIM, device);
+    standardiser.map_or(x.shallow_clone(), |s| s.apply(&x))
 }
 
 /// D+, D?, the dynamics-only store and D-, on the device; every state (and next state) standardised when the
@@ -45,12 +52,11 @@ pub(crate) struct Uploaded {
 
 impl Uploaded {
     pub fn of(replay: &Replay, device: Device, standardiser: Option<&Standardiser>) -> Self {
-        let minus = cat_rows([replay.minus().as_flattened()], STATE_DIM, device);
         Uploaded {
             plus: Rows::of(&replay.plus, device, standardiser),
             uncertain: Rows::of(&replay.uncertain, device, standardiser),
             dynamics_only: Rows::of(&replay.dynamics_only, device, standardiser),
-            minus: standardiser.map_or(minus.shallow_clone(), |s| s.apply(&minus)),
+            minus: states(replay.minus(), device, standardiser),
         }
     }
 

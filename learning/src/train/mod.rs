@@ -320,23 +320,39 @@ impl Trainer {
         }
     }
 
-    /// [`Trainer::train`] with what the run's [`Schedule`] says is due in `epoch` ([`Schedule::due`]): an epoch of a
-    /// test or a benchmark, as Algorithm 1's loop would train it.
+    /// An epoch of a test or a benchmark as Algorithm 1's loop trains it: the critic's held-out measure into
+    /// `record` ([`Trainer::measure_critic`], as the learner puts it), then [`Trainer::train`] with what the run's
+    /// [`Schedule`] says is due in `epoch` ([`Schedule::due`]).
     pub fn train_epoch(
         &mut self,
         epoch: u64,
         replay: &Replay,
         record: &mut Record,
     ) -> Result<(), TrainError> {
+        if let Some(h) = self.measure_critic(replay) {
+            h.put(record);
+        }
         self.train(epoch, self.schedule.due(epoch), replay, record)
+    }
+
+    /// Takes the state's standardisation from D+, once (`training.standardise`): before anything trains on, or is
+    /// measured on, standardised states.
+    fn standardise_from(&mut self, replay: &Replay) {
+        if self.config.training.standardise && self.standardiser.is_none() {
+            self.standardiser = Standardiser::of(&replay.plus.states);
+            if let Some(s) = &self.standardiser {
+                tracing::info!(mean = ?s.mean, std = ?s.std, "the state's standardisation, from D+");
+            }
+        }
     }
 
     /// One epoch of Algorithm 1's training part: f_hat when `due.dynamics` (eq. (15), j mod k_f = 0), p_hat when
     /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14), at the trainer's
     /// lambda_j, [`Trainer::lambda`]: `epoch` names the record's and the schedule's epoch). Whether each is
     /// due is the caller's ([`crate::algorithm`] reads it from [`Trainer::schedule`]); how many passes each makes is
-    /// the schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call. The losses, and
-    /// the samples each network saw, go into the epoch's `record`, the one place they are kept.
+    /// the schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call, and so is the
+    /// critic's held-out measure ([`Trainer::measure_critic`]). The losses, and the samples each network saw, go
+    /// into the epoch's `record`, the one place they are kept.
     pub fn train(
         &mut self,
         epoch: u64,
@@ -346,34 +362,8 @@ impl Trainer {
     ) -> Result<(), TrainError> {
         let start = Instant::now();
         limit_cpu_threads(self.device);
-        if self.config.training.standardise && self.standardiser.is_none() {
-            self.standardiser = Standardiser::of(&replay.plus.states);
-            if let Some(s) = &self.standardiser {
-                tracing::info!(mean = ?s.mean, std = ?s.std, "the state's standardisation, from D+");
-            }
-        }
+        self.standardise_from(replay);
         let data = self.upload(replay);
-        if self.critic_trained {
-            let rows = |t: &tch::Tensor, r: std::ops::Range<usize>| {
-                t.narrow(0, r.start as i64, r.len() as i64)
-            };
-            let safe = rows(&data.plus.states, replay.fresh_plus());
-            let unsafe_ = rows(&data.uncertain.states, replay.fresh_uncertain());
-            if let Some(h) = critic::heldout(&self.critic, &safe, &unsafe_) {
-                // p_hat as it stands before this epoch's fits, on D_new's rows of D+ (safe) and of D? (failures, as
-                // this epoch's labelling left them when it labelled), none of which it has trained on: accuracy,
-                // balanced accuracy, Brier score and calibration error (issue 45).
-                record.count("critic_heldout_points", h.points);
-                record.count("critic_heldout_positives", h.positives);
-                record.real("critic_heldout_accuracy", h.accuracy, 6);
-                if let Some(balanced) = h.balanced {
-                    record.real("critic_heldout_balanced", balanced, 6);
-                    self.heldout_balanced = Some(balanced);
-                }
-                record.real("critic_heldout_brier", h.brier, 6);
-                record.real("critic_heldout_ece", h.ece, 6);
-            }
-        }
         if due.dynamics {
             if let Some(fit) = self.fit_dynamics_on(&data, self.schedule.aux_passes(epoch)) {
                 // Eq. (15)'s MSE, a mean over the fit call's last pass.
