@@ -308,7 +308,7 @@ pub fn expert_band(
     Ok(())
 }
 
-/// The track's centre line and its two edges as (X, Y) points, `n` + 1 each: for the line plot and the videos.
+/// The track's centre line and its two edges as (X, Y) points, `n` + 1 each: for the track map and the videos.
 pub fn track_edges(track: &Track, n: usize) -> [Vec<(f64, f64)>; 3] {
     let edge = |e: f64| -> Vec<(f64, f64)> {
         (0..=n)
@@ -322,32 +322,44 @@ pub fn track_edges(track: &Track, n: usize) -> [Vec<(f64, f64)>; 3] {
     [edge(0.0), edge(half), edge(-half)]
 }
 
-fn line(path: &Path, track: &Track, report: &EvalReport) -> PlotResult {
+/// A chart of the track map: X and Y in metres over `L_track_barc`'s extent (the one track, `sim.track`).
+pub type TrackMap<'a> =
+    ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The track map on `area` under `caption`: its axes, its centre line (grey) and its two edges (black), for what a
+/// figure draws on it (the evaluated line, the robustness study's spawns).
+pub fn track_map<'a>(
+    area: &DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>,
+    track: &Track,
+    caption: &str,
+) -> Result<TrackMap<'a>, Box<dyn std::error::Error>> {
     let [centre, left, right] = track_edges(track, 400);
-    let (x0, x1, y0, y1) = (-3.2, 4.4, -1.2, 5.8);
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(30)
+        .y_label_area_size(40)
+        .build_cartesian_2d(-3.2..4.4, -1.2..5.8)?;
+    chart
+        .configure_mesh()
+        .x_desc("X (m)")
+        .y_desc("Y (m)")
+        .draw()?;
+    chart.draw_series(LineSeries::new(centre, BLACK.mix(0.3)))?;
+    for edge in [left, right] {
+        chart.draw_series(LineSeries::new(edge, BLACK.stroke_width(2)))?;
+    }
+    Ok(chart)
+}
+
+fn line(path: &Path, track: &Track, report: &EvalReport) -> PlotResult {
     crate::plots::png(path, (760, 700), |root| {
         root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                format!(
-                    "Evaluation of policy {}: {} laps, ended by {}",
-                    report.version, report.laps, report.end_reason
-                ),
-                ("sans-serif", 20),
-            )
-            .margin(12)
-            .x_label_area_size(30)
-            .y_label_area_size(40)
-            .build_cartesian_2d(x0..x1, y0..y1)?;
-        chart
-            .configure_mesh()
-            .x_desc("X (m)")
-            .y_desc("Y (m)")
-            .draw()?;
-        chart.draw_series(LineSeries::new(centre, BLACK.mix(0.3)))?;
-        for e in [left, right] {
-            chart.draw_series(LineSeries::new(e, BLACK.stroke_width(2)))?;
-        }
+        let caption = format!(
+            "Evaluation of policy {}: {} laps, ended by {}",
+            report.version, report.laps, report.end_reason
+        );
+        let mut chart = track_map(root, track, &caption)?;
         chart
             .draw_series(LineSeries::new(
                 report.line.iter().map(|p| (p[0] as f64, p[1] as f64)),

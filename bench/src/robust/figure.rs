@@ -2,7 +2,7 @@
 //! track with the spawns coloured by the first level at which they crash (green: none).
 
 use super::{RobustError, RobustReport};
-use cabc_outputs::plots::{chart, legend, png, track_edges};
+use cabc_outputs::plots::{chart, legend, png, track_map};
 use cabc_sim::track::Track;
 use plotters::prelude::*;
 use std::path::Path;
@@ -68,22 +68,7 @@ fn shares(area: &Area<'_>, report: &RobustReport) -> PlotResult {
 }
 
 fn map(area: &Area<'_>, track: &Track, report: &RobustReport) -> PlotResult {
-    let [centre, left, right] = track_edges(track, 400);
-    let mut chart = ChartBuilder::on(area)
-        .caption("Spawns by the first level that crashes", ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(30)
-        .y_label_area_size(40)
-        .build_cartesian_2d(-3.2..4.4, -1.2..5.8)?;
-    chart
-        .configure_mesh()
-        .x_desc("X (m)")
-        .y_desc("Y (m)")
-        .draw()?;
-    chart.draw_series(LineSeries::new(centre, BLACK.mix(0.3)))?;
-    for edge in [left, right] {
-        chart.draw_series(LineSeries::new(edge, BLACK.stroke_width(2)))?;
-    }
+    let mut chart = track_map(area, track, "Spawns by the first level that crashes")?;
     let first_crash = |i: usize| {
         report
             .levels
