@@ -4,6 +4,13 @@ use serde::{Deserialize, Serialize};
 
 /// The MPCC-conv configuration. Weights are the *effective* ones (expert.md §4: the reference's `0.5·c·v²` costs
 /// with a doubled Hessian minimise `c·v²`); the slack weight is HPIPM's `Z` (cost `½·Z·σ²`).
+///
+/// A run's expert always takes `Default`, in one place: [`crate::Mpcc::from_config`], the constructor of the run's
+/// MPCC that every process goes through (the expert server, `learner run --local` and the actors' in-process expert
+/// by `Expert::from_config`, `expert-server drive`, `bench`, and [`crate::Mpcc::reference`] for the Python bindings
+/// and the tests). It is not a section of the run configuration: no run varies these numbers (the paper's expert is
+/// the reference's), and every recorded `config.toml` would grow by a section; a study that tunes the expert sets
+/// the fields here and builds with [`crate::Mpcc::new`], as the MPCC's own tests do.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MpccConfig {
