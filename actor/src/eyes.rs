@@ -42,7 +42,8 @@ impl Eyes {
 /// The track map of `kind`, built once a process and shared: an evaluation's camera no longer builds its own
 /// (0.1-0.2 s of every epoch's evaluation in a camera run).
 fn lookup(kind: TrackKind) -> Arc<TrackLookup> {
-    static BUILT: OnceLock<Mutex<Vec<(TrackKind, Arc<TrackLookup>)>>> = OnceLock::new();
+    type Built = Mutex<Vec<(TrackKind, Arc<TrackLookup>)>>;
+    static BUILT: OnceLock<Built> = OnceLock::new();
     let mut built = BUILT
         .get_or_init(Default::default)
         .lock()
