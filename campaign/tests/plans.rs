@@ -44,8 +44,8 @@ fn the_plans_keep_the_bash_campaigns_slices() {
 
 #[test]
 fn the_plans_views_are_the_bash_campaigns() {
-    // Issues 45's, 46's and 58's plans came after the translation: their views are their own (below).
-    let after = ["issue-45", "issue-46", "issue-58"];
+    // Issues 45's, 46's, 58's and 59's plans came after the translation: their views are their own (below).
+    let after = ["issue-45", "issue-46", "issue-58", "issue-59"];
     let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
         .unwrap()
         .into_iter()
@@ -67,6 +67,13 @@ fn the_plans_views_are_the_bash_campaigns() {
     assert_eq!(
         v_a.views[0].groups[0], "v-a-cpu-rerun",
         "issue-58: V-A's runs without the keys first, the keys beside them"
+    );
+    let v_b = plan("issue-59");
+    assert_eq!(v_b.views.len(), 1);
+    assert_eq!(
+        v_b.views[0].groups[..2],
+        ["v-b-frozen-eq14-hinged", "v-b-dart"],
+        "issue-59: the default's runs without the keys first, the keys beside them"
     );
     for name in &after[..2] {
         let plan = plan(name);
