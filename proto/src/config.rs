@@ -91,6 +91,10 @@ pub const PRESETS: &[(&str, &str)] = &[
     ),
     ("v-c-ref", include_str!("../../deploy/configs/v-c-ref.toml")),
     ("v-c-224", include_str!("../../deploy/configs/v-c-224.toml")),
+    (
+        "v-b-term",
+        include_str!("../../deploy/configs/v-b-term.toml"),
+    ),
 ];
 
 impl RunConfig {

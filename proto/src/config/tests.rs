@@ -272,28 +272,49 @@ fn the_v_b_recipe_is_the_reference_protocol_and_its_keys() {
     assert_eq!(a.critic_negatives, CriticNegatives::DMinus);
 }
 
-/// Issue 59: the main job's default (`v-b`) is the recipe with issue 45's three keys (the term as the paper writes
-/// it): the frozen networks' clip, eq. (14)'s rows and the hinged term; nothing else differs.
+/// Issue 59 item 1: `v-b-term` (the default from then until item 3) is the recipe with issue 45's three keys (the term
+/// as the paper writes it): the frozen networks' clip, eq. (14)'s rows and the hinged term; nothing else differs.
 #[test]
 fn the_default_is_the_recipe_and_the_term_as_the_paper_writes_it() {
-    let default = RunConfig::load(DEFAULT_PRESET).unwrap();
-    assert_eq!(DEFAULT_PRESET, "v-b");
+    let term = RunConfig::load("v-b-term").unwrap();
     let mut r = RunConfig::load("v-b-recipe").unwrap();
     assert_eq!(r.training.clip_scope, ClipScope::PolicyCriticDynamics);
     assert_eq!(r.training.safety_states, SafetyStates::DPlus);
     assert_eq!(r.training.safety_term, SafetyTerm::Absolute);
     r = r
         .with_overrides(&[
-            "run.name=v-b".to_string(),
+            "run.name=v-b-term".to_string(),
             "training.clip_scope=policy".to_string(),
             "training.safety_states=clone".to_string(),
             "training.safety_term=hinged".to_string(),
         ])
         .unwrap();
     assert_eq!(
-        default.to_toml(),
+        term.to_toml(),
         r.to_toml(),
         "only the term's three keys differ"
+    );
+}
+
+/// Issue 59 item 3: the main job's default (`v-b`) is `v-b-term` with the two robust keys, DART in collection and
+/// the sensor noise; nothing else differs.
+#[test]
+fn the_default_is_the_term_with_dart_and_the_sensor_noise() {
+    assert_eq!(DEFAULT_PRESET, "v-b");
+    let default = RunConfig::load(DEFAULT_PRESET).unwrap();
+    let term = RunConfig::load("v-b-term").unwrap();
+    assert_eq!(term.collection.action_noise_std, [0.0, 0.0]);
+    let robust = term
+        .with_overrides(&[
+            "run.name=v-b".to_string(),
+            "collection.action_noise_std=[0.0,0.15]".to_string(),
+            "observation.state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]".to_string(),
+        ])
+        .unwrap();
+    assert_eq!(
+        default.to_toml(),
+        robust.to_toml(),
+        "only the two keys differ"
     );
 }
 
