@@ -12,3 +12,4 @@ pub mod run;
 pub mod segment;
 pub mod sensor;
 pub mod shield;
+pub mod spawns;

@@ -1,9 +1,10 @@
 //! `cabc robust`'s study on the PID lane follower as the driver (the same observations a policy gets): a seed gives
 //! one report, noise makes the PID crash more often, and bad options are refused with the flag named.
 
-use cabc_bench::robust::{study, RobustError, RobustOptions, RobustReport};
+use cabc_bench::robust::{study, RobustError, RobustOptions, RobustReport, SpawnRanges};
 use cabc_proto::config::RunConfig;
 use cabc_sim::pid::PidLaneFollower;
+use clap::Parser;
 
 fn config() -> RunConfig {
     RunConfig::load("smoke").unwrap()
@@ -224,4 +225,20 @@ fn bad_options_are_refused_with_the_flag_named() {
         .settings(&config())
         .unwrap();
     assert_eq!(settings.laps, config().collection.eval_laps);
+}
+
+/// `cabc robust`'s spawns by default are [`SpawnRanges`]' default, which the early stop's episodes draw from
+/// (`collection.early_stop_spawns`): the command line's defaults and [`RobustOptions::default`] agree with it.
+#[test]
+fn the_default_spawns_are_the_early_stops() {
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        options: RobustOptions,
+    }
+    let parsed = Cli::parse_from(["robust"]).options;
+    for options in [parsed, RobustOptions::default()] {
+        let settings = options.settings(&config()).unwrap();
+        assert_eq!(settings.spawn, SpawnRanges::default());
+    }
 }

@@ -1,9 +1,8 @@
 //! `cabc robust`: a policy's robustness, beyond the fixed spawn of its evaluation (issue 45 item 3).
 //!
-//! A seeded draw of N spawns along the track ([`draw_spawns`]): arc length s ~ U(0, L), lateral offset x_tran ~
-//! U(-f H, f H) for a fraction f of the half width H, heading error e_psi ~ U(-h, h), speed v_long ~ U(v0, v1). The
-//! training spawn of the configuration (`collection.spawn = "random"`) is no fit: its offsets reach the band (0.85 m,
-//! beyond the 0.55 m constraint: a third start out of track) and its s stops 2 m before the line.
+//! A seeded draw of N spawns along the track ([`draw_spawns`], in `cabc-actor`, where the early stop's episodes
+//! draw theirs too): arc length s ~ U(0, L), lateral offset x_tran ~ U(-f H, f H) for a fraction f of the half width
+//! H, heading error e_psi ~ U(-h, h), speed v_long ~ U(v0, v1).
 //!
 //! Each spawn is driven at each noise level by the evaluator's own loop ([`cabc_actor::evaluate::drive`]): the policy
 //! alone, the run's observation and sensor, plus Gaussian noise on the action before the plant clips it and on the
@@ -19,16 +18,14 @@ pub mod figure;
 
 use cabc_actor::collect::Observations;
 use cabc_actor::evaluate::{drive, Disturbance, Episode, Start};
+pub use cabc_actor::spawns::{draw_spawns, SpawnPoint, SpawnRanges};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::{EndReason, EvalReport};
 use cabc_sim::env::Env;
 use cabc_sim::track::{Frenet, Track};
-use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// Mixed into the seed for the spawns' stream.
-const SPAWN_SEED: u64 = 0x5a_a7e5;
 /// Mixed into the seed for the noise's streams (stream i: spawn i).
 const NOISE_SEED: u64 = 0x4e_0153;
 /// Laps wanted when the run's configuration asks for none.
@@ -123,28 +120,6 @@ fn flag(flag: &'static str, message: impl Into<String>) -> RobustError {
         flag,
         message: message.into(),
     }
-}
-
-/// The spawns' ranges, as the report records them.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SpawnRanges {
-    /// |x_tran| within this fraction of the half width.
-    pub lateral_fraction: f64,
-    /// |e_psi| within this (rad).
-    pub heading_error: f64,
-    /// v_long within [min, max] (m/s).
-    pub speed: [f64; 2],
-}
-
-/// One spawn: its Frenet pose and speed, and where that is on the map.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SpawnPoint {
-    pub s: f64,
-    pub x_tran: f64,
-    pub e_psi: f64,
-    pub v_long: f64,
-    pub x: f64,
-    pub y: f64,
 }
 
 /// How one spawn's episode ended at one level.
@@ -332,30 +307,6 @@ fn widen<const N: usize>(name: &'static str, values: &[f64]) -> Result<[f64; N],
             format!("{} values given: one for every entry, or {N}", v.len()),
         )),
     }
-}
-
-/// `n` spawns drawn from `seed` within `ranges` (module doc), in the order s, x_tran, e_psi, v_long per spawn.
-pub fn draw_spawns(track: &Track, n: usize, seed: u64, ranges: &SpawnRanges) -> Vec<SpawnPoint> {
-    let mut rng = Env::rng(seed ^ SPAWN_SEED, 0);
-    let mut uniform = |a: f64, b: f64| a + (b - a) * rng.gen::<f64>();
-    let lateral = ranges.lateral_fraction * track.half_width();
-    (0..n)
-        .map(|_| {
-            let s = uniform(0.0, track.length());
-            let x_tran = uniform(-lateral, lateral);
-            let e_psi = uniform(-ranges.heading_error, ranges.heading_error);
-            let v_long = uniform(ranges.speed[0], ranges.speed[1]);
-            let p = track.local_to_global(s, x_tran, e_psi);
-            SpawnPoint {
-                s,
-                x_tran,
-                e_psi,
-                v_long,
-                x: p.x,
-                y: p.y,
-            }
-        })
-        .collect()
 }
 
 /// Whether an episode that ended so crashed: an end by the env's truncation other than its lap limit.
