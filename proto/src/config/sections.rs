@@ -195,6 +195,20 @@ pub struct CollectionSection {
     pub eval_laps: u32,
     /// Early stop when the evaluation completes `eval_laps` this many times.
     pub early_stop_successes: u32,
+    /// The early stop judged on random spawns too (ours, issue 59; 0, the paper's: the fixed spawn alone). When the
+    /// evaluation from the fixed spawn completes `eval_laps` laps, the evaluator drives this many episodes more,
+    /// each of an out-lap and `eval_laps` laps, from random spawns drawn as `cabc robust` draws them
+    /// (`cabc_actor::spawns`, its default ranges) under `early_stop_action_noise_std` and
+    /// `early_stop_state_noise_std`; the version counts toward `early_stop_successes` only when every one of them
+    /// completes its laps. The spawns and the noise come from the run's seed and the version (not `cabc robust`'s
+    /// streams); the report's laps and lap times stay the fixed spawn's.
+    pub early_stop_spawns: u32,
+    /// Gaussian noise on the action [a m/s², delta rad] of the early stop's episodes from random spawns, added before
+    /// the plant clips it (as `cabc robust --action-noise`).
+    pub early_stop_action_noise_std: [f64; 2],
+    /// Gaussian noise on the state [v_long, v_tran, omega, s, x_tran, e_psi] the policy observes in the early stop's
+    /// episodes from random spawns, on top of `observation.state_noise_std` (as `cabc robust --state-noise`).
+    pub early_stop_state_noise_std: [f64; 6],
     /// Which segment the step that completes a lap or truncates belongs to: `with-step` (ours) or `before-step` (the
     /// reference: the truncating step is dropped).
     pub flush: Flush,
@@ -231,6 +245,9 @@ impl Default for CollectionSection {
             max_laps: 50,
             eval_laps: 50,
             early_stop_successes: 2,
+            early_stop_spawns: 0,
+            early_stop_action_noise_std: [0.0; 2],
+            early_stop_state_noise_std: [0.0; 6],
             flush: Flush::WithStep,
             expert_failure_staged: ExpertFailureStaged::Uncertain,
             stored_action: StoredAction::Clipped,

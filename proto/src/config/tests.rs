@@ -492,3 +492,38 @@ fn v_a_collects_with_darts_noise_and_the_reference_without() {
     same.replay.max_bytes = a.replay.max_bytes;
     assert_eq!(same.to_toml(), a.to_toml(), "the image and the trunk alone");
 }
+
+/// Issue 59 item 3: the early stop judged on random spawns under noise is off by default and in every preset (the
+/// fixed spawn alone, as before the keys); the campaign's settings take, and a negative or NaN deviation is refused.
+#[test]
+fn the_early_stop_on_random_spawns_is_off_unless_asked() {
+    for (name, _) in PRESETS {
+        let c = RunConfig::load(name).unwrap().collection;
+        assert_eq!(c.early_stop_spawns, 0, "{name}");
+        assert_eq!(c.early_stop_action_noise_std, [0.0; 2], "{name}");
+        assert_eq!(c.early_stop_state_noise_std, [0.0; 6], "{name}");
+    }
+    assert_eq!(RunConfig::default().collection.early_stop_spawns, 0);
+    let judged = RunConfig::default()
+        .with_overrides(&[
+            "collection.early_stop_spawns=5".to_string(),
+            "collection.early_stop_action_noise_std=[0.02,0.005]".to_string(),
+            "collection.early_stop_state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]"
+                .to_string(),
+        ])
+        .unwrap()
+        .collection;
+    assert_eq!(judged.early_stop_spawns, 5);
+    assert_eq!(judged.early_stop_action_noise_std, [0.02, 0.005]);
+    assert_eq!(judged.early_stop_state_noise_std, [0.002; 6]);
+    for bad in [
+        "collection.early_stop_action_noise_std=[-0.1,0]",
+        "collection.early_stop_state_noise_std=[0,0,0,nan,0,0]",
+    ] {
+        let e = RunConfig::default()
+            .with_overrides(&[bad.to_string()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("collection.early_stop_"), "{bad}: {e}");
+    }
+}

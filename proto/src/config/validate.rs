@@ -160,6 +160,22 @@ impl RunConfig {
                 "standard deviations must be finite and >= 0",
             );
         }
+        let early_stop = &self.collection;
+        if !deviations(
+            early_stop
+                .early_stop_action_noise_std
+                .iter()
+                .chain(&early_stop.early_stop_state_noise_std),
+        ) {
+            return invalid(
+                "collection.early_stop_action_noise_std / early_stop_state_noise_std",
+                format!(
+                    "{:?} / {:?}",
+                    early_stop.early_stop_action_noise_std, early_stop.early_stop_state_noise_std
+                ),
+                "standard deviations must be finite and >= 0",
+            );
+        }
         // An empty `bus.listen` makes the learner a client of the routers in `bus.connect` (a standalone zenohd,
         // deploy/SCALE-OUT.md §2); the others always need somewhere to connect to.
         if self.bus.connect.is_empty() {
