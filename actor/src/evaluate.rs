@@ -178,6 +178,8 @@ pub fn drive(
         end_reason,
         steps,
         line: subsample(line, config.actors.eval_line_points),
+        spawn_episodes: 0,
+        spawn_crashes: 0,
     })
 }
 

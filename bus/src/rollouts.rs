@@ -463,6 +463,8 @@ mod tests {
             end_reason: cabc_proto::messages::EndReason::Stall,
             steps: 0,
             line: Vec::new(),
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         }
     }
 

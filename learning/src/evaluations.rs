@@ -1,6 +1,7 @@
 //! The run's evaluations: the evaluator drives each published policy version alone from the fixed spawn and reports
 //! it. Kept here: every version's summary, early stopping (the `collection.early_stop_successes`-th distinct version
-//! that completes `collection.eval_laps` laps stops the run), the best version (whose weights go to
+//! that completes `collection.eval_laps` laps stops the run; under `collection.early_stop_spawns`, a version that also
+//! completed its laps from every one of that many random spawns under noise), the best version (whose weights go to
 //! `best-policy.safetensors` through the [`Sink`]), and the reports refused (a version not published yet) or ignored
 //! (a second report of a version).
 
@@ -27,12 +28,21 @@ pub struct EvalSummary {
     pub lap_max: Option<f64>,
     pub end_reason: String,
     pub steps: u64,
+    /// Episodes from random spawns the early stop judged the version on (`collection.early_stop_spawns`; 0 without
+    /// the key, or when the fixed spawn did not complete its laps), and how many of them did not complete theirs.
+    /// Checkpoints and tables written before them hold none: 0.
+    #[serde(default)]
+    pub spawn_episodes: u32,
+    #[serde(default)]
+    pub spawn_crashes: u32,
 }
 
 impl EvalSummary {
-    /// The better of two evaluations: more laps, then a lower mean lap time (ties: the earlier one stays best).
+    /// The better of two evaluations: more laps, then fewer crashes from the early stop's random spawns (none
+    /// without `collection.early_stop_spawns`), then a lower mean lap time (ties: the earlier one stays best).
     pub fn better_than(&self, other: &EvalSummary) -> bool {
-        match self.laps.cmp(&other.laps) {
+        let fewer_crashes = other.spawn_crashes.cmp(&self.spawn_crashes);
+        match self.laps.cmp(&other.laps).then(fewer_crashes) {
             std::cmp::Ordering::Greater => true,
             std::cmp::Ordering::Less => false,
             std::cmp::Ordering::Equal => match (self.lap_mean, other.lap_mean) {
@@ -55,8 +65,18 @@ impl EvalSummary {
             lap_max: fold(f64::max),
             end_reason: report.end_reason.to_string(),
             steps: report.steps,
+            spawn_episodes: report.spawn_episodes,
+            spawn_crashes: report.spawn_crashes,
         }
     }
+}
+
+/// Whether `report` counts toward the early stop: it completed `eval_laps` laps from the fixed spawn and, under
+/// `early_stop_spawns`, drove at least that many episodes from random spawns, none of which crashed.
+pub fn counts_toward_early_stop(report: &EvalReport, rules: &CollectionSection) -> bool {
+    let judged = rules.early_stop_spawns == 0
+        || (report.spawn_episodes >= rules.early_stop_spawns && report.spawn_crashes == 0);
+    report.laps >= rules.eval_laps && judged
 }
 
 /// The evaluations of a run. `evals` and `successes` are saved with each checkpoint (as the learner state's fields
@@ -66,7 +86,7 @@ impl EvalSummary {
 pub struct Evaluations {
     /// Every version evaluated, in the order the reports arrived.
     pub evals: Vec<EvalSummary>,
-    /// Evaluations that completed `eval_laps` laps (distinct versions).
+    /// Evaluations that counted toward the early stop ([`counts_toward_early_stop`]; distinct versions).
     pub successes: u32,
     /// Published versions' weights awaiting their evaluation.
     #[serde(skip)]
@@ -118,7 +138,7 @@ impl Evaluations {
     }
 
     /// An evaluation report: taken in and handed to `taken` (the learner's sink; counting toward early stopping when it completed
-    /// `eval_laps` laps), or refused and counted when its version is not published yet (the bus already checked
+    /// `eval_laps` laps, and under `early_stop_spawns` none of its episodes from random spawns crashed), or refused and counted when its version is not published yet (the bus already checked
     /// that it came from an evaluator under its own name), or ignored and counted when its version was evaluated
     /// already (early stopping counts distinct versions).
     pub fn take(
@@ -163,10 +183,12 @@ impl Evaluations {
             laps = report.laps,
             end = %report.end_reason,
             lap_mean = ?summary.lap_mean,
+            spawn_episodes = report.spawn_episodes,
+            spawn_crashes = report.spawn_crashes,
             "evaluation"
         );
         let completed = report.laps >= rules.eval_laps;
-        if completed {
+        if counts_toward_early_stop(&report, rules) {
             self.successes += 1;
             if self.successes >= rules.early_stop_successes && self.early_stop.is_none() {
                 self.early_stop = Some(report.version);
@@ -247,7 +269,8 @@ pub struct Taken<'a> {
     pub summary: &'a EvalSummary,
     /// Whether it is the best evaluation so far ([`EvalSummary::better_than`] every earlier one).
     pub best: bool,
-    /// Whether it completed `collection.eval_laps` laps.
+    /// Whether it completed `collection.eval_laps` laps from the fixed spawn (whatever its episodes from random
+    /// spawns did: [`counts_toward_early_stop`] says whether it counts).
     pub completed: bool,
     /// The version's weights, when it is the best so far and they are still held.
     pub weights: Option<&'a [u8]>,
@@ -281,6 +304,8 @@ mod tests {
             end_reason: EndReason::OutOfTrack,
             steps: 10,
             line: Vec::new(),
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         }
     }
 
@@ -317,5 +342,71 @@ mod tests {
             record.to_string(),
             "epoch=4 eval_version=3 eval_laps=2 refused_evals=2 duplicate_evals=1"
         );
+    }
+
+    /// `report(version, laps)` with `episodes` episodes from random spawns, `crashes` of them crashed.
+    fn judged(version: u64, laps: u32, episodes: u32, crashes: u32) -> EvalReport {
+        EvalReport {
+            spawn_episodes: episodes,
+            spawn_crashes: crashes,
+            ..report(version, laps)
+        }
+    }
+
+    /// Under `early_stop_spawns`, a version counts toward the early stop only when it completed its laps from the
+    /// fixed spawn and from every random spawn asked for: one whose episodes crashed, or that drove fewer than
+    /// asked, does not; one that crashed is not best over one that did not; without the key the same reports count
+    /// as before.
+    #[test]
+    fn a_version_that_crashed_from_random_spawns_does_not_count() {
+        let without = CollectionSection {
+            eval_laps: 2,
+            early_stop_successes: 2,
+            ..CollectionSection::default()
+        };
+        let with = CollectionSection {
+            early_stop_spawns: 3,
+            ..without.clone()
+        };
+        let reports = [
+            judged(0, 2, 3, 1),
+            judged(1, 2, 2, 0),
+            judged(2, 1, 0, 0),
+            judged(3, 2, 3, 0),
+            judged(4, 2, 3, 0),
+        ];
+        let (mut evals, mut told) = (Evaluations::default(), Told::default());
+        (0..5).for_each(|v| evals.publish(v, vec![v as u8]));
+        for (i, r) in reports.iter().enumerate() {
+            evals.take(r.clone(), &with, told.take());
+            assert_eq!(evals.early_stop(), (i == 4).then_some(4), "version {i}");
+        }
+        assert_eq!(evals.successes, 2);
+        // Completed stays the fixed spawn's laps; the best is the first with no crash among those of most laps.
+        assert_eq!(
+            told.0,
+            [
+                (0, true, true, Some(vec![0])),
+                (1, true, true, Some(vec![1])),
+                (2, false, false, None),
+                (3, false, true, None),
+                (4, false, true, None),
+            ]
+        );
+        assert_eq!(evals.best().map(|b| b.version), Some(1));
+        assert_eq!(
+            (evals.evals[0].spawn_episodes, evals.evals[0].spawn_crashes),
+            (3, 1)
+        );
+        // Without the key (0 spawns) the fixed spawn alone decides, whatever a report says of random spawns.
+        let mut evals = Evaluations::default();
+        (0..5).for_each(|v| evals.publish(v, vec![]));
+        for r in &reports[..2] {
+            evals.take(r.clone(), &without, |_| {});
+        }
+        assert_eq!((evals.successes, evals.early_stop()), (2, Some(1)));
+        assert!(counts_toward_early_stop(&reports[0], &without));
+        assert!(!counts_toward_early_stop(&reports[0], &with));
+        assert!(!counts_toward_early_stop(&reports[2], &without));
     }
 }

@@ -388,6 +388,8 @@ mod tests {
             end_reason: EndReason::OutOfTrack,
             steps: 60,
             line: (0..60).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         };
         let run = History {
             rows: (0..3)

@@ -123,11 +123,17 @@ impl RunDir {
         let path = self.root.join("metrics.csv");
         write_atomic(&path, cabc_learning::record::table(rows).as_bytes())?;
         let path = self.root.join("evals.csv");
-        let mut text = format!("{EVALS_HEADER}\n");
+        // The early stop's episodes from random spawns get their columns once an evaluation drove some: a run
+        // without `collection.early_stop_spawns` writes the table it always wrote.
+        let spawns = evals.iter().any(|e| e.spawn_episodes > 0);
+        let mut text = match spawns {
+            true => format!("{EVALS_HEADER},{EVALS_SPAWN_COLUMNS}\n"),
+            false => format!("{EVALS_HEADER}\n"),
+        };
         let opt = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
         for e in evals {
             text.push_str(&format!(
-                "{},{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{}",
                 e.version,
                 e.laps,
                 opt(e.lap_mean),
@@ -135,8 +141,12 @@ impl RunDir {
                 opt(e.lap_min),
                 opt(e.lap_max),
                 e.end_reason,
-                e.steps
+                e.steps,
             ));
+            if spawns {
+                text.push_str(&format!(",{},{}", e.spawn_episodes, e.spawn_crashes));
+            }
+            text.push('\n');
         }
         write_atomic(&path, text.as_bytes())
     }
@@ -156,12 +166,16 @@ impl RunDir {
     }
 }
 
-/// `evals.csv`'s header: a row per evaluation ([`RunDir::write_tables`]), lap times with 3 decimals.
+/// `evals.csv`'s header: a row per evaluation ([`RunDir::write_tables`]), the fixed spawn's laps, lap times (3
+/// decimals), end and steps.
 pub const EVALS_HEADER: &str = "version,laps,lap_mean,lap_std,lap_min,lap_max,end_reason,steps";
+/// `evals.csv`'s columns after [`EVALS_HEADER`] once an evaluation drove the early stop's episodes from random
+/// spawns (`collection.early_stop_spawns`): how many, and how many of them did not complete their laps.
+pub const EVALS_SPAWN_COLUMNS: &str = "spawn_episodes,spawn_crashes";
 
 /// `evals.csv`'s text read back (the inverse of [`RunDir::write_tables`]'s, its lap times to 3 decimals): columns
-/// by name, `version` and `laps` needed, an empty cell or a missing column of the others None (`steps` 0,
-/// `end_reason` empty). Blank lines are skipped; a row of the wrong length or with a cell that is not a number is
+/// by name, `version` and `laps` needed, an empty cell or a missing column of the others None (`steps`,
+/// `spawn_episodes` and `spawn_crashes` 0, `end_reason` empty). Blank lines are skipped; a row of the wrong length or with a cell that is not a number is
 /// refused with its line.
 pub fn parse_evals(text: &str) -> Result<Vec<EvalSummary>, TableError> {
     let (header, rows) = cabc_learning::record::csv_rows(text)?;
@@ -201,6 +215,12 @@ pub fn parse_evals(text: &str) -> Result<Vec<EvalSummary>, TableError> {
             lap_max: real("lap_max")?,
             end_reason: cell("end_reason").to_string(),
             steps: parsed("steps", cell("steps")).map_err(fail)?.unwrap_or(0),
+            spawn_episodes: parsed("spawn_episodes", cell("spawn_episodes"))
+                .map_err(fail)?
+                .unwrap_or(0),
+            spawn_crashes: parsed("spawn_crashes", cell("spawn_crashes"))
+                .map_err(fail)?
+                .unwrap_or(0),
         });
     }
     Ok(evals)
@@ -320,6 +340,8 @@ mod tests {
             end_reason: EndReason::Spin,
             steps: 130,
             line: vec![],
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         };
         run.write_tables(&[Record::new(0)], &[EvalSummary::of(&report)])
             .unwrap();
@@ -332,7 +354,7 @@ mod tests {
         );
         let evals = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
         assert!(
-            evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130"),
+            evals.contains("2,2,5.500,0.500,5.000,6.000,spin,130\n"),
             "{evals}"
         );
     }
@@ -343,7 +365,7 @@ mod tests {
     fn evals_read_back() {
         let dir = tempfile::tempdir().unwrap();
         let run = RunDir::create(dir.path()).unwrap();
-        let report = |version, lap_times: Vec<f64>| EvalReport {
+        let report = |version, lap_times: Vec<f64>, spawns: [u32; 2]| EvalReport {
             actor: "e".into(),
             version,
             laps: lap_times.len() as u32,
@@ -351,27 +373,39 @@ mod tests {
             end_reason: EndReason::Spin,
             steps: 130,
             line: vec![],
+            spawn_episodes: spawns[0],
+            spawn_crashes: spawns[1],
         };
-        let evals = [
-            EvalSummary::of(&report(0, vec![])),
-            EvalSummary::of(&report(3, vec![5.0, 6.0])),
-        ];
-        run.write_tables(&[Record::new(0)], &evals).unwrap();
-        let text = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
-        let back = parse_evals(&text).unwrap();
-        assert_eq!(back.len(), 2);
-        for (a, b) in back.iter().zip(&evals) {
+        // Without the early stop's episodes from random spawns, and with them (their columns at the end).
+        for spawns in [[0, 0], [5, 2]] {
+            let evals = [
+                EvalSummary::of(&report(0, vec![], [0, 0])),
+                EvalSummary::of(&report(3, vec![5.0, 6.0], spawns)),
+            ];
+            run.write_tables(&[Record::new(0)], &evals).unwrap();
+            let text = std::fs::read_to_string(dir.path().join("evals.csv")).unwrap();
+            let header = text.lines().next().unwrap();
             assert_eq!(
-                serde_json::to_value(a).unwrap(),
-                serde_json::to_value(b).unwrap()
+                header == format!("{EVALS_HEADER},{EVALS_SPAWN_COLUMNS}"),
+                spawns[0] > 0,
+                "{text}"
             );
+            let back = parse_evals(&text).unwrap();
+            assert_eq!(back.len(), 2);
+            for (a, b) in back.iter().zip(&evals) {
+                assert_eq!(
+                    serde_json::to_value(a).unwrap(),
+                    serde_json::to_value(b).unwrap()
+                );
+            }
         }
-        // An older table without steps or lap extremes.
+        // An older table without steps, lap extremes or random spawns.
         let old = parse_evals("version,laps,lap_mean\n4,1,5.2\n").unwrap();
         assert_eq!(
             (old[0].version, old[0].lap_mean, old[0].steps),
             (4, Some(5.2), 0)
         );
+        assert_eq!((old[0].spawn_episodes, old[0].spawn_crashes), (0, 0));
         for (bad, line, what) in [
             ("", 1, "no header"),
             ("laps\n1\n", 1, "no version column"),

@@ -254,13 +254,18 @@ impl Progress {
         }
     }
 
-    /// The short line of an evaluation: its version, laps and mean lap time.
+    /// The short line of an evaluation: its version, laps and mean lap time, and the crashes of the early stop's
+    /// episodes from random spawns when it drove some (`collection.early_stop_spawns`).
     fn short_line(s: &EvalSummary) -> String {
         let lap = s
             .lap_mean
             .map(|m| format!(", {m:.2} s a lap"))
             .unwrap_or_default();
-        format!("version {}: {} laps{lap}", s.version, s.laps)
+        let spawns = match s.spawn_episodes {
+            0 => String::new(),
+            n => format!("; {} of {n} random spawns crashed", s.spawn_crashes),
+        };
+        format!("version {}: {} laps{lap}{spawns}", s.version, s.laps)
     }
 }
 
@@ -321,6 +326,8 @@ mod tests {
             end_reason: EndReason::OutOfTrack,
             steps: 40,
             line: (0..40).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         }
     }
 
@@ -400,7 +407,12 @@ mod tests {
             r.count("eval_version", 2);
             r.count("eval_laps", 0);
             progress.write(&r).unwrap();
-            for report in [report(2, 0), report(3, 50)] {
+            let judged = EvalReport {
+                spawn_episodes: 5,
+                spawn_crashes: 1,
+                ..report(4, 50)
+            };
+            for report in [report(2, 0), report(3, 50), judged] {
                 progress.evaluation(&Taken {
                     report: &report,
                     summary: &EvalSummary::of(&report),
@@ -420,6 +432,11 @@ mod tests {
             );
             assert_eq!(
                 screen.contains("version 3: 50 laps, 5.00 s a lap"),
+                short_lines,
+                "{screen}"
+            );
+            assert_eq!(
+                screen.contains("version 4: 50 laps, 5.00 s a lap; 1 of 5 random spawns crashed"),
                 short_lines,
                 "{screen}"
             );

@@ -247,6 +247,8 @@ mod tests {
             end_reason: EndReason::MaxLaps,
             steps: 100,
             line,
+            spawn_episodes: 0,
+            spawn_crashes: 0,
         }
     }
 

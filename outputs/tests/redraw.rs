@@ -18,6 +18,8 @@ use std::path::Path;
 fn report(version: u64, lap_times: Vec<f64>) -> EvalReport {
     EvalReport {
         line: (0..40).map(|i| [i as f32 * 0.05, 0.0]).collect(),
+        spawn_episodes: 0,
+        spawn_crashes: 0,
         ..cabc_fixtures::eval_report("eval", version, &lap_times, EndReason::OutOfTrack, 40)
     }
 }

@@ -12,7 +12,7 @@ use serde::{de::DeserializeOwned, Serialize};
 /// The first four bytes of every payload.
 pub const MAGIC: [u8; 4] = *b"CABC";
 /// Bumped whenever a message changes shape.
-pub const SCHEMA_VERSION: u16 = 4;
+pub const SCHEMA_VERSION: u16 = 5;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 7;
 /// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
@@ -243,6 +243,12 @@ impl Message for EvalReport {
                 self.lap_times.len()
             ));
         }
+        if self.spawn_crashes > self.spawn_episodes {
+            return Err(format!(
+                "{} crashes of {} episodes from random spawns",
+                self.spawn_crashes, self.spawn_episodes
+            ));
+        }
         Ok(())
     }
 }
@@ -348,6 +354,8 @@ mod tests {
             end_reason: EndReason::MaxLaps,
             steps: 100,
             line: vec![[0.0, 0.0], [0.1, 0.0]],
+            spawn_episodes: 5,
+            spawn_crashes: 1,
         });
         round_trip(Stop {
             reason: "early stop".into(),
@@ -420,6 +428,23 @@ mod tests {
             assert!(matches!(err, DecodeError::Invalid { .. }), "{err}");
             assert!(err.to_string().contains("step 1: next_state[4]"), "{err}");
         }
+    }
+
+    #[test]
+    fn an_evaluation_with_more_crashes_than_episodes_is_refused() {
+        let report = EvalReport {
+            actor: "eval".into(),
+            version: 4,
+            laps: 0,
+            lap_times: vec![],
+            end_reason: EndReason::Spin,
+            steps: 10,
+            line: vec![],
+            spawn_episodes: 2,
+            spawn_crashes: 3,
+        };
+        let err = decode::<EvalReport>(&encode(&report)).unwrap_err();
+        assert!(err.to_string().contains("3 crashes of 2 episodes"), "{err}");
     }
 
     /// The codec does not judge an image's size: the learner's replay refuses one that is not the run's

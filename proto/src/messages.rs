@@ -243,7 +243,8 @@ pub struct ExpertReply {
     pub batch_time_us: u64,
 }
 
-/// The result of one evaluation of a policy version (fixed spawn, beta = 0).
+/// The result of one evaluation of a policy version (fixed spawn, beta = 0): its laps, lap times, end and line; and,
+/// under `collection.early_stop_spawns`, how the episodes from random spawns that the early stop also judges went.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub actor: String,
@@ -255,6 +256,11 @@ pub struct EvalReport {
     pub steps: u64,
     /// The driven line, [X, Y] per step (subsampled by the actor when long).
     pub line: Vec<[f32; 2]>,
+    /// Episodes driven from random spawns under noise (`collection.early_stop_spawns`) after the fixed spawn
+    /// completed its laps; 0 when it did not, or without the key.
+    pub spawn_episodes: u32,
+    /// Of those, the episodes that did not complete their laps (a crash, or the evaluator's step limit).
+    pub spawn_crashes: u32,
 }
 
 /// The learner ends the run.

@@ -199,6 +199,8 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 end_reason: EndReason::MaxLaps,
                 steps: 100,
                 line: vec![[0.0, 0.0], [0.1, 0.0]],
+                spawn_episodes: 0,
+                spawn_crashes: 0,
             }),
         ),
         (

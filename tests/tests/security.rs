@@ -150,6 +150,8 @@ fn forgeries(keys: &Keys, per_kind: u64) -> Vec<(String, Vec<u8>)> {
         // A perfect evaluation of version 1: through, it would end the run by early stop.
         let report = EvalReport {
             line: vec![[0.0, 0.0]],
+            spawn_episodes: 0,
+            spawn_crashes: 0,
             ..cabc_fixtures::eval_report("eval", 1, &[1.0; 50], EndReason::MaxLaps, FORGED + i)
         };
         out.push((keys.eval("eval"), encode(&report)));
