@@ -1,26 +1,39 @@
 //! Evaluation (algorithm.md 5): the policy drives alone (beta = 0) from the fixed spawn until truncation or
-//! `eval_laps` completed laps.
+//! `eval_laps` completed laps; under `collection.early_stop_spawns` (ours, issue 59), a version that completes them
+//! drives that many episodes more from random spawns under noise, which the early stop judges it on too
+//! ([`judged_episodes`]).
 //!
 //! One loop drives every evaluation episode ([`drive`]): the evaluator's (the fixed spawn, no disturbance:
-//! [`Episode::evaluation`]) and the robustness study's (`cabc robust`: a given spawn pose and speed, Gaussian noise on
-//! the policy's action and on the state it observes, [`Disturbance`]).
+//! [`Episode::evaluation`]), the early stop's from random spawns, and the robustness study's (`cabc robust`: a given
+//! spawn pose and speed, Gaussian noise on the policy's action and on the state it observes, [`Disturbance`]).
 
 use crate::collect::{end_reason, make_env, Observations};
 use crate::eyes::Eyes;
 use crate::sensor::Sensor;
+use crate::spawns::{draw_spawns_from, SpawnRanges};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, EvalReport};
 use cabc_sim::env::{Env, Spawn};
-use cabc_sim::track::Frenet;
+use cabc_sim::track::{Frenet, Track};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use std::time::Instant;
 
 /// Steps allowed per lap before an evaluation is cut (a policy creeping along without failing must end too).
 const STEPS_PER_LAP_LIMIT: u64 = 1000;
 
 /// Mixed into the seed for an evaluation's random streams (the sun; the sensor's with [`crate::collect::SENSOR_SEED`]).
 const EVAL_SEED: u64 = 0xe7a1;
+
+/// Mixed into the run's seed for the early stop's episodes from random spawns ([`judged_episodes`]): their spawns
+/// (stream: the version), their sun and sensor (with [`EVAL_SEED`] as the evaluation's), and their disturbance
+/// (streams: the version in the upper 32 bits, the episode in the lower). The high bits keep every key apart from
+/// `cabc robust`'s (its `--seed` mixed with constants below 2^24), the fixed-spawn evaluation's and collection's, for
+/// any seed below 2^48: the early stop never judges a version on the draws a robustness study tests it on.
+const JUDGED_SPAWN_SEED: u64 = 0xe55a << 48;
+const JUDGED_SEED: u64 = 0xe5e5 << 48;
+const JUDGED_NOISE_SEED: u64 = 0xe54e << 48;
 
 /// Where an evaluation episode starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,18 +96,93 @@ impl Episode {
     }
 }
 
-/// Drives one evaluation episode with `act` and reports it.
+/// The evaluator's evaluation of policy `version` with `act` (the eval actor's and the in-process one's): the fixed
+/// spawn's episode, reported; when it completes `collection.eval_laps` laps, the early stop's episodes from random
+/// spawns ([`judged_episodes`]; none by default) are driven too, and the report counts them and those that did not
+/// complete their laps. Its laps, lap times, end, steps and line stay the fixed spawn's.
 pub fn evaluate(
     actor: &str,
     version: u64,
     config: &RunConfig,
-    act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
+    mut act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
 ) -> anyhow::Result<EvalReport> {
-    evaluate_watched(actor, version, config, act, |_| {})
+    let mut report = evaluate_watched(actor, version, config, &mut act, |_| {})?;
+    if report.laps < config.collection.eval_laps {
+        return Ok(report);
+    }
+    let episodes = judged_episodes(config, version);
+    if episodes.is_empty() {
+        return Ok(report);
+    }
+    let started = Instant::now();
+    for episode in episodes {
+        let driven = drive(actor, version, config, episode, &mut act, |_| {})?;
+        report.spawn_episodes += 1;
+        if driven.end_reason != EndReason::MaxLaps {
+            report.spawn_crashes += 1;
+        }
+    }
+    tracing::info!(
+        version,
+        episodes = report.spawn_episodes,
+        crashes = report.spawn_crashes,
+        secs = started.elapsed().as_secs_f64(),
+        "the early stop's episodes from random spawns"
+    );
+    Ok(report)
 }
 
-/// [`evaluate`], showing `watch` the environment before each step: the car's full state and the sun, which a video
-/// of the evaluation draws (`cabc video`).
+/// The early stop's episodes from random spawns for policy `version` (`collection.early_stop_spawns` of them; none
+/// by default): spawns drawn as `cabc robust` draws them ([`draw_spawns_from`] within [`SpawnRanges::default`]), each
+/// wanting an out-lap and `collection.eval_laps` laps under Gaussian noise of `early_stop_action_noise_std` on the
+/// action and `early_stop_state_noise_std` on the observed state ([`Disturbance`]). Every stream comes from the
+/// run's seed and the version ([`JUDGED_SEED`]), so a version's episodes are the same whichever evaluator drives
+/// them and whenever, and no two versions share theirs.
+pub fn judged_episodes(config: &RunConfig, version: u64) -> Vec<Episode> {
+    let rules = &config.collection;
+    if rules.early_stop_spawns == 0 {
+        return Vec::new();
+    }
+    let track = Track::from_kind(config.sim.track);
+    let seed = config.run.seed;
+    let mut rng = Env::rng(seed ^ JUDGED_SPAWN_SEED, version);
+    let spawns = draw_spawns_from(
+        &track,
+        rules.early_stop_spawns as usize,
+        &mut rng,
+        &SpawnRanges::default(),
+    );
+    let (action_std, state_std) = (
+        rules.early_stop_action_noise_std,
+        rules.early_stop_state_noise_std,
+    );
+    let noisy = action_std.iter().chain(&state_std).any(|&s| s > 0.0);
+    spawns
+        .iter()
+        .enumerate()
+        .map(|(i, spawn)| {
+            let stream = (version << 32) | i as u64;
+            Episode {
+                // The out-lap, then the laps wanted.
+                laps: rules.eval_laps + 1,
+                start: Start::At {
+                    pose: spawn.pose(),
+                    v_long: spawn.v_long,
+                },
+                seed: seed ^ JUDGED_SEED,
+                stream,
+                disturbance: noisy.then(|| Disturbance {
+                    action_std,
+                    state_std,
+                    rng: Env::rng(seed ^ JUDGED_NOISE_SEED, stream),
+                }),
+            }
+        })
+        .collect()
+}
+
+/// The fixed spawn's episode of [`evaluate`] alone, showing `watch` the environment before each step: the car's full
+/// state and the sun, which a video of the evaluation draws (`cabc video`); no episode from random spawns.
 pub fn evaluate_watched(
     actor: &str,
     version: u64,
@@ -285,6 +373,66 @@ mod tests {
             (first[4] - 0.2).abs() < 1e-9 && (first[5] - 0.05).abs() < 1e-9,
             "{first:?}"
         );
+    }
+
+    /// Issue 59 item 3: under `collection.early_stop_spawns` the evaluation of a version that completes its laps
+    /// drives that many episodes more from random spawns, reproducibly, and counts those that did not complete
+    /// theirs; the report's laps and lap times stay the fixed spawn's, and without the key nothing changes.
+    #[test]
+    fn the_pid_is_judged_on_random_spawns_under_noise() {
+        let mut config = RunConfig::load("smoke").unwrap();
+        config.collection.eval_laps = 2;
+        let mut pid = PidLaneFollower::new(1.0);
+        let plain = evaluate("eval", 3, &config, pid_act(&mut pid)).unwrap();
+        assert_eq!(
+            (plain.laps, plain.spawn_episodes, plain.spawn_crashes),
+            (2, 0, 0)
+        );
+        assert!(judged_episodes(&config, 3).is_empty());
+        // Without noise the PID laps from every spawn within half the half width (as in `cabc robust`'s test).
+        config.collection.early_stop_spawns = 4;
+        let quiet = evaluate("eval", 3, &config, pid_act(&mut pid)).unwrap();
+        assert_eq!((quiet.spawn_episodes, quiet.spawn_crashes), (4, 0));
+        assert_eq!(
+            EvalReport {
+                spawn_episodes: 0,
+                ..quiet.clone()
+            },
+            plain,
+            "the fixed spawn's figures"
+        );
+        // Each episode wants the out-lap and the laps, from its own spawn; a version's spawns are its own.
+        let episodes = judged_episodes(&config, 3);
+        assert_eq!(episodes.len(), 4);
+        assert!(episodes
+            .iter()
+            .all(|e| e.laps == 3 && e.disturbance.is_none()));
+        let starts = |v| {
+            judged_episodes(&config, v)
+                .iter()
+                .map(|e| e.start)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(starts(3), starts(3));
+        assert_ne!(starts(3), starts(4));
+        assert!(starts(3).windows(2).all(|w| w[0] != w[1]));
+        // Under strong noise on the action some crash; the same version gives the same report.
+        config.collection.early_stop_action_noise_std = [0.5, 0.5];
+        config.collection.early_stop_state_noise_std = [0.01; 6];
+        let noisy = evaluate("eval", 3, &config, pid_act(&mut pid)).unwrap();
+        assert_eq!(noisy.spawn_episodes, 4);
+        assert!(noisy.spawn_crashes >= 1, "{noisy:?}");
+        assert_eq!(
+            noisy,
+            evaluate("eval", 3, &config, pid_act(&mut pid)).unwrap()
+        );
+        assert_eq!(
+            (noisy.laps, &noisy.lap_times),
+            (plain.laps, &plain.lap_times)
+        );
+        // A version that fails at the fixed spawn drives no episode more.
+        let stalled = evaluate("eval", 3, &config, |_| Ok(vec![[-1.0, 0.0]])).unwrap();
+        assert_eq!((stalled.laps, stalled.spawn_episodes), (0, 0));
     }
 
     #[test]
