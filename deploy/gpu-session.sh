@@ -5,6 +5,7 @@
 #
 #   bash deploy/gpu-session.sh --part checks --seconds 240    # first call: what can fail, quickly
 #   bash deploy/gpu-session.sh --part vc --seconds 500        # then at once, on the warm machine: V-C
+#   bash deploy/gpu-session.sh --part quick --seconds 575     # or in one call: the CUDA test, then V-C
 #
 # In order, each step bounded so that the next always runs and the results always come back:
 #   1. (checks) nvidia-smi, the camera's frames/s on one core and on all, the CUDA test (learning/tests/cuda.rs)
@@ -17,7 +18,7 @@
 #      environments) for the seconds left, ended by
 #      SIGINT (the run's summary says "interrupted"; its checkpoint stays on the machine, and a later call on the
 #      same warm machine resumes it)    -> $OUT/{metrics.csv,evals.csv,summary.json,config.toml,laps.png,run.log}
-# --part is checks, vc or all (the default); --seconds is the whole script's budget (default 560); --side changes
+# --part is checks, vc, quick (the CUDA test of step 1, then step 3) or all (the default); --seconds is the whole script's budget (default 560); --side changes
 # the image side of steps 2 and 3 (224; a smaller one checks the script itself on a CPU), --bench-args replaces
 # bench-vision's timing arguments (the anchor's too). Anywhere else than the device tool, OUT names the folder for
 # the results (TORCH_LIB: see .gpu/run.sh; PYTHON the Python with torch and torchvision, default python3).
@@ -40,7 +41,7 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
-case "$part" in checks|vc|all) ;; *) echo "--part: checks, vc or all" >&2; exit 2 ;; esac
+case "$part" in checks|vc|quick|all) ;; *) echo "--part: checks, vc, quick or all" >&2; exit 2 ;; esac
 [ -n "${OUT:-}" ] || { echo "OUT is unset: name the folder for the results" >&2; exit 2; }
 [ -x .gpu/run.sh ] || { echo "no .gpu/run.sh: run deploy/gpu-pack.sh here and carry .gpu" >&2; exit 2; }
 mkdir -p "$OUT"
@@ -54,7 +55,12 @@ declare -A anchor=([fp32]=4256 [bf16]=5635)
 
 step "nvidia-smi"
 nvidia-smi >> "$log" 2>&1 || echo "nvidia-smi: rc $?" >> "$log"
-[ "$part" = vc ] || {
+[ "$part" = quick ] && {
+step "the CUDA test"
+timeout 90 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
+echo "cuda-test: rc $?" >> "$log"
+}
+[ "$part" = vc ] || [ "$part" = quick ] || {
 step "the camera on one core and on all (cabc-sim bench)"
 timeout 30 .gpu/run.sh cabc-sim bench --seconds 1 >> "$log" 2>&1
 echo "cabc-sim bench: rc $?" >> "$log"

@@ -19,7 +19,7 @@ use cabc_proto::config::{Episodes, ObservationKind, RunConfig, Spawn, StoredActi
 use cabc_proto::messages::{
     EndReason, ExpertAnswer, ExpertQuery, Image, Segment, ShieldNets, Step, StreamId,
 };
-use cabc_proto::ports::{ExpertClient, Next, Pending, PortError};
+use cabc_proto::ports::{CollectionTimes, ExpertClient, Next, Pending, PortError};
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
@@ -29,6 +29,7 @@ use rand_distr::StandardNormal;
 use std::collections::VecDeque;
 use std::ops::Range;
 use std::sync::Arc;
+use std::time::Instant;
 
 /// What the policy sees for a batch of environments.
 pub struct Observations<'a> {
@@ -100,6 +101,8 @@ pub struct Collector {
     shield_config: ShieldConfig,
     shield: Option<Shield>,
     shielded: u64,
+    /// Where this epoch's wall clock went ([`Collector::times`]).
+    times: CollectionTimes,
 }
 
 impl Collector {
@@ -152,6 +155,7 @@ impl Collector {
             shield_config: ShieldConfig::of(config),
             shield: None,
             shielded: 0,
+            times: CollectionTimes::default(),
         }
     }
 
@@ -168,6 +172,12 @@ impl Collector {
     /// Steps of this epoch the shield gave the expert.
     pub fn shielded(&self) -> u64 {
         self.shielded
+    }
+
+    /// Where this epoch's collection spent its wall clock: observing, the policy, the expert, the steps and the
+    /// segments' store (the evaluation is not the collector's: 0).
+    pub fn times(&self) -> CollectionTimes {
+        self.times
     }
 
     /// Sets the incarnation every segment carries (the `actor` binary: the time it started; in-process actors: the
@@ -216,6 +226,7 @@ impl Collector {
     pub fn begin_epoch(&mut self) {
         self.taken = 0;
         self.shielded = 0;
+        self.times = CollectionTimes::default();
         if !self.started || self.episodes == Episodes::Reset {
             for i in 0..self.envs.len() {
                 self.reset(i);
@@ -458,22 +469,33 @@ impl Collector {
         }
         let halves = self.halves();
         let mut reserved = 0u64;
+        let mut clock = Instant::now();
         for (h, half) in halves.iter().enumerate() {
             if let Some((envs, pending)) = self.send(half, budget, &mut reserved, expert)? {
                 queue.push_back((h, envs, pending));
             }
         }
+        lap(&mut clock, &mut self.times.expert_s);
         while let Some((h, envs, pending)) = queue.pop_front() {
-            let actions = policy(&self.observations(envs.clone())).map_err(Halt::Failed)?;
+            let observations = self.observations(envs.clone());
+            let observed = Instant::now();
+            let actions = policy(&observations).map_err(Halt::Failed)?;
+            self.times.observe_s += (observed - clock).as_secs_f64();
+            clock = observed;
+            lap(&mut clock, &mut self.times.policy_s);
             let answers = expert.receive(pending)?;
+            lap(&mut clock, &mut self.times.expert_s);
             reserved -= envs.len() as u64;
             self.step(envs.start, &answers, &actions, beta, version, &mut out);
+            lap(&mut clock, &mut self.times.step_s);
             if let Some((envs, pending)) = self.send(&halves[h], budget, &mut reserved, expert)? {
                 queue.push_back((h, envs, pending));
             }
+            lap(&mut clock, &mut self.times.expert_s);
             if let Some(next) = between(&mut out).map_err(Halt::Failed)? {
                 return Ok(Some(next));
             }
+            lap(&mut clock, &mut self.times.store_s);
         }
         Ok(None)
     }
@@ -507,6 +529,13 @@ impl Collector {
             }
         }
     }
+}
+
+/// Adds the seconds since `clock` to `phase` and restarts `clock`.
+fn lap(clock: &mut Instant, phase: &mut f64) {
+    let now = Instant::now();
+    *phase += (now - *clock).as_secs_f64();
+    *clock = now;
 }
 
 /// Why [`Collector::collect`]'s loop ended early: a stop while talking to the expert, or the caller's error.

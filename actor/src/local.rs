@@ -13,8 +13,11 @@ use cabc_proto::messages::{
     EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage,
 };
 use cabc_proto::ports::{
-    Collected, ExpertClient, Next, Pending, PolicySource, PortError, Rollouts, SegmentSink,
+    Collected, CollectionTimes, ExpertClient, Next, Pending, PolicySource, PortError, Rollouts,
+    SegmentSink,
 };
+use std::thread::JoinHandle;
+use std::time::Instant;
 use tch::Device;
 
 /// `actors.count` collectors and an evaluator, in this process.
@@ -132,8 +135,15 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
                 collector.set_incarnation(update.version);
             }
         }
+        // The collectors run libtorch as an actor's process does, one CPU thread (the learner's fits set the same):
+        // beside the evaluation and the expert's threads, a team of OpenMP threads would spin against them.
+        cabc_models::device::one_cpu_thread();
         let policy = Policy::from_bytes(&update.weights, self.device)
             .map_err(|e| PortError::Transport(format!("policy version {}: {e}", update.version)))?;
+        let evaluation = self
+            .evaluate
+            .then(|| evaluate_beside(&self.config, update, self.device))
+            .transpose()?;
         let mut sink = Store {
             store,
             steps_published: 0,
@@ -141,6 +151,7 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
             steps_staged: 0,
             steps_shielded: 0,
         };
+        let mut times = CollectionTimes::default();
         for collector in &mut self.collectors {
             collect_epoch(
                 collector,
@@ -151,12 +162,14 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
                 &mut sink,
             )
             .map_err(|e| PortError::Transport(e.to_string()))?;
+            times.add(&collector.times());
         }
-        if self.evaluate {
-            let report = evaluate("eval-0", update.version, &self.config, |input| {
-                Ok(act(&policy, input)?)
-            })
-            .map_err(|e| PortError::Transport(format!("evaluating: {e}")))?;
+        if let Some(evaluation) = evaluation {
+            let (report, seconds) = evaluation
+                .join()
+                .map_err(|_| PortError::Transport("the evaluation's thread panicked".into()))?
+                .map_err(|e| PortError::Transport(format!("evaluating: {e:#}")))?;
+            times.evaluate_s = seconds;
             self.reports.push(report);
         }
         Ok(Some(Collected {
@@ -171,6 +184,7 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
                 .iter()
                 .map(|c| c.actor().to_string())
                 .collect(),
+            times: Some(times),
         }))
     }
 
@@ -185,6 +199,29 @@ impl<E: ExpertClient> Rollouts for LocalActors<E> {
     fn stop(&mut self, _reason: &str) -> Result<(), PortError> {
         Ok(())
     }
+}
+
+/// The evaluation of `update` (as `eval-0`) on a thread of its own, beside the collection: its report and its wall
+/// clock. The thread loads its own copy of the policy on `device` and runs libtorch as the eval actor's process does
+/// (one CPU thread, subnormals flushed): two teams of OpenMP threads on a small machine spin against each other
+/// (a 2-core machine's first epoch at 32x32 took 10 times as long).
+fn evaluate_beside(
+    config: &RunConfig,
+    update: &PolicyUpdate,
+    device: Device,
+) -> Result<JoinHandle<anyhow::Result<(EvalReport, f64)>>, PortError> {
+    let (config, version, weights) = (config.clone(), update.version, update.weights.clone());
+    std::thread::Builder::new()
+        .name("eval-0".into())
+        .spawn(move || {
+            let started = Instant::now();
+            cabc_models::device::one_cpu_thread();
+            let policy = Policy::from_bytes(&weights, device)
+                .map_err(|e| anyhow::anyhow!("policy version {version}: {e}"))?;
+            let report = evaluate("eval-0", version, &config, |input| Ok(act(&policy, input)?))?;
+            Ok((report, started.elapsed().as_secs_f64()))
+        })
+        .map_err(|e| PortError::Transport(format!("starting the evaluation's thread: {e}")))
 }
 
 /// An in-process expert client that answers a relabelling only when its answers are asked for

@@ -378,6 +378,7 @@ impl Rollouts for ZenohActors {
             missing,
             timed_out,
             live: self.live.iter().cloned().collect(),
+            times: None,
         }))
     }
 

@@ -13,7 +13,7 @@
 use crate::mpcc::{Mpcc, MpccError, MpccStream};
 use cabc_proto::config::{ExpertKind, RunConfig};
 use cabc_proto::messages::{ExpertAnswer, ExpertQuery, ExpertReply, ExpertRequest, StreamId};
-use cabc_proto::ports::{ExpertClient, PortError};
+use cabc_proto::ports::{ExpertClient, Pending, PortError};
 use cabc_sim::pid::PidLaneFollower;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -260,10 +260,9 @@ fn micros(since: Instant) -> u32 {
     since.elapsed().as_micros().min(u32::MAX as u128) as u32
 }
 
-/// The in-process expert client: the relabelling of Algorithm 1 answered directly, without a bus (tests, one-process
-/// runs). The `expert-server` binary puts the same service behind a zenoh queryable.
-impl ExpertClient for Relabeller {
-    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+impl Relabeller {
+    /// The answers of one batch, as a client sees them.
+    fn relabel_batch(&self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
         let request = ExpertRequest {
             request_id: 0,
             queries,
@@ -271,6 +270,77 @@ impl ExpertClient for Relabeller {
         self.answer(&request)
             .map(|(reply, _)| reply.answers)
             .map_err(|e| PortError::Transport(e.to_string()))
+    }
+}
+
+/// The in-process expert client: the relabelling of Algorithm 1 answered directly, without a bus (tests, one-process
+/// runs), each batch when it is sent. The `expert-server` binary puts the same service behind a zenoh queryable.
+impl ExpertClient for Relabeller {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        self.relabel_batch(queries)
+    }
+}
+
+/// The in-process expert answering in the background, as an expert server over the bus does: [`ExpertClient::send`]
+/// starts the batch on a thread of its own and returns at once, so that an actor observes, runs the policy and steps
+/// one half of its environments while the other half's relabelling is solved (the collector's pipeline). The answers
+/// are the [`Relabeller`]'s asked in turn: a stream's warm start is taken when its batch starts and put back when it
+/// ends, the collector sends a half's next batch only after that half's answers came, and a cancelled batch is
+/// waited for (its warm starts stored, as when it is answered at once).
+pub struct Background {
+    relabeller: Arc<Relabeller>,
+    next: u64,
+    in_flight: HashMap<u64, std::thread::JoinHandle<Result<Vec<ExpertAnswer>, PortError>>>,
+}
+
+impl Background {
+    pub fn new(relabeller: Relabeller) -> Self {
+        Background {
+            relabeller: Arc::new(relabeller),
+            next: 0,
+            in_flight: HashMap::new(),
+        }
+    }
+
+    /// The answers of batch `id`, waiting for its thread.
+    fn wait(&mut self, id: u64) -> Result<Vec<ExpertAnswer>, PortError> {
+        let thread = self
+            .in_flight
+            .remove(&id)
+            .ok_or_else(|| PortError::Transport(format!("request {id} is not in flight")))?;
+        thread.join().map_err(|_| {
+            PortError::Transport(format!("the expert's thread of request {id} panicked"))
+        })?
+    }
+}
+
+impl ExpertClient for Background {
+    fn relabel(&mut self, queries: Vec<ExpertQuery>) -> Result<Vec<ExpertAnswer>, PortError> {
+        self.relabeller.relabel_batch(queries)
+    }
+
+    fn send(&mut self, queries: Vec<ExpertQuery>) -> Result<Pending, PortError> {
+        let relabeller = Arc::clone(&self.relabeller);
+        let thread = std::thread::Builder::new()
+            .name("expert".into())
+            .spawn(move || relabeller.relabel_batch(queries))
+            .map_err(|e| PortError::Transport(format!("starting the expert's thread: {e}")))?;
+        self.next += 1;
+        self.in_flight.insert(self.next, thread);
+        Ok(Pending::InFlight(self.next))
+    }
+
+    fn cancel(&mut self, pending: Pending) {
+        if let Pending::InFlight(id) = pending {
+            let _ = self.wait(id);
+        }
+    }
+
+    fn receive(&mut self, pending: Pending) -> Result<Vec<ExpertAnswer>, PortError> {
+        match pending {
+            Pending::Answered(answers) => Ok(answers),
+            Pending::InFlight(id) => self.wait(id),
+        }
     }
 }
 
@@ -381,6 +451,54 @@ mod tests {
             })
             .unwrap();
         assert_eq!(stats.cold_starts, 0);
+    }
+
+    /// Issue 56: the in-process expert answering in the background gives the answers of the relabeller asked in
+    /// turn, with two halves' batches in flight at once, and a cancelled batch leaves the warm starts where
+    /// answering it does.
+    #[test]
+    fn answers_in_the_background_are_the_relabellers_in_turn() {
+        let mpcc = Arc::new(Mpcc::reference());
+        let (v, f) = spawn();
+        // Two halves of one environment each, at different speeds, over five steps a little apart each.
+        let half = |h: u64, k: usize| {
+            let scale = 1.0 - 0.1 * h as f64 - 0.01 * k as f64;
+            let (mut v, mut f) = (v, f);
+            v[0] *= scale;
+            f[0] *= scale;
+            vec![query(h, k == 0, v, f)]
+        };
+        let mut turn = Relabeller::new(Expert::Mpcc(mpcc.clone()), 8, 16);
+        let mut background = Background::new(Relabeller::new(Expert::Mpcc(mpcc), 8, 16));
+        let actions = |a: Vec<ExpertAnswer>| a.iter().map(|a| a.action).collect::<Vec<_>>();
+        let mut pending = [0, 1].map(|h| background.send(half(h, 0)).unwrap());
+        assert_eq!(background.in_flight.len(), 2);
+        for k in 0..5 {
+            for h in 0..2 {
+                let expected = actions(turn.relabel(half(h as u64, k)).unwrap());
+                let this = std::mem::replace(&mut pending[h], Pending::Answered(Vec::new()));
+                let answers = background.receive(this).unwrap();
+                assert_eq!(actions(answers), expected, "step {k}, half {h}");
+                // As the collector does: a half's next batch goes once its answers came, while the other's travels.
+                pending[h] = background.send(half(h as u64, k + 1)).unwrap();
+                assert_eq!(background.in_flight.len(), 2);
+            }
+        }
+        // Half 0's sixth batch is cancelled, half 1's answered: then half 0's seventh is the one after the sixth.
+        let [cancelled, answered] = pending;
+        background.cancel(cancelled);
+        turn.relabel(half(0, 5)).unwrap();
+        assert_eq!(
+            actions(background.receive(answered).unwrap()),
+            actions(turn.relabel(half(1, 5)).unwrap())
+        );
+        assert!(background.in_flight.is_empty());
+        let next = background.send(half(0, 6)).unwrap();
+        assert_eq!(
+            actions(background.receive(next).unwrap()),
+            actions(turn.relabel(half(0, 6)).unwrap())
+        );
+        assert!(background.receive(Pending::InFlight(99)).is_err());
     }
 
     #[test]

@@ -11,7 +11,7 @@ use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::rollouts::ZenohActors;
 use cabc_bus::{Bus, Role};
-use cabc_expert::relabel::{Expert, Relabeller};
+use cabc_expert::relabel::{Background, Expert, Relabeller};
 use cabc_learning::algorithm::{self, Ending};
 use cabc_learning::learner::Learner;
 use cabc_outputs::RunDir;
@@ -48,14 +48,18 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
 }
 
 /// `learner run --local`: the same Algorithm 1 in one process, with `actors.count` in-process collectors, the
-/// expert answering directly (`Relabeller`, its batches solved on every core) and the evaluator after each epoch;
-/// no bus. The policy of collection and evaluation runs on the learner's device. For a seed it gives the numbers of
+/// expert answering in the background (`Background`: a half's batch solved on every core while the other half
+/// steps) and the evaluator beside the collection; no bus. The policy of collection and evaluation runs on the learner's device. For a seed it gives the numbers of
 /// the distributed run (the same streams, segment order and code; `tests/tests/local.rs`), except that every
 /// version's evaluation arrives before the next epoch, so an early stop can come a few epochs sooner.
 pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let interrupt = Interrupt::on_ctrl_c();
     let expert = Expert::from_config(&config).context("building the MPCC")?;
-    let expert = Relabeller::new(expert, config.expert.max_streams, config.expert.max_batch);
+    let expert = Background::new(Relabeller::new(
+        expert,
+        config.expert.max_streams,
+        config.expert.max_batch,
+    ));
     let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     tracing::info!(
         run = learner.config().run.name,

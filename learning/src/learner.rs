@@ -343,6 +343,14 @@ impl Learner {
             record.count("steps_shielded", collected.steps_shielded);
         }
         record.flag("closed_by_timeout", collected.timed_out);
+        if let Some(t) = &collected.times {
+            record.real("collect_observe_s", t.observe_s, 3);
+            record.real("collect_policy_s", t.policy_s, 3);
+            record.real("collect_expert_s", t.expert_s, 3);
+            record.real("collect_step_s", t.step_s, 3);
+            record.real("collect_store_s", t.store_s, 3);
+            record.real("evaluate_s", t.evaluate_s, 3);
+        }
         self.sink.collected(record.epoch(), collected);
     }
 

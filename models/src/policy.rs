@@ -6,6 +6,7 @@
 //! Observations become tensors in one place, [`PolicyInput::states`] and [`PolicyInput::camera`], for the actor's
 //! [`Observation`]s and the learner's D+ batches alike.
 
+use crate::device::upload;
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
 use crate::weights::Network;
@@ -325,8 +326,8 @@ impl Policy {
         match (&self.net, input) {
             (Net::State(mlp), PolicyInput::State(x)) => mlp.forward(&x.to_device(device)),
             (Net::Camera { trunk, head, sees }, PolicyInput::Camera { images, velocity }) => {
-                let features = trunk.forward_t(&images_to_float(&images.to_device(device)), train);
-                let velocity = velocity.to_device(device) * sees.to_device(device);
+                let features = trunk.forward_t(&images_to_float(&upload(images, device)), train);
+                let velocity = upload(velocity, device) * sees.to_device(device);
                 head.forward(&Tensor::cat(&[features, velocity], 1))
             }
             _ => panic!(

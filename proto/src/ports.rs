@@ -100,6 +100,38 @@ pub struct Collected {
     pub missing: Vec<String>,
     /// The actors alive when the epoch closed.
     pub live: Vec<String>,
+    /// Where the collection's wall clock went, when the actors ran in the learner's process (None over the bus).
+    pub times: Option<CollectionTimes>,
+}
+
+/// Where an in-process collection's wall clock went, in seconds, summed over the actors' steps (what
+/// `learner run --local` puts in `metrics.csv` as `collect_<phase>_s`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CollectionTimes {
+    /// Observing: the camera's frames and the sensor's noise.
+    pub observe_s: f64,
+    /// The policy's inference.
+    pub policy_s: f64,
+    /// Waiting for the expert's answers: with an expert answering as it is asked, solving them.
+    pub expert_s: f64,
+    /// The mixture, the plant's step and the segmenter.
+    pub step_s: f64,
+    /// Handing the cut segments to the learner's store.
+    pub store_s: f64,
+    /// The version's evaluation, which runs beside the collection: its own wall clock.
+    pub evaluate_s: f64,
+}
+
+impl CollectionTimes {
+    /// Adds `other`'s phases to these.
+    pub fn add(&mut self, other: &CollectionTimes) {
+        self.observe_s += other.observe_s;
+        self.policy_s += other.policy_s;
+        self.expert_s += other.expert_s;
+        self.step_s += other.step_s;
+        self.store_s += other.store_s;
+        self.evaluate_s += other.evaluate_s;
+    }
 }
 
 /// The actors, as the learner sees them.

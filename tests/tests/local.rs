@@ -79,6 +79,46 @@ const METRICS: &[&str] = &[
     "expert_failures",
 ];
 
+/// Issue 56: a local run's `metrics.csv` says where each epoch's collection went. The phases are parts of
+/// `collect_s` (the collectors' steps), and the evaluation, which runs beside them, is over before the epoch closes.
+fn collection_times_lie_within_collect_s(metrics: &std::path::Path) {
+    let phases = [
+        "collect_observe_s",
+        "collect_policy_s",
+        "collect_expert_s",
+        "collect_step_s",
+        "collect_store_s",
+    ];
+    let names: Vec<&str> = ["collect_s", "evaluate_s"]
+        .into_iter()
+        .chain(phases)
+        .collect();
+    let rows = numbers(metrics, &names);
+    for row in &rows {
+        let v: Vec<f64> = row.iter().map(|c| c.parse().unwrap()).collect();
+        let (collect, evaluate, parts) = (v[0], v[1], &v[2..]);
+        assert!(parts.iter().all(|&s| s >= 0.0), "{names:?}: {v:?}");
+        // Each figure is rounded to the millisecond.
+        assert!(
+            parts.iter().sum::<f64>() <= collect + 0.003,
+            "{names:?}: {v:?}"
+        );
+        assert!(
+            (0.0..=collect + 0.001).contains(&evaluate),
+            "{names:?}: {v:?}"
+        );
+    }
+    let total = |i: usize| {
+        rows.iter()
+            .map(|r| r[i].parse::<f64>().unwrap())
+            .sum::<f64>()
+    };
+    assert!(
+        total(3) > 0.0 && total(4) > 0.0,
+        "the policy and the expert took time: {rows:?}"
+    );
+}
+
 #[test]
 fn a_local_run_gives_the_distributed_runs_numbers() {
     let tmp = cabc_tests::test_dir();
@@ -103,6 +143,12 @@ fn a_local_run_gives_the_distributed_runs_numbers() {
     let a = numbers(&dist.dir.join("evals.csv"), &evals);
     let b = numbers(&local.dir.join("evals.csv"), &evals);
     assert_eq!(a, b, "evals.csv");
+    collection_times_lie_within_collect_s(&local.dir.join("metrics.csv"));
+    let dist_columns = &csv_rows(&dist.dir.join("metrics.csv"))[0];
+    assert!(
+        !dist_columns.iter().any(|c| c == "collect_policy_s"),
+        "over the bus the learner cannot time the actors' phases: {dist_columns:?}"
+    );
     assert!(
         std::fs::read(dist.dir.join("final-policy.safetensors")).unwrap()
             == std::fs::read(local.dir.join("final-policy.safetensors")).unwrap(),

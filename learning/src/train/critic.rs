@@ -2,7 +2,7 @@
 //! D- as auto-labelling left it (eq. (19), [`Replay::minus`]).
 
 use super::data::{self, Uploaded};
-use super::fit::{fit, Budget, Mean, Opt};
+use super::fit::{fit, Budget, Mean, Opt, AUX_PRECISION};
 use super::Trainer;
 use crate::record::Record;
 use crate::replay::{Replay, Store};
@@ -149,6 +149,7 @@ fn fit_critic(
     let (pass, samples) = fit(
         opt,
         &config.training,
+        AUX_PRECISION,
         x.device(),
         rng,
         n,
@@ -166,10 +167,12 @@ fn fit_critic(
                 None,
                 Reduction::Mean,
             );
-            pass.loss.add(&loss);
-            let right = logits.gt(0.0).eq_tensor(&target.gt(0.5));
-            pass.accuracy
-                .add(&right.to_kind(Kind::Float).mean(Kind::Float));
+            if b.reported {
+                pass.loss.add(&loss);
+                let right = logits.gt(0.0).eq_tensor(&target.gt(0.5));
+                pass.accuracy
+                    .add(&right.to_kind(Kind::Float).mean(Kind::Float));
+            }
             Ok(loss)
         },
     )

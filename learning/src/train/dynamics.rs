@@ -1,10 +1,10 @@
 //! Fitting the dynamics model f_hat, eq. (15): min || x' - f_hat(x, u) ||^2 over every stored (x, u, x').
 
 use super::data::Uploaded;
-use super::fit::{fit, Budget, Mean};
+use super::fit::{fit, Budget, Mean, AUX_PRECISION};
 use super::Trainer;
 use crate::replay::Replay;
-use tch::Reduction;
+use tch::{Reduction, Tensor};
 
 /// The result of a dynamics fit.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -29,9 +29,13 @@ impl Trainer {
             return None;
         }
         let dynamics = &self.dynamics;
+        // (x, u, x') side by side: one gather a batch.
+        let rows = Tensor::cat(&[&x, &u, &x_next], 1);
+        let (xs, us) = (x.size()[1], u.size()[1]);
         let (mean, samples) = fit(
             &mut self.dynamics_opt,
             &self.config.training,
+            AUX_PRECISION,
             self.device,
             &mut self.rng,
             n,
@@ -41,9 +45,12 @@ impl Trainer {
             },
             &[],
             |b, mean: &mut Mean| {
-                let pred = dynamics.forward(&x.index_select(0, &b.idx), &u.index_select(0, &b.idx));
-                let loss = pred.mse_loss(&x_next.index_select(0, &b.idx), Reduction::Mean);
-                mean.add(&loss);
+                let batch = rows.index_select(0, &b.idx);
+                let pred = dynamics.forward(&batch.narrow(1, 0, xs), &batch.narrow(1, xs, us));
+                let loss = pred.mse_loss(&batch.narrow(1, xs + us, xs), Reduction::Mean);
+                if b.reported {
+                    mean.add(&loss);
+                }
                 Ok(loss)
             },
         )

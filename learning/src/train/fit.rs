@@ -1,12 +1,12 @@
 //! The one fit loop the three networks share: one fit call is `passes` passes of shuffled mini-batches (the last
 //! partial batch dropped), each batch a zero_grad / backward / gradient-norm clip / Adam step, at the learning rate
-//! lr0 * gamma^fits (ExponentialLR stepped once per fit call); the figures reported are those of the last pass. The
-//! loss (the forward pass) runs at `training.precision` (bf16 autocast on CUDA), the backward pass and the step in
-//! fp32.
+//! lr0 * gamma^fits (ExponentialLR stepped once per fit call); the figures reported are those of the last pass, and
+//! only its batches compute them. The loss (the forward pass) runs at the fit's precision (`training.precision` for
+//! the policy: bf16 autocast on CUDA; fp32 for f_hat and p_hat), the backward pass and the step in fp32.
 
 use cabc_models::precision::with_precision;
 use cabc_models::ModelError;
-use cabc_proto::config::TrainingSection;
+use cabc_proto::config::{Precision, TrainingSection};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use std::cell::RefCell;
@@ -65,6 +65,9 @@ pub(crate) fn limit_cpu_threads(device: Device) {
 pub(crate) struct Batch<'a> {
     pub rows: &'a [i64],
     pub idx: Tensor,
+    /// Whether the batch is of the fit's last pass, whose figures are reported: the loss adds to its pass's record
+    /// only then (the records of earlier passes are dropped, and each addition is a few more kernels on a GPU).
+    pub reported: bool,
 }
 
 /// How much one fit call trains: `passes` over the examples, stopped after `max_batches` mini-batches (0: no cap).
@@ -73,6 +76,12 @@ pub(crate) struct Budget {
     pub passes: usize,
     pub max_batches: usize,
 }
+
+/// The precision of the forward passes of f_hat's and p_hat's fits: fp32 whatever `training.precision` says. They
+/// are small MLPs on 64-row batches, whose time on a GPU is the calls' (measured 2 ms a mini-batch at 224x224 in bf16,
+/// issue 56), which autocast's casts of every layer's input, weight and bias (and their backward) add to; bf16 is
+/// for the policy's trunk.
+pub(crate) const AUX_PRECISION: Precision = Precision::Fp32;
 
 /// Where the fit calls' time went, by phase of a mini-batch (`cabc bench epoch`): summed over the fit calls made on
 /// this thread inside [`profiled`]. On the CPU each phase is timed as it runs; on CUDA the clip's host read is the one
@@ -145,6 +154,7 @@ impl Clock {
 pub(crate) fn fit<M: Default>(
     opt: &mut Opt,
     t: &TrainingSection,
+    precision: Precision,
     device: Device,
     rng: &mut ChaCha8Rng,
     n: usize,
@@ -160,7 +170,7 @@ pub(crate) fn fit<M: Default>(
         0 => usize::MAX,
         cap => cap,
     };
-    for _ in 0..budget.passes {
+    for pass in 0..budget.passes {
         if left == 0 {
             break;
         }
@@ -168,6 +178,7 @@ pub(crate) fn fit<M: Default>(
         let mut batches = shuffled_batches(n, t.batch_size, rng);
         batches.truncate(left);
         left -= batches.len();
+        let reported = pass + 1 == budget.passes || left == 0;
         // The pass's indices go to the device in one copy: a copy from the host waits for the device's queue to
         // drain (libtorch synchronises after a blocking upload), which once per batch would idle a GPU each step.
         let indices = Tensor::from_slice(&batches.concat())
@@ -178,8 +189,9 @@ pub(crate) fn fit<M: Default>(
             let batch = Batch {
                 idx: indices.get(i as i64),
                 rows,
+                reported,
             };
-            let l = with_precision(t.precision, device, || loss(&batch, &mut last))?;
+            let l = with_precision(precision, device, || loss(&batch, &mut last))?;
             clock.lap(|p| &mut p.forward_s);
             opt.adam.zero_grad();
             l.backward();
@@ -251,6 +263,12 @@ mod tests {
 
     /// Counts the batches one fit call makes over `n` examples under `budget`.
     fn batches(n: usize, budget: Budget) -> (usize, usize) {
+        let (count, _, samples) = batches_reported(n, budget);
+        (count, samples)
+    }
+
+    /// The batches one fit call makes over `n` examples under `budget`, those of them reported, and the samples.
+    fn batches_reported(n: usize, budget: Budget) -> (usize, usize, usize) {
         let vs = nn::VarStore::new(Device::Cpu);
         let w = vs.root().zeros("w", &[1]);
         let t = TrainingSection {
@@ -259,22 +277,38 @@ mod tests {
         };
         let mut opt = Opt::adam(&vs, &t);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut count = 0;
+        let (mut count, mut reported) = (0, 0);
         let (_, samples) = fit(
             &mut opt,
             &t,
+            t.precision,
             Device::Cpu,
             &mut rng,
             n,
             budget,
             &[],
-            |_, _: &mut Mean| {
+            |b, _: &mut Mean| {
                 count += 1;
+                reported += usize::from(b.reported);
                 Ok((&w * 2.0).sum(tch::Kind::Float))
             },
         )
         .unwrap();
-        (count, samples)
+        (count, reported, samples)
+    }
+
+    #[test]
+    fn only_the_last_pass_is_reported() {
+        let capped = |max_batches| Budget {
+            passes: 3,
+            max_batches,
+        };
+        // 9 batches a pass: the third pass is the last.
+        assert_eq!(batches_reported(95, capped(0)), (27, 9, 270));
+        // The cap ends the fit in its second pass, which is then the last.
+        assert_eq!(batches_reported(95, capped(13)), (13, 4, 130));
+        // A cap at a pass's end: the pass it ends is the last.
+        assert_eq!(batches_reported(95, capped(9)), (9, 9, 90));
     }
 
     #[test]

@@ -286,6 +286,7 @@ impl Trainer {
         let fitted = fit(
             &mut self.policy_opt,
             t,
+            t.precision,
             self.device,
             &mut self.rng,
             n_all,
@@ -297,7 +298,9 @@ impl Trainer {
                 let label = label_all.index_select(0, &b.idx);
                 // Eq. (14): L_CA = L_clone + L_safety, L_safety while active and on its rows.
                 let l_clone = l_clone(&u, &label);
-                pass.clone.add(&l_clone);
+                if b.reported {
+                    pass.clone.add(&l_clone);
+                }
                 let rows = BatchRows { x, u, label };
                 let Some(rows) = safety_active
                     .then(|| safety_rows(t.safety_states, n_plus, n_all, &b.idx, rows))
@@ -306,7 +309,9 @@ impl Trainer {
                     return Ok(l_clone);
                 };
                 let l_safety = safety.loss(&rows.x, &rows.u, &rows.label);
-                pass.safety.add(&l_safety);
+                if b.reported {
+                    pass.safety.add(&l_safety);
+                }
                 Ok(l_clone + l_safety)
             },
         );
