@@ -30,6 +30,10 @@ pub enum Ending {
 /// Runs Algorithm 1 from the learner's next epoch until early stop, `max_epochs` or an interrupt.
 pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, LearnerError> {
     let schedule: Schedule = *learner.schedule();
+    // A resumed run that had reached its early stop (interrupted in the epoch that reached it) ends there.
+    if let Some(version) = learner.early_stop() {
+        return Ok(Ending::EarlyStop(version));
+    }
     for j in learner.next_epoch()..learner.config().run.max_epochs {
         learner.begin_epoch(j);
         // pi_collect <- beta_j pi_beta + (1 - beta_j) pi_theta: publish (pi_j, beta_j); rollout pi_collect: D_new.

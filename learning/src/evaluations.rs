@@ -79,8 +79,9 @@ pub fn counts_toward_early_stop(report: &EvalReport, rules: &CollectionSection) 
     report.laps >= rules.eval_laps && judged
 }
 
-/// The evaluations of a run. `evals` and `successes` are saved with each checkpoint (as the learner state's fields
-/// of those names); the rest lives as long as the process.
+/// The evaluations of a run. `evals`, `successes` and `early_stop` are saved with each checkpoint (as the learner
+/// state's fields of those names; a checkpoint written before `early_stop` was saved has none); the rest lives as
+/// long as the process.
 #[derive(Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Evaluations {
@@ -98,8 +99,8 @@ pub struct Evaluations {
     refused: u64,
     #[serde(skip)]
     duplicates: u64,
-    /// The version that stopped the run early, once decided.
-    #[serde(skip)]
+    /// The version that stopped the run early, once decided: a run interrupted in the epoch that decided it ends there
+    /// when resumed.
     early_stop: Option<u64>,
     /// The last report taken in, with its line.
     #[serde(skip)]

@@ -31,7 +31,7 @@ pub struct LearnerState {
     /// ([`crate::record::rows`]).
     #[serde(deserialize_with = "crate::record::rows")]
     pub rows: Vec<Record>,
-    /// The evaluations (saved as the fields `evals` and `successes`).
+    /// The evaluations (saved as the fields `evals`, `successes` and `early_stop`).
     #[serde(flatten)]
     pub evaluations: Evaluations,
     pub ledger: crate::ledger::Ledger,

@@ -1,14 +1,16 @@
 //! The learner's state across epochs and resumes, and what it is given at construction: the count of segments not
-//! stored goes with the checkpoint (a resumed learner writes the count the run had), a segment of a version never
+//! stored and the early stop go with the checkpoint (a resumed learner writes the count the run had, and one that
+//! had reached its early stop ends there), a segment of a version never
 //! published is refused, and the access control's refusals come from the source the bus side passes in (none in
 //! process).
 
+use cabc_learning::algorithm::{self, Ending};
 use cabc_learning::learner::{AclDenials, Learner};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{Sink, SinkError};
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{Outcome, Segment};
-use cabc_proto::ports::Collected;
+use cabc_proto::messages::{EndReason, EvalReport, Outcome, PolicyUpdate, Segment};
+use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::cell::{Cell, RefCell};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -179,4 +181,66 @@ fn the_acl_source_passed_in_shows_in_the_record_and_the_summary() {
         .unwrap()
         .acl_denied
         .is_empty());
+}
+
+/// Actors that are never to be asked for anything.
+struct Idle;
+
+impl Rollouts for Idle {
+    fn publish(&mut self, update: &PolicyUpdate) -> Result<(), PortError> {
+        panic!("version {} published", update.version)
+    }
+
+    fn gather(
+        &mut self,
+        update: &PolicyUpdate,
+        _store: &mut dyn FnMut(Segment),
+    ) -> Result<Option<Collected>, PortError> {
+        panic!("version {} collected", update.version)
+    }
+
+    fn evaluations(&mut self) -> Vec<EvalReport> {
+        Vec::new()
+    }
+
+    fn stop(&mut self, _reason: &str) -> Result<(), PortError> {
+        Ok(())
+    }
+}
+
+/// Issue 56: the early stop is in the checkpoint. A run interrupted in the epoch whose evaluation reached it (V-C at
+/// 224x224 on a GPU: the device call's budget ran out during version 63's 50-lap evaluation, and the resumed run
+/// trained an epoch more and stopped at 64) ends there when resumed, with the version that stopped it.
+#[test]
+fn a_run_resumed_after_its_early_stop_ends_there() {
+    let dir = tempfile::tempdir().unwrap();
+    let none = || -> AclDenials { Box::new(BTreeMap::new) };
+    let mut learner = open(dir.path(), Told::default(), none(), false);
+    let rules = learner.config().collection.clone();
+    let laps = vec![19.0; rules.eval_laps as usize];
+    let last = u64::from(rules.early_stop_successes.max(1)) - 1;
+    for j in 0..=last {
+        learner.begin_epoch(j);
+        let _ = learner.policy_update(j);
+        learner.partition(&Collected::default());
+        learner.autolabel(false);
+        learner.on_eval(cabc_fixtures::eval_report(
+            "eval-0",
+            j,
+            &laps,
+            EndReason::MaxLaps,
+            100,
+        ));
+        learner.end_epoch().unwrap();
+    }
+    assert_eq!(learner.early_stop(), Some(last));
+    drop(learner);
+    let mut resumed = open(dir.path(), Told::default(), none(), true);
+    assert_eq!(resumed.next_epoch(), last + 1);
+    assert_eq!(resumed.early_stop(), Some(last), "from the checkpoint");
+    assert_eq!(
+        algorithm::run(&mut resumed, &mut Idle).unwrap(),
+        Ending::EarlyStop(last),
+        "no epoch more"
+    );
 }
