@@ -1,7 +1,7 @@
 //! Device selection: the config string `training.device` is "auto" (CUDA when present), "cpu" or "cuda:N".
 
 use crate::ModelError;
-use tch::{Device, Tensor};
+use tch::Device;
 
 /// Whether libtorch sees a CUDA device (the build script links libtorch_cuda so that this can be true).
 pub fn cuda_available() -> bool {
@@ -67,21 +67,6 @@ pub fn flush_denormals() {
         use std::arch::x86_64::{_mm_getcsr, _mm_setcsr};
         const FTZ_DAZ: u32 = 0x8040;
         _mm_setcsr(_mm_getcsr() | FTZ_DAZ);
-    }
-}
-
-/// `t` on `device`. From the host to a GPU through pinned memory, without waiting: an upload from pageable memory
-/// returns only when the copy is done, after every kernel queued before it (the GPU idles while the host then queues
-/// the next), where a pinned one is queued like a kernel (libtorch's caching host allocator keeps the pinned block
-/// until its copy is done). Elsewhere `to_device`. It pins with `_pin_memory`, which `pin_memory(device)` calls:
-/// libtorch 2.11 deprecates the latter's device with a warning printed at every call, and tch has no `pin_memory`
-/// without one.
-pub fn upload(t: &Tensor, device: Device) -> Tensor {
-    if device.is_cuda() && t.device() == Device::Cpu {
-        t.internal_pin_memory(device)
-            .to_device_(device, t.kind(), true, false)
-    } else {
-        t.to_device(device)
     }
 }
 

@@ -6,7 +6,6 @@
 //! Observations become tensors in one place, [`PolicyInput::states`] and [`PolicyInput::camera`], for the actor's
 //! [`Observation`]s and the learner's D+ batches alike.
 
-use crate::device::upload;
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
 use crate::weights::Network;
@@ -326,8 +325,11 @@ impl Policy {
         match (&self.net, input) {
             (Net::State(mlp), PolicyInput::State(x)) => mlp.forward(&x.to_device(device)),
             (Net::Camera { trunk, head, sees }, PolicyInput::Camera { images, velocity }) => {
-                let features = trunk.forward_t(&images_to_float(&upload(images, device)), train);
-                let velocity = upload(velocity, device) * sees.to_device(device);
+                // From pageable memory, which waits for the kernels queued before: pinning each batch first
+                // (`_pin_memory`, then a copy that does not wait) made the policy's fit at 224x224 a third slower on
+                // an H200 (issue 56, docs/GPU.md).
+                let features = trunk.forward_t(&images_to_float(&images.to_device(device)), train);
+                let velocity = velocity.to_device(device) * sees.to_device(device);
                 head.forward(&Tensor::cat(&[features, velocity], 1))
             }
             _ => panic!(
