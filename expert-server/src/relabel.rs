@@ -474,13 +474,13 @@ mod tests {
         let mut pending = [0, 1].map(|h| background.send(half(h, 0)).unwrap());
         assert_eq!(background.in_flight.len(), 2);
         for k in 0..5 {
-            for h in 0..2 {
+            for (h, in_flight) in pending.iter_mut().enumerate() {
                 let expected = actions(turn.relabel(half(h as u64, k)).unwrap());
-                let this = std::mem::replace(&mut pending[h], Pending::Answered(Vec::new()));
+                let this = std::mem::replace(in_flight, Pending::Answered(Vec::new()));
                 let answers = background.receive(this).unwrap();
                 assert_eq!(actions(answers), expected, "step {k}, half {h}");
                 // As the collector does: a half's next batch goes once its answers came, while the other's travels.
-                pending[h] = background.send(half(h as u64, k + 1)).unwrap();
+                *in_flight = background.send(half(h as u64, k + 1)).unwrap();
                 assert_eq!(background.in_flight.len(), 2);
             }
         }
