@@ -312,7 +312,8 @@ fn the_default_is_the_term_with_dart_the_sensor_noise_and_the_judged_early_stop(
             "observation.state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]".to_string(),
             "collection.early_stop_spawns=5".to_string(),
             "collection.early_stop_action_noise_std=[0.02,0.005]".to_string(),
-            "collection.early_stop_state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]".to_string(),
+            "collection.early_stop_state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]"
+                .to_string(),
         ])
         .unwrap();
     assert_eq!(
