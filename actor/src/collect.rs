@@ -11,6 +11,7 @@
 //! The applied action is `beta * expert + (1 - beta) * policy` when the expert solved its problem, else the
 //! policy's action (as the reference does); the stored label is always the expert's action.
 
+use crate::dart::ActionNoise;
 use crate::eyes::Eyes;
 use crate::segment::{Segmenter, SeqCounter, StepEnd};
 use crate::sensor::Sensor;
@@ -23,9 +24,6 @@ use cabc_proto::ports::{CollectionTimes, ExpertClient, Next, Pending, PortError}
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
-use rand::Rng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 use std::collections::VecDeque;
 use std::ops::Range;
 use std::sync::Arc;
@@ -64,8 +62,6 @@ pub fn make_env(config: &RunConfig, max_laps: u32) -> Env {
 
 /// Mixed into the run seed for the sensors' random streams.
 pub(crate) const SENSOR_SEED: u64 = 0x5e_4503;
-/// Mixed into the run seed for the action noise's random streams.
-const ACTION_NOISE_SEED: u64 = 0xda_4700;
 
 fn f32s<const N: usize>(x: &[f64; N]) -> [f32; N] {
     x.map(|v| v as f32)
@@ -555,39 +551,6 @@ impl<E: From<PortError>> From<PortError> for Halt<E> {
 
 fn expert_ok(answer: &ExpertAnswer) -> bool {
     answer.success && answer.action.iter().all(|v| v.is_finite())
-}
-
-/// DART's noise on the applied action (`collection.action_noise_std`): Gaussian per dimension, drawn from each
-/// environment's own stream (so that it changes neither the environments' nor the sensor's draws, and the order in
-/// which halves of the batch step does not matter), and nothing drawn where a dimension's deviation is 0.
-struct ActionNoise {
-    std: [f64; 2],
-    /// One stream per environment of the collector.
-    rngs: Vec<ChaCha8Rng>,
-}
-
-impl ActionNoise {
-    /// Actor `index`'s environments use streams index*K .. index*K+K-1, as their environments do.
-    fn new(std: [f64; 2], seed: u64, index: u64, k: usize) -> Self {
-        let first = index * k as u64;
-        ActionNoise {
-            std,
-            rngs: (0..k as u64)
-                .map(|i| Env::rng(seed ^ ACTION_NOISE_SEED, first + i))
-                .collect(),
-        }
-    }
-
-    /// `action` plus environment `env`'s noise.
-    fn add(&mut self, env: usize, mut action: Input) -> Input {
-        for (u, &std) in action.iter_mut().zip(&self.std) {
-            if std > 0.0 {
-                let n: f64 = self.rngs[env].sample(StandardNormal);
-                *u += std * n;
-            }
-        }
-        action
-    }
 }
 
 /// The beta mixture of the expert's and the policy's actions when the expert `solved` its problem, else the policy's

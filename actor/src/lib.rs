@@ -4,6 +4,7 @@
 //! [`local`] runs the same code in-process as the learner's `Rollouts` port.
 
 pub mod collect;
+mod dart;
 pub mod evaluate;
 pub mod expert;
 pub mod eyes;
