@@ -53,20 +53,21 @@ step() { echo "== $* (at ${SECONDS}s, $(left)s left)" >> "$log"; }
 # The anchor: PyTorch 2.11 on the same kind of machine (issue 31): training images/s at batch 64.
 declare -A anchor=([fp32]=4256 [bf16]=5635)
 
+# The CUDA test (learning/tests/cuda.rs), bounded by $1 seconds.
+cuda_test() {
+  step "the CUDA test"
+  timeout "$1" .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
+  echo "cuda-test: rc $?" >> "$log"
+}
+
 step "nvidia-smi"
 nvidia-smi >> "$log" 2>&1 || echo "nvidia-smi: rc $?" >> "$log"
-[ "$part" = quick ] && {
-step "the CUDA test"
-timeout 90 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
-echo "cuda-test: rc $?" >> "$log"
-}
+[ "$part" = quick ] && cuda_test 90
 [ "$part" = vc ] || [ "$part" = quick ] || {
 step "the camera on one core and on all (cabc-sim bench)"
 timeout 30 .gpu/run.sh cabc-sim bench --seconds 1 >> "$log" 2>&1
 echo "cabc-sim bench: rc $?" >> "$log"
-step "the CUDA test"
-timeout 150 .gpu/run.sh cuda-test --nocapture >> "$log" 2>&1
-echo "cuda-test: rc $?" >> "$log"
+cuda_test 150
 
 for precision in fp32 bf16; do
   for optimiser in run tch; do
