@@ -96,6 +96,7 @@ fn main() -> Result<()> {
             &mut sink,
             &mut after_epoch,
         )?;
+        drop(source);
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
         let kind = config.expert.kind.as_str();
@@ -110,6 +111,7 @@ fn main() -> Result<()> {
             ExpertPlacement::InActor => Box::new(cabc_actor::expert::in_actor(&config)?),
         };
         let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone());
+        let mut source = source.echoing(sink.echo());
         let index = cli
             .index
             .unwrap_or_else(|| cabc_proto::keys::trailing_number(&cli.id));
@@ -130,7 +132,7 @@ fn main() -> Result<()> {
     if let Some(value) = last {
         tracing::info!("final metrics: {value}");
     }
-    drop(source);
+    // (The policy source, and with it its subscriptions, is gone: the bus closes.)
     bus.close_blocking()?;
     Ok(())
 }

@@ -84,10 +84,7 @@ pub fn act(policy: &Policy, input: &Observations) -> Result<Vec<[f32; 2]>, Model
     policy.act(&observations)
 }
 
-/// How far a policy version may jump past the last one an actor admitted before it says so. The learner publishes
-/// one version per epoch, and an actor skips only those published while it finished a share or an evaluation (a
-/// handful); a jump of more is no pace of the learner's: a forged or replayed update (issue 57's was 1,000 ahead).
-pub const FAR_AHEAD: u64 = 100;
+pub use cabc_proto::ports::FAR_AHEAD;
 
 /// The jump from `last` (the version admitted before, if any) to `version` when it is more than [`FAR_AHEAD`].
 pub fn far_ahead(last: Option<u64>, version: u64) -> Option<u64> {

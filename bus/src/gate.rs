@@ -3,7 +3,10 @@
 //! The learner publishes PolicyUpdate j; actors collect their share of the epoch's steps with it, publish their
 //! segments and then an [`EpochDone`] marker. [`EpochGate`] closes epoch j once every live actor (liveliness) has
 //! said it is done with j, or once `timeout` has passed since the epoch opened and at least one actor is done: a
-//! dead or stuck actor never stalls the run. Pure logic, tested without zenoh.
+//! dead or stuck actor never stalls the run. The gate follows the live set, not a count: an actor that leaves before
+//! its marker is no longer waited for (it is [`EpochGate::lost`], and its undone share is the learner's to deal out
+//! again), one that joins is. With no live actor and no marker the gate says so ([`EpochGate::abandoned`]) once
+//! `no_actor_timeout` has passed without one. Pure logic, tested without zenoh.
 
 use cabc_proto::messages::EpochDone;
 use std::collections::{BTreeMap, BTreeSet};
@@ -27,6 +30,14 @@ pub struct EpochGate {
     live: BTreeSet<String>,
     done: BTreeMap<String, EpochDone>,
     expected: usize,
+    /// How long `expected` holds.
+    grace: Duration,
+    /// Actors that left during the epoch before their marker.
+    lost: BTreeSet<String>,
+    /// When each actor was last heard from in this epoch (a segment or a marker).
+    heard: BTreeMap<String, Instant>,
+    /// Since when no actor has been live (None while one is).
+    nobody_since: Option<Instant>,
     /// The publication's time, when markers must answer that publication and not an earlier one of the version.
     published_unix_ms: Option<u64>,
 }
@@ -39,13 +50,18 @@ impl EpochGate {
         live: impl IntoIterator<Item = String>,
         now: Instant,
     ) -> Self {
+        let live: BTreeSet<String> = live.into_iter().collect();
         EpochGate {
             version,
             opened: now,
             timeout,
-            live: live.into_iter().collect(),
+            nobody_since: live.is_empty().then_some(now),
+            live,
             done: BTreeMap::new(),
             expected: 0,
+            grace: Duration::ZERO,
+            lost: BTreeSet::new(),
+            heard: BTreeMap::new(),
             published_unix_ms: None,
         }
     }
@@ -57,10 +73,13 @@ impl EpochGate {
         self
     }
 
-    /// Waits (until the timeout) for at least `n` actors' markers even when fewer are known to be alive: at the start
-    /// of a run, an actor may be done before another one's liveliness has reached the learner.
-    pub fn expecting(mut self, n: usize) -> Self {
+    /// Waits (for `grace` at most, and never past the timeout) for at least `n` actors' markers even when fewer are
+    /// known to be alive: at the start of a run, an actor may be done before another one's liveliness has reached the
+    /// learner. After `grace` the live set alone counts (an actor of `actors.count` that never came does not hold
+    /// every epoch to its timeout).
+    pub fn expecting(mut self, n: usize, grace: Duration) -> Self {
         self.expected = n;
+        self.grace = grace;
         self
     }
 
@@ -70,10 +89,51 @@ impl EpochGate {
 
     pub fn alive(&mut self, actor: &str) {
         self.live.insert(actor.to_string());
+        self.nobody_since = None;
     }
 
-    pub fn gone(&mut self, actor: &str) {
+    /// `actor` left. Before its marker, it is lost to this epoch: one fewer marker is expected (the gate no longer
+    /// waits for it to come back) and [`EpochGate::lost`] names it.
+    pub fn gone(&mut self, actor: &str, now: Instant) {
         self.live.remove(actor);
+        if !self.done.contains_key(actor) && self.lost.insert(actor.to_string()) {
+            self.expected = self.expected.saturating_sub(1);
+        }
+        if self.live.is_empty() && self.nobody_since.is_none() {
+            self.nobody_since = Some(now);
+        }
+    }
+
+    /// Notes a message from `actor` at `now`.
+    pub fn heard_from(&mut self, actor: &str, now: Instant) {
+        self.heard.insert(actor.to_string(), now);
+    }
+
+    /// Whether live `actor` was heard from in this epoch, has not sent its marker, and has been silent for `quiet`:
+    /// its marker may have been lost.
+    pub fn quiet_without_marker(&self, actor: &str, now: Instant, quiet: Duration) -> bool {
+        self.live.contains(actor)
+            && !self.done.contains_key(actor)
+            && self
+                .heard
+                .get(actor)
+                .is_some_and(|&t| now.duration_since(t) >= quiet)
+    }
+
+    /// Actors that left during the epoch without their marker (an actor that came back and sent it is not lost).
+    pub fn lost(&self) -> impl Iterator<Item = &str> {
+        self.lost
+            .iter()
+            .filter(|a| !self.done.contains_key(*a))
+            .map(String::as_str)
+    }
+
+    /// Whether no actor has been live, and none has sent a marker, for `wait` or longer: the epoch cannot close.
+    pub fn abandoned(&self, now: Instant, wait: Duration) -> bool {
+        self.done.is_empty()
+            && self
+                .nobody_since
+                .is_some_and(|since| now.duration_since(since) >= wait)
     }
 
     /// Records a marker; markers of other versions are ignored (returns false).
@@ -109,7 +169,8 @@ impl EpochGate {
             return None;
         }
         let missing = self.missing();
-        if missing.is_empty() && self.done.len() >= self.expected {
+        let waited = now.duration_since(self.opened);
+        if missing.is_empty() && (self.done.len() >= self.expected || waited >= self.grace) {
             Some(Closed::AllDone)
         } else if now.duration_since(self.opened) >= self.timeout {
             Some(Closed::Timeout { missing })
@@ -152,18 +213,21 @@ mod tests {
     #[test]
     fn the_expected_actors_are_waited_for_before_their_liveliness_arrives() {
         let t0 = Instant::now();
-        let mut g = EpochGate::open(0, Duration::from_secs(5), ["a".into()], t0).expecting(2);
+        let mut g = EpochGate::open(0, Duration::from_secs(5), ["a".into()], t0)
+            .expecting(2, Duration::from_secs(5));
         g.done(marker("a", 0));
         assert_eq!(g.closed(t0), None, "b has not been seen yet");
         g.alive("b");
         g.done(marker("b", 0));
         assert_eq!(g.closed(t0), Some(Closed::AllDone));
-        let mut g = EpochGate::open(0, Duration::from_secs(5), ["a".into()], t0).expecting(2);
+        let mut g = EpochGate::open(0, Duration::from_secs(60), ["a".into()], t0)
+            .expecting(2, Duration::from_secs(5));
         g.done(marker("a", 0));
+        assert_eq!(g.closed(t0 + Duration::from_secs(4)), None);
         assert_eq!(
             g.closed(t0 + Duration::from_secs(5)),
-            Some(Closed::Timeout { missing: vec![] }),
-            "b never came: the timeout closes the epoch"
+            Some(Closed::AllDone),
+            "b never came: after the grace the live set alone counts, long before the timeout"
         );
     }
 
@@ -188,8 +252,83 @@ mod tests {
         let t0 = Instant::now();
         let mut g = EpochGate::open(0, Duration::from_secs(60), ["a".into(), "b".into()], t0);
         g.done(marker("a", 0));
-        g.gone("b");
+        g.gone("b", t0);
         assert_eq!(g.closed(t0), Some(Closed::AllDone));
+        assert_eq!(g.lost().collect::<Vec<_>>(), vec!["b"]);
+    }
+
+    #[test]
+    fn an_actor_that_dies_mid_epoch_is_not_waited_for_even_when_expected() {
+        // Two actors expected (actors.count = 2): one dies before its marker. The epoch closes on the other's marker,
+        // not at the timeout (issue 64: it cost `epoch_timeout_s`).
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(4, Duration::from_secs(120), ["a".into(), "b".into()], t0)
+            .expecting(2, Duration::from_secs(60));
+        g.gone("b", t0);
+        assert_eq!(g.closed(t0), None, "a is still collecting");
+        g.done(marker("a", 4));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+        assert_eq!(g.lost().collect::<Vec<_>>(), vec!["b"]);
+        // A second departure of the same actor (a restart that died again) is not a second loss.
+        g.alive("b");
+        g.gone("b", t0);
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+    }
+
+    #[test]
+    fn an_actor_restarted_mid_epoch_is_waited_for_and_not_lost_once_done() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(4, Duration::from_secs(120), ["a".into()], t0)
+            .expecting(1, Duration::from_secs(60));
+        g.gone("a", t0);
+        g.alive("a");
+        assert_eq!(g.closed(t0), None);
+        g.done(marker("a", 4));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+        assert_eq!(g.lost().count(), 0, "it came back and answered");
+    }
+
+    #[test]
+    fn an_actor_silent_without_its_marker_is_noticed() {
+        let t0 = Instant::now();
+        let quiet = Duration::from_secs(10);
+        let mut g = EpochGate::open(2, Duration::from_secs(120), ["a".into(), "b".into()], t0);
+        assert!(
+            !g.quiet_without_marker("a", t0 + quiet * 5, quiet),
+            "never heard: not this case"
+        );
+        g.heard_from("a", t0);
+        assert!(!g.quiet_without_marker("a", t0 + Duration::from_secs(9), quiet));
+        assert!(g.quiet_without_marker("a", t0 + quiet, quiet));
+        g.heard_from("b", t0);
+        g.done(marker("b", 2));
+        assert!(
+            !g.quiet_without_marker("b", t0 + quiet * 5, quiet),
+            "its marker came"
+        );
+    }
+
+    #[test]
+    fn an_epoch_with_no_live_actor_is_abandoned_after_the_wait() {
+        let t0 = Instant::now();
+        let wait = Duration::from_secs(30);
+        let mut g = EpochGate::open(6, Duration::from_secs(120), ["a".into()], t0)
+            .expecting(1, Duration::from_secs(60));
+        assert!(!g.abandoned(t0 + wait * 2, wait), "a is alive");
+        g.gone("a", t0 + Duration::from_secs(10));
+        assert!(!g.abandoned(t0 + Duration::from_secs(39), wait));
+        assert!(g.abandoned(t0 + Duration::from_secs(40), wait));
+        assert_eq!(g.closed(t0 + Duration::from_secs(1000)), None, "no marker");
+        // One that comes back ends the wait; leaving again starts it anew.
+        g.alive("b");
+        assert!(!g.abandoned(t0 + Duration::from_secs(100), wait));
+        g.gone("b", t0 + Duration::from_secs(100));
+        assert!(!g.abandoned(t0 + Duration::from_secs(129), wait));
+        assert!(g.abandoned(t0 + Duration::from_secs(130), wait));
+        // A gate opened with nobody live waits from its opening (the run's start: actors not up yet).
+        let g = EpochGate::open(0, Duration::from_secs(120), Vec::<String>::new(), t0);
+        assert!(!g.abandoned(t0 + Duration::from_secs(29), wait));
+        assert!(g.abandoned(t0 + wait, wait));
     }
 
     #[test]

@@ -215,6 +215,13 @@ impl Rejects {
 }
 
 /// Decodes a payload received on `key`; a refused one is counted and logged (warn), never fatal.
+/// Now, in milliseconds since the Unix epoch (a publication's time).
+pub(crate) fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
 pub fn decode_sample<M: Message>(key: &str, bytes: &[u8], rejects: &Rejects) -> Option<M> {
     match codec::decode::<M>(bytes) {
         Ok(m) => Some(m),

@@ -11,7 +11,8 @@
 
 use crate::interrupt::Interrupt;
 use crate::{decode_sample, Bus};
-use cabc_proto::messages::{EvalReport, PolicyUpdate, Stop, TrajMessage};
+use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Stop, TrajMessage};
+use cabc_proto::ports::FAR_AHEAD;
 use cabc_proto::ports::{EvalSink, Next, PolicySource, PortError, SegmentSink};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -41,6 +42,9 @@ pub struct WireStats {
     pub segments_lost: u64,
     /// Versions an evaluator dropped unevaluated because it fell too far behind ([`MAX_PENDING_BYTES`]).
     pub versions_skipped: u64,
+    /// Policy updates refused because the learner did not vouch for them ([`Vouch::No`]: a version it never
+    /// published, or other weights than it published under that version).
+    pub versions_not_vouched: u64,
 }
 
 impl WireStats {
@@ -63,6 +67,7 @@ impl WireStats {
             "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
             "segments_lost": self.segments_lost,
             "versions_skipped": self.versions_skipped,
+            "versions_not_vouched": self.versions_not_vouched,
         });
         match figures {
             serde_json::Value::Object(map) => map,
@@ -150,6 +155,48 @@ impl Shard {
     }
 }
 
+/// What the learner says of a policy update that arrived on its key (issue 64: a forged update with a huge version
+/// left the evaluator at that version, so that it evaluated no later real one and the run could never stop early).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Vouch {
+    /// The learner published these weights under this version (or published later versions and no longer holds
+    /// this one: an old version, no harm).
+    Yes,
+    /// A version past the learner's latest, or other weights than the learner's under this version.
+    No,
+    /// The learner did not answer (it is restarting): ask again later.
+    Unknown,
+}
+
+/// Judges `update` by the learner's answers: `latest`, its newest publication (None: no answer), and `held`, what it
+/// holds under `update.version` (asked only for an older version; None: not held).
+pub fn vouch(
+    update: &PolicyUpdate,
+    latest: Option<&PolicyUpdate>,
+    held: impl FnOnce() -> Option<PolicyUpdate>,
+) -> Vouch {
+    let Some(latest) = latest else {
+        return Vouch::Unknown;
+    };
+    let same = |other: &PolicyUpdate| {
+        other.architecture == update.architecture && other.weights == update.weights
+    };
+    if update.version > latest.version {
+        Vouch::No
+    } else if update.version == latest.version {
+        if same(latest) {
+            Vouch::Yes
+        } else {
+            Vouch::No
+        }
+    } else {
+        match held() {
+            Some(held) if !same(&held) => Vouch::No,
+            _ => Vouch::Yes,
+        }
+    }
+}
+
 /// How far back an evaluator asks for versions it missed.
 pub const MAX_GAP: u64 = 64;
 
@@ -175,6 +222,17 @@ pub struct ZenohPolicySource<'a> {
     /// The newest version up to which an evaluator has asked the learner for the versions it missed (each missed
     /// version is asked for once).
     asked: Option<u64>,
+    /// A collector's last marker, sent again when the learner publishes the version it answers once more.
+    echo: Option<MarkerEcho>,
+}
+
+/// A collector's last "done with j" marker ([`ZenohSegments::echo`]): when the learner publishes a version again that
+/// the actor has already answered, its marker may have been lost (a link cut longer than zenoh's lease drops what
+/// was in flight), so the source sends it again (issue 64); the learner's gate takes a marker twice as once.
+#[derive(Clone)]
+pub struct MarkerEcho {
+    key: String,
+    last: Arc<Mutex<Option<EpochDone>>>,
 }
 
 impl<'a> ZenohPolicySource<'a> {
@@ -195,7 +253,39 @@ impl<'a> ZenohPolicySource<'a> {
             pending: Default::default(),
             last_version: None,
             asked: None,
+            echo: None,
         })
+    }
+
+    /// Sends the collector's last marker again when the learner publishes the version it answered once more.
+    pub fn echoing(mut self, echo: MarkerEcho) -> Self {
+        self.echo = Some(echo);
+        self
+    }
+
+    /// `update` is a publication this actor already took: if it has answered it, the marker goes out again.
+    fn echo_marker(&self, update: &PolicyUpdate) {
+        let Some(echo) = &self.echo else {
+            return;
+        };
+        let marker = echo
+            .last
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+            .filter(|m| (m.version, m.published_unix_ms) == identity(update));
+        if let Some(marker) = marker {
+            tracing::info!(
+                version = marker.version,
+                "the learner published the version again: sending its marker again"
+            );
+            if let Err(e) = self
+                .bus
+                .put_blocking(&echo.key, &TrajMessage::EpochDone(marker))
+            {
+                tracing::warn!("sending the marker again: {e}");
+            }
+        }
     }
 
     /// An evaluator's source: every version of `shard`, oldest first, each once (a version published again by a
@@ -233,7 +323,7 @@ impl<'a> ZenohPolicySource<'a> {
 
     /// Asks the learner for the versions of `shard` this evaluator missed (it joined late, or was restarted): those
     /// before the newest it holds and after the last it handed out, at most [`MAX_GAP`] back. A version the learner
-    /// no longer holds is skipped, logged and counted.
+    /// does not hold (it has its evaluation already, or dropped it for memory) is skipped, logged and counted.
     fn fill_gaps(&mut self, shard: Shard) {
         let Some(&newest) = self.pending.keys().next_back() else {
             return;
@@ -250,14 +340,34 @@ impl<'a> ZenohPolicySource<'a> {
                 Some(update) if update.version == version => self.keep(update, shard),
                 _ => {
                     with_stats(&self.stats, |s| s.versions_skipped += 1);
-                    tracing::warn!(
+                    tracing::info!(
                         version,
-                        "the learner no longer holds this version: not evaluated"
+                        "the learner does not hold this version (evaluated already, or dropped): skipped"
                     );
                 }
             }
         }
         self.asked = Some(newest);
+    }
+
+    /// An evaluator's newest pending version far past the last one it handed out ([`FAR_AHEAD`]) is vouched for
+    /// before the gaps up to it are asked for (a forged version of 1,000,000 would have it ask for 64 versions the
+    /// learner never published); dropped when the learner does not vouch for it.
+    fn drop_unvouched_jump(&mut self) {
+        let Some(last) = self.last_version else {
+            return;
+        };
+        let Some((&newest, _)) = self.pending.last_key_value() else {
+            return;
+        };
+        if newest <= last + FAR_AHEAD {
+            return;
+        }
+        if let Some((version, update)) = self.pending.pop_last() {
+            if self.vouched(&update) != Vouch::No {
+                self.pending.insert(version, update);
+            }
+        }
     }
 
     /// The next version of an evaluator's shard, in order.
@@ -277,10 +387,22 @@ impl<'a> ZenohPolicySource<'a> {
                     self.keep(update, shard);
                 }
             }
+            self.drop_unvouched_jump();
             self.fill_gaps(shard);
             if let Some((version, update)) = self.pending.pop_first() {
-                self.last_version = Some(version);
-                return Ok(self.hand_out(update));
+                match self.vouched(&update) {
+                    Vouch::Yes => {
+                        self.last_version = Some(version);
+                        return Ok(self.hand_out(update));
+                    }
+                    Vouch::No => continue,
+                    Vouch::Unknown => {
+                        // The learner is away: the version waits (and the loop asks again after REQUERY).
+                        self.pending.insert(version, update);
+                        std::thread::sleep(POLL);
+                        continue;
+                    }
+                }
             }
             if let Some(update) = self
                 .updates
@@ -291,6 +413,21 @@ impl<'a> ZenohPolicySource<'a> {
                 self.keep(update, shard);
             }
         }
+    }
+
+    /// What the learner says of `update` ([`vouch`]); a refusal is logged and counted.
+    fn vouched(&self, update: &PolicyUpdate) -> Vouch {
+        let latest = self.latest();
+        let verdict = vouch(update, latest.as_ref(), || self.ask(Some(update.version)));
+        if verdict == Vouch::No {
+            with_stats(&self.stats, |s| s.versions_not_vouched += 1);
+            tracing::error!(
+                version = update.version,
+                latest = latest.as_ref().map(|l| l.version),
+                "a policy update the learner did not publish (a version past its latest, or other weights): refused"
+            );
+        }
+        verdict
     }
 
     /// The learner's latest version, if it is up (late joiners start at once).
@@ -336,6 +473,13 @@ impl<'a> ZenohPolicySource<'a> {
         Some(update)
     }
 
+    /// A collector's update far ahead of the version it followed ([`FAR_AHEAD`]) that the learner does not vouch for.
+    fn far_ahead_unvouched(&self, update: &PolicyUpdate) -> bool {
+        let last = self.current.map(|(version, _)| version);
+        last.is_some_and(|last| update.version > last + FAR_AHEAD)
+            && self.vouched(update) == Vouch::No
+    }
+
     fn is_news(&self, update: &PolicyUpdate) -> bool {
         self.current != Some(identity(update))
     }
@@ -374,11 +518,15 @@ impl PolicySource for ZenohPolicySource<'_> {
                 }
             }
             let sample = self.updates.recv_timeout(POLL).map_err(transport)?;
-            if let Some(update) = sample
-                .and_then(|s| self.decode(&s))
-                .filter(|u| self.is_news(u))
-            {
+            let update = sample.and_then(|s| self.decode(&s));
+            if let Some(again) = update.as_ref().filter(|u| !self.is_news(u)) {
+                self.echo_marker(again);
+            }
+            if let Some(update) = update.filter(|u| self.is_news(u)) {
                 let update = self.newest().unwrap_or(update);
+                if self.far_ahead_unvouched(&update) {
+                    continue;
+                }
                 return Ok(self.hand_out(update));
             }
         }
@@ -393,6 +541,9 @@ impl PolicySource for ZenohPolicySource<'_> {
             return None;
         }
         let newest = self.newest()?;
+        if self.far_ahead_unvouched(&newest) {
+            return None;
+        }
         Some(self.hand_out(newest))
     }
 }
@@ -408,6 +559,8 @@ pub struct ZenohSegments<'a> {
     key: String,
     interrupt: Interrupt,
     stats: SharedStats,
+    /// The last marker sent ([`MarkerEcho`]).
+    last_marker: Arc<Mutex<Option<EpochDone>>>,
 }
 
 impl<'a> ZenohSegments<'a> {
@@ -417,6 +570,15 @@ impl<'a> ZenohSegments<'a> {
             key: bus.keys.traj(actor),
             interrupt: interrupt.clone(),
             stats,
+            last_marker: Arc::default(),
+        }
+    }
+
+    /// The handle through which this actor's policy source sends its last marker again ([`MarkerEcho`]).
+    pub fn echo(&self) -> MarkerEcho {
+        MarkerEcho {
+            key: self.key.clone(),
+            last: self.last_marker.clone(),
         }
     }
 
@@ -451,6 +613,9 @@ impl SegmentSink for ZenohSegments<'_> {
         self.bus
             .put_blocking(&self.key, &message)
             .map_err(transport)?;
+        if let TrajMessage::EpochDone(marker) = &message {
+            *self.last_marker.lock().unwrap_or_else(|e| e.into_inner()) = Some(marker.clone());
+        }
         with_stats(&self.stats, |s| s.transport += started.elapsed());
         Ok(())
     }
@@ -474,5 +639,62 @@ impl<'a> ZenohEvals<'a> {
 impl EvalSink for ZenohEvals<'_> {
     fn report(&mut self, report: EvalReport) -> Result<(), PortError> {
         self.bus.put_blocking(&self.key, &report).map_err(transport)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{vouch, Vouch};
+    use cabc_proto::messages::PolicyUpdate;
+
+    fn update(version: u64, weights: &[u8]) -> PolicyUpdate {
+        PolicyUpdate {
+            version,
+            beta: 0.0,
+            architecture: "mlp".into(),
+            weights: weights.to_vec(),
+            steps_per_actor: 1,
+            published_unix_ms: version,
+            shield: None,
+        }
+    }
+
+    #[test]
+    fn the_learner_vouches_only_for_what_it_published() {
+        let latest = update(7, b"seven");
+        let never = || -> Option<PolicyUpdate> { panic!("not asked") };
+        assert_eq!(
+            vouch(&update(7, b"seven"), Some(&latest), never),
+            Vouch::Yes
+        );
+        // Issue 64's forged update: a huge version, or the learner's own weights replayed far ahead.
+        assert_eq!(
+            vouch(&update(1_007, b"seven"), Some(&latest), never),
+            Vouch::No
+        );
+        assert_eq!(vouch(&update(8, b"eight"), Some(&latest), never), Vouch::No);
+        assert_eq!(
+            vouch(&update(7, b"forged"), Some(&latest), never),
+            Vouch::No
+        );
+        // An older version: as the learner holds it, or no longer held (evicted: an old version does no harm).
+        assert_eq!(
+            vouch(&update(5, b"five"), Some(&latest), || Some(update(
+                5, b"five"
+            ))),
+            Vouch::Yes
+        );
+        assert_eq!(
+            vouch(&update(5, b"five"), Some(&latest), || None),
+            Vouch::Yes
+        );
+        assert_eq!(
+            vouch(&update(5, b"evil"), Some(&latest), || Some(update(
+                5, b"five"
+            ))),
+            Vouch::No
+        );
+        // The learner away: ask again later.
+        assert_eq!(vouch(&update(7, b"seven"), None, never), Vouch::Unknown);
     }
 }

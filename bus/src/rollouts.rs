@@ -3,6 +3,14 @@
 //! follows the actors' liveliness, and keeps the evaluation reports of `eval/*` until the learner asks for them.
 //! What arrives while the learner trains waits in the subscriptions' queues: nothing is dropped.
 //!
+//! The epoch follows the live set (issue 64): each publication deals the epoch's steps (`collection.steps_per_epoch`)
+//! over the actors alive or still expected, so that one actor collects the whole epoch when it is the only one left
+//! and a joiner takes its share from the next publication; an actor that leaves before its marker is not waited for,
+//! and the part of its share it had not delivered is published again, to the live actors, as a further round of the
+//! same version ([`Round`]), until the epoch holds its budget or no actor is left. With no live actor the learner
+//! warns and, after `bus.no_actor_timeout_s`, ends with [`PortError::NoActors`] (its checkpoint stays). It also warns
+//! while no evaluator is alive: no evaluation, no early stop.
+//!
 //! Each message is held to the key it came on ([`check_traj`], [`check_eval`]): a segment or marker whose `actor`
 //! is not the `<actor>` of its `traj/<actor>` key, or an evaluation report not from `eval/<id>` with `actor == id`,
 //! is refused and counted with the codec's refusals ([`crate::Rejects`]).
@@ -16,7 +24,7 @@ use crate::interrupt::Interrupt;
 use crate::{decode_sample, encoding_of, Bus};
 use bytes::Bytes;
 use cabc_proto::codec;
-use cabc_proto::messages::{EvalReport, PolicyUpdate, Segment, TrajMessage};
+use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, TrajMessage};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -37,6 +45,13 @@ const POLL: Duration = Duration::from_millis(250);
 /// at doubling intervals: an actor that missed the first publication (it was reconnecting to a restarted learner)
 /// still gets it, and actors ignore a publication they already have.
 const REPUBLISH: Duration = Duration::from_secs(3);
+/// A live actor that has sent nothing for this long without its marker may have had its marker lost (a link cut
+/// longer than zenoh's lease): the policy is published again as for an actor not heard from, and an actor that
+/// already answered the publication sends its marker again (`cabc_bus::ports::MarkerEcho`).
+const QUIET: Duration = Duration::from_secs(10);
+/// How long the first epoch a learner gathers waits for the actors of `actors.count` it has not seen alive yet (they
+/// are starting) before the live set alone counts; at most the epoch's timeout.
+const JOIN_GRACE: Duration = Duration::from_secs(60);
 
 /// The publications the policy queryable holds, at most this many bytes (always the latest).
 const HELD_BYTES: usize = 256 << 20;
@@ -49,6 +64,31 @@ fn transport(e: impl std::fmt::Display) -> PortError {
 pub fn actor_of_token(key: &str) -> Option<String> {
     let (_, rest) = key.split_once("/alive/actor/")?;
     Some(rest.to_string())
+}
+
+/// The id of an evaluator's liveliness token `.../alive/eval/<id>`.
+pub fn evaluator_of_token(key: &str) -> Option<String> {
+    let (_, rest) = key.split_once("/alive/eval/")?;
+    Some(rest.to_string())
+}
+
+/// How an epoch's steps are dealt: `budget` steps over `members` actors, each collecting its share rounded up (the
+/// epoch collects at least its budget). `members` is the live actors, or more while actors of `actors.count` have
+/// not been seen yet (the run's start); at least one.
+pub fn share(budget: u64, members: usize) -> u64 {
+    budget.div_ceil(members.max(1) as u64)
+}
+
+/// The steps of their shares that the actors which left an epoch before their marker did not deliver: `share` each,
+/// less the steps of that version heard from it.
+pub fn undone<'a>(
+    lost: impl IntoIterator<Item = &'a str>,
+    share: u64,
+    heard: &BTreeMap<String, u64>,
+) -> u64 {
+    lost.into_iter()
+        .map(|actor| share.saturating_sub(heard.get(actor).copied().unwrap_or(0)))
+        .sum()
 }
 
 /// The `<actor>` of a key `.../traj/<actor>` (one chunk, nothing after it).
@@ -97,6 +137,7 @@ pub struct ZenohActors {
     traj: Subscriber<FifoChannelHandler<Sample>>,
     eval: Subscriber<FifoChannelHandler<Sample>>,
     alive: Subscriber<FifoChannelHandler<Sample>>,
+    evaluators_alive: Subscriber<FifoChannelHandler<Sample>>,
     _policy: Queryable<()>,
     /// The encoded publications of the last versions (the queryable's answers): the latest for late joiners, any
     /// held version for an evaluator that missed it (`policy?version=<v>`).
@@ -104,9 +145,19 @@ pub struct ZenohActors {
     live: BTreeSet<String>,
     /// Actors that left and did not come back.
     left: BTreeSet<String>,
-    /// The run's actors (`actors.count`): an epoch waits for this many markers, less those that left.
+    /// The run's actors (`actors.count`): the first epoch this learner gathers waits for this many markers, less those
+    /// that left, for [`JOIN_GRACE`] at most; later epochs follow the live set. 0 once the first epoch closed.
     expected: usize,
+    /// The evaluators alive.
+    evaluators: BTreeSet<String>,
+    /// The run's evaluators (`actors.evaluators`): none alive is warned about once they could have joined.
+    evaluators_expected: usize,
+    /// Whether the learner has said that no evaluator is alive (said once until one is back).
+    warned_no_evaluator: bool,
+    /// The steps of epoch j, all actors together (`RunConfig::epoch_steps`).
+    budget: Box<dyn Fn(u64) -> u64 + Send>,
     epoch_timeout: Duration,
+    no_actor_timeout: Duration,
     interrupt: Interrupt,
     /// The version published and not gathered yet.
     published_last: Option<Publication>,
@@ -118,6 +169,29 @@ struct Publication {
     version: u64,
     encoded: Bytes,
     at: Instant,
+    /// Its time, which markers answer.
+    published_unix_ms: u64,
+    /// Each actor's steps (`steps_per_actor`).
+    share: u64,
+}
+
+/// The timing of the learner's waits, from the run configuration's `bus` section.
+#[derive(Clone, Copy, Debug)]
+pub struct Waits {
+    /// `bus.epoch_timeout_s`: how long an epoch waits for a live actor's marker once another one's came.
+    pub epoch_timeout: Duration,
+    /// `bus.no_actor_timeout_s`: how long an epoch waits with no live actor before the run ends.
+    pub no_actor_timeout: Duration,
+}
+
+/// One round of an epoch's collection, as it closed.
+struct RoundClosed {
+    markers: Vec<EpochDone>,
+    missing: Vec<String>,
+    timed_out: bool,
+    /// The steps the actors that left before their marker did not deliver.
+    undone: u64,
+    lost: Vec<String>,
 }
 
 impl ZenohActors {
@@ -125,10 +199,13 @@ impl ZenohActors {
     /// actors (less those that left), said they are done; or after `epoch_timeout` with at least one marker.
     pub fn new(
         bus: Bus,
-        expected: usize,
-        epoch_timeout: Duration,
+        config: &cabc_proto::config::RunConfig,
+        waits: Waits,
         interrupt: Interrupt,
     ) -> Result<Self, PortError> {
+        let expected = config.actors.count as usize;
+        let budget_of = config.clone();
+        let budget = Box::new(move |epoch| budget_of.epoch_steps(epoch));
         let keys = bus.keys.clone();
         let traj = bus
             .session
@@ -146,6 +223,13 @@ impl ZenohActors {
             .session
             .liveliness()
             .declare_subscriber(keys.alive("actor/*"))
+            .history(true)
+            .wait()
+            .map_err(transport)?;
+        let evaluators_alive = bus
+            .session
+            .liveliness()
+            .declare_subscriber(keys.alive("eval/*"))
             .history(true)
             .wait()
             .map_err(transport)?;
@@ -183,12 +267,18 @@ impl ZenohActors {
             traj,
             eval,
             alive,
+            evaluators_alive,
             _policy: policy,
             published,
             live: BTreeSet::new(),
             left: BTreeSet::new(),
             expected,
-            epoch_timeout,
+            evaluators: BTreeSet::new(),
+            evaluators_expected: config.actors.evaluators as usize,
+            warned_no_evaluator: false,
+            budget,
+            epoch_timeout: waits.epoch_timeout,
+            no_actor_timeout: waits.no_actor_timeout,
             interrupt,
             published_last: None,
         })
@@ -205,11 +295,14 @@ impl ZenohActors {
         sample: &Sample,
         version: u64,
         gate: &mut EpochGate,
-        heard: &mut BTreeSet<String>,
+        heard: &mut BTreeMap<String, u64>,
         store: &mut dyn FnMut(Segment),
     ) {
         let bytes = sample.payload().to_bytes();
         let key = sample.key_expr().as_str();
+        if let Some(sender) = traj_sender(key) {
+            gate.heard_from(sender, Instant::now());
+        }
         let message =
             decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects).filter(
                 |m| match check_traj(key, m) {
@@ -223,12 +316,12 @@ impl ZenohActors {
         match message {
             Some(TrajMessage::Segment(segment)) => {
                 if segment.policy_version == version {
-                    heard.insert(segment.actor.clone());
+                    *heard.entry(segment.actor.clone()).or_default() += segment.steps.len() as u64;
                 }
                 store(segment)
             }
             Some(TrajMessage::EpochDone(marker)) => {
-                heard.insert(marker.actor.clone());
+                heard.entry(marker.actor.clone()).or_default();
                 gate.done(marker);
             }
             None => {}
@@ -253,7 +346,7 @@ impl ZenohActors {
                 SampleKind::Delete => {
                     tracing::warn!(actor, "actor left");
                     if let Some(g) = gate.as_deref_mut() {
-                        g.gone(&actor);
+                        g.gone(&actor, Instant::now());
                     }
                     self.live.remove(&actor);
                     self.left.insert(actor);
@@ -261,15 +354,60 @@ impl ZenohActors {
             }
         }
     }
-}
 
-impl Rollouts for ZenohActors {
-    fn publish(&mut self, update: &PolicyUpdate) -> Result<(), PortError> {
-        // Encoded once: held for the queryable, published, and published again, from the same buffer.
-        let encoded = Bytes::from(codec::encode(update));
+    /// Applies the evaluators' liveliness changes; warns (once, until one is back) while none of the run's evaluators
+    /// is alive after `epoch` 0: no version is evaluated then, so the run cannot reach its early stop.
+    fn follow_evaluators(&mut self, epoch: u64) {
+        while let Ok(Some(sample)) = self.evaluators_alive.try_recv() {
+            let Some(id) = evaluator_of_token(sample.key_expr().as_str()) else {
+                continue;
+            };
+            match sample.kind() {
+                SampleKind::Put => {
+                    tracing::info!(evaluator = id, "evaluator joined");
+                    self.evaluators.insert(id);
+                    self.warned_no_evaluator = false;
+                }
+                SampleKind::Delete => {
+                    tracing::warn!(evaluator = id, "evaluator left");
+                    self.evaluators.remove(&id);
+                }
+            }
+        }
+        if self.evaluators_expected > 0
+            && epoch > 0
+            && self.evaluators.is_empty()
+            && !self.warned_no_evaluator
+        {
+            self.warned_no_evaluator = true;
+            tracing::warn!(
+                epoch,
+                "no evaluator is alive: no version is evaluated, so the run cannot reach its early stop until one \
+                 is back (start one: actor --eval)"
+            );
+        }
+    }
+
+    /// How many actors an epoch's steps are dealt over now: the live ones, or, in the first epoch this learner
+    /// gathers, the run's `actors.count` less those that left while some have not been seen yet.
+    fn members(&self) -> usize {
+        self.live
+            .len()
+            .max(self.expected.saturating_sub(self.left.len()))
+            .max(1)
+    }
+
+    /// Publishes `encoded` (version `version`), holds it for the queryable, and remembers it as the round to gather.
+    fn put_publication(
+        &mut self,
+        version: u64,
+        encoded: Bytes,
+        published_unix_ms: u64,
+        share: u64,
+    ) -> Result<(), PortError> {
         {
             let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
-            held.insert(update.version, encoded.clone());
+            held.insert(version, encoded.clone());
             let mut bytes: usize = held.values().map(Bytes::len).sum();
             while bytes > HELD_BYTES && held.len() > 1 {
                 if let Some((_, dropped)) = held.pop_first() {
@@ -281,11 +419,146 @@ impl Rollouts for ZenohActors {
             .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
             .map_err(transport)?;
         self.published_last = Some(Publication {
-            version: update.version,
+            version,
             encoded,
             at: Instant::now(),
+            published_unix_ms,
+            share,
         });
         Ok(())
+    }
+
+    /// One round of epoch `version`'s collection: from `round`'s publication until every live actor answered it (or
+    /// the timeout), storing what arrives. None on an interrupt.
+    fn gather_round(
+        &mut self,
+        round: &Publication,
+        expecting: usize,
+        store: &mut dyn FnMut(Segment),
+    ) -> Result<Option<RoundClosed>, PortError> {
+        let version = round.version;
+        self.follow_liveliness(None);
+        let mut gate = EpochGate::open(
+            version,
+            self.epoch_timeout,
+            self.live.iter().cloned(),
+            round.at,
+        )
+        .expecting(expecting, JOIN_GRACE.min(self.epoch_timeout))
+        .answering(round.published_unix_ms);
+        let mut last_wait_log = Instant::now();
+        let mut last_publish = round.at;
+        let mut republish_after = REPUBLISH;
+        let mut warned_nobody = false;
+        let mut heard: BTreeMap<String, u64> = BTreeMap::new();
+        // What arrived while the learner trained (`collection.overlap`), before anything is published again.
+        while let Ok(Some(sample)) = self.traj.try_recv() {
+            self.take_in(&sample, version, &mut gate, &mut heard, store);
+        }
+        let closed = loop {
+            if self.interrupt.is_set() {
+                return Ok(None);
+            }
+            self.follow_liveliness(Some(&mut gate));
+            if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
+                self.take_in(&sample, version, &mut gate, &mut heard, store);
+            }
+            if last_publish.elapsed() >= republish_after
+                && self.live.iter().any(|a| {
+                    !heard.contains_key(a) || gate.quiet_without_marker(a, Instant::now(), QUIET)
+                })
+            {
+                last_publish = Instant::now();
+                republish_after *= 2;
+                tracing::debug!(
+                    epoch = version,
+                    "publishing the policy again for actors not heard from"
+                );
+                self.bus
+                    .put_encoded_blocking::<PolicyUpdate>(
+                        &self.bus.keys.policy(),
+                        round.encoded.clone(),
+                    )
+                    .map_err(transport)?;
+            }
+            let now = Instant::now();
+            if let Some(closed) = gate.closed(now) {
+                break closed;
+            }
+            if self.live.is_empty() && gate.markers().next().is_none() {
+                if !warned_nobody {
+                    warned_nobody = true;
+                    tracing::warn!(
+                        epoch = version,
+                        wait_s = self.no_actor_timeout.as_secs_f64(),
+                        "no live actor: waiting for one (the run ends if none comes; its checkpoint stays)"
+                    );
+                }
+                if gate.abandoned(now, self.no_actor_timeout) {
+                    return Err(PortError::NoActors {
+                        epoch: version,
+                        waited_s: self.no_actor_timeout.as_secs_f64(),
+                    });
+                }
+            } else if warned_nobody && !self.live.is_empty() {
+                warned_nobody = false;
+                tracing::warn!(epoch = version, live = ?self.live, "an actor is back");
+            }
+            if last_wait_log.elapsed() > Duration::from_secs(30) {
+                last_wait_log = Instant::now();
+                tracing::info!(epoch = version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
+            }
+        };
+        // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
+        // its liveliness went.
+        while let Ok(Some(sample)) = self.traj.try_recv() {
+            self.take_in(&sample, version, &mut gate, &mut heard, store);
+        }
+        let (missing, timed_out) = match closed {
+            Closed::AllDone => (Vec::new(), false),
+            Closed::Timeout { missing } => {
+                tracing::warn!(
+                    epoch = version,
+                    ?missing,
+                    done = gate.markers().count(),
+                    "epoch closed by the timeout"
+                );
+                (missing, true)
+            }
+        };
+        let lost: Vec<String> = gate.lost().map(str::to_string).collect();
+        Ok(Some(RoundClosed {
+            markers: gate.markers().cloned().collect(),
+            missing,
+            timed_out,
+            undone: undone(lost.iter().map(String::as_str), round.share, &heard),
+            lost,
+        }))
+    }
+}
+
+impl Rollouts for ZenohActors {
+    fn publish(&mut self, update: &PolicyUpdate) -> Result<(), PortError> {
+        self.follow_liveliness(None);
+        self.follow_evaluators(update.version);
+        // The epoch's steps dealt over the actors there are now (the learner's update assumes `actors.count`).
+        let share = share((self.budget)(update.version), self.members());
+        // Encoded once: held for the queryable, published, and published again, from the same buffer.
+        let encoded = if share == update.steps_per_actor {
+            Bytes::from(codec::encode(update))
+        } else {
+            tracing::info!(
+                epoch = update.version,
+                live = ?self.live,
+                share,
+                "the epoch's steps dealt over the live actors"
+            );
+            Bytes::from(codec::encode(&PolicyUpdate {
+                steps_per_actor: share,
+                ..update.clone()
+            }))
+        };
+        self.put_publication(update.version, encoded, update.published_unix_ms, share)
     }
 
     fn gather(
@@ -293,11 +566,7 @@ impl Rollouts for ZenohActors {
         update: &PolicyUpdate,
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<Collected>, PortError> {
-        let Publication {
-            encoded,
-            at: published_at,
-            ..
-        } = self
+        let mut round = self
             .published_last
             .take()
             .filter(|p| p.version == update.version)
@@ -307,74 +576,50 @@ impl Rollouts for ZenohActors {
                     update.version
                 ))
             })?;
-        self.follow_liveliness(None);
-        let mut gate = EpochGate::open(
-            update.version,
-            self.epoch_timeout,
-            self.live.iter().cloned(),
-            published_at,
-        )
-        .expecting(self.expected.saturating_sub(self.left.len()))
-        .answering(update.published_unix_ms);
-        let mut last_wait_log = Instant::now();
-        let mut last_publish = published_at;
-        let mut republish_after = REPUBLISH;
-        let mut heard: BTreeSet<String> = BTreeSet::new();
-        // What arrived while the learner trained (`collection.overlap`), before anything is published again.
-        while let Ok(Some(sample)) = self.traj.try_recv() {
-            self.take_in(&sample, update.version, &mut gate, &mut heard, store);
-        }
-        let closed = loop {
-            if self.interrupt.is_set() {
+        let mut expecting = self.expected.saturating_sub(self.left.len());
+        // After this epoch the live set alone says who collects.
+        self.expected = 0;
+        let mut markers = Vec::new();
+        let mut missing;
+        let mut timed_out = false;
+        loop {
+            let Some(closed) = self.gather_round(&round, expecting, store)? else {
                 return Ok(None);
+            };
+            markers.extend(closed.markers);
+            missing = closed.missing;
+            timed_out |= closed.timed_out;
+            if closed.undone == 0 || self.live.is_empty() {
+                break;
             }
-            self.follow_liveliness(Some(&mut gate));
-            if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
-                self.take_in(&sample, update.version, &mut gate, &mut heard, store);
-            }
-            if last_publish.elapsed() >= republish_after
-                && self.live.iter().any(|a| !heard.contains(a))
-            {
-                last_publish = Instant::now();
-                republish_after *= 2;
-                tracing::debug!(
-                    epoch = update.version,
-                    "publishing the policy again for actors not heard from"
-                );
-                self.bus
-                    .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
-                    .map_err(transport)?;
-            }
-            if let Some(closed) = gate.closed(Instant::now()) {
-                break closed;
-            }
-            if last_wait_log.elapsed() > Duration::from_secs(30) {
-                last_wait_log = Instant::now();
-                tracing::info!(epoch = update.version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
-            }
-        };
-        // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
-        // its liveliness went.
-        while let Ok(Some(sample)) = self.traj.try_recv() {
-            self.take_in(&sample, update.version, &mut gate, &mut heard, store);
+            // The share the lost actors did not deliver, dealt to the live ones: the same version published again
+            // (a new publication time, which their markers answer).
+            let again = share(closed.undone, self.live.len());
+            tracing::warn!(
+                epoch = update.version,
+                lost = ?closed.lost,
+                undone = closed.undone,
+                live = ?self.live,
+                share = again,
+                "actors left before their share was collected: the rest dealt to the live actors"
+            );
+            let published_unix_ms = crate::unix_ms().max(round.published_unix_ms + 1);
+            let encoded = Bytes::from(codec::encode(&PolicyUpdate {
+                steps_per_actor: again,
+                published_unix_ms,
+                ..update.clone()
+            }));
+            self.put_publication(update.version, encoded, published_unix_ms, again)?;
+            round = self.published_last.take().ok_or_else(|| {
+                PortError::Transport("a round published and not held".to_string())
+            })?;
+            expecting = self.live.len();
         }
-        let (missing, timed_out) = match closed {
-            Closed::AllDone => (Vec::new(), false),
-            Closed::Timeout { missing } => {
-                tracing::warn!(
-                    epoch = update.version,
-                    ?missing,
-                    done = gate.markers().count(),
-                    "epoch closed by the timeout"
-                );
-                (missing, true)
-            }
-        };
         Ok(Some(Collected {
-            steps_published: gate.markers().map(|m| m.steps).sum(),
-            steps_taken: gate.markers().map(|m| m.taken).sum(),
-            steps_staged: gate.markers().map(|m| m.staged).sum(),
-            steps_shielded: gate.markers().map(|m| m.shielded).sum(),
+            steps_published: markers.iter().map(|m| m.steps).sum(),
+            steps_taken: markers.iter().map(|m| m.taken).sum(),
+            steps_staged: markers.iter().map(|m| m.staged).sum(),
+            steps_shielded: markers.iter().map(|m| m.shielded).sum(),
             missing,
             timed_out,
             live: self.live.iter().cloned().collect(),
@@ -394,6 +639,16 @@ impl Rollouts for ZenohActors {
                 }
             }
         }
+        // A version with its evaluation is no longer held for evaluators that missed it (the latest stays, for late
+        // joiners): a restarted evaluator takes up the versions not evaluated instead of evaluating them all again.
+        let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
+        let latest = held.last_key_value().map(|(v, _)| *v);
+        for report in &reports {
+            if Some(report.version) != latest {
+                held.remove(&report.version);
+            }
+        }
+        drop(held);
         reports
     }
 
@@ -418,6 +673,36 @@ impl Rollouts for ZenohActors {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_epochs_steps_are_dealt_over_its_members() {
+        assert_eq!(share(1024, 2), 512);
+        assert_eq!(
+            share(1024, 1),
+            1024,
+            "the one actor left collects the whole epoch"
+        );
+        assert_eq!(share(1024, 3), 342, "rounded up: at least the budget");
+        assert_eq!(share(1024, 0), 1024);
+    }
+
+    #[test]
+    fn what_a_lost_actor_did_not_deliver_is_undone() {
+        let heard: BTreeMap<String, u64> = [("a".to_string(), 300), ("b".to_string(), 600)].into();
+        assert_eq!(undone(["a"], 512, &heard), 212);
+        assert_eq!(undone(["b"], 512, &heard), 0, "it delivered its share");
+        assert_eq!(undone(["a", "c"], 512, &heard), 212 + 512, "c sent nothing");
+        assert_eq!(undone([], 512, &heard), 0);
+    }
+
+    #[test]
+    fn evaluator_tokens_are_recognised() {
+        assert_eq!(
+            evaluator_of_token("cabc/r/alive/eval/eval-0").as_deref(),
+            Some("eval-0")
+        );
+        assert_eq!(evaluator_of_token("cabc/r/alive/actor/actor-1"), None);
+    }
 
     #[test]
     fn actor_tokens_are_recognised() {

@@ -3,7 +3,7 @@
 //!
 //! A subcommand is its arguments (a [`clap::Args`] struct) and one function, and one variant of [`Command`] below
 //! that hands the one to the other: `export` in [`export`], `show` and `video` in [`show`], `robust` in [`robust`],
-//! `probe` in [`probe`],
+//! `probe` in [`probe`], `supervise` in [`supervise`],
 //! the rest in [`tools`].
 
 use clap::{Parser, Subcommand};
@@ -14,6 +14,7 @@ mod export;
 mod probe;
 mod robust;
 mod show;
+mod supervise;
 mod tools;
 
 use tools::load;
@@ -110,6 +111,12 @@ enum Command {
     /// the binaries of CABC_BIN); their results copied to docs/reproduction/<run>/ and each group's figures and table
     /// redrawn (deploy/reproduce.sh builds the binaries and calls it).
     Reproduce(campaign::ReproduceArgs),
+    /// A run's processes, supervised (issue 64): the learner, the expert server, the actors and the evaluators of a
+    /// run folder's configuration (or the --roles given: a machine that adds actors), each restarted with backoff
+    /// when it dies (the learner with --resume), the restarts counted in <run>/supervision.json, a crash loop
+    /// (supervision.max_restarts deaths within supervision.window_s) stopping the run with an error that names the
+    /// process and its log. deploy/run-local.sh runs it.
+    Supervise(supervise::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -140,6 +147,10 @@ fn main() -> anyhow::Result<()> {
         Command::AclDenials(args) => tools::acl_denials(&args),
         Command::Campaign(args) => campaign::run(&args),
         Command::Reproduce(args) => campaign::reproduce(&args),
+        Command::Supervise(args) => {
+            let code = supervise::run(&args)?;
+            std::process::exit(code)
+        }
     }
 }
 

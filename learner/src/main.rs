@@ -4,6 +4,7 @@
 use anyhow::Context;
 use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
+use cabc_proto::ports::PortError;
 use clap::Parser;
 use cli::{Cli, Command};
 
@@ -11,7 +12,30 @@ mod cli;
 mod serve;
 mod watch;
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
+    match learner() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // One line, the causes after colons (a backtrace, with RUST_BACKTRACE, is no user's error message).
+            eprintln!("Error: {e:#}");
+            let no_actors = e.chain().any(|c| {
+                matches!(
+                    c.downcast_ref::<PortError>(),
+                    Some(PortError::NoActors { .. })
+                )
+            });
+            // Gave up for want of actors: not a crash, so a supervisor ends the run instead of restarting it.
+            let code = if no_actors {
+                cabc_supervise::EXIT_NO_ACTORS
+            } else {
+                1
+            };
+            std::process::ExitCode::from(code as u8)
+        }
+    }
+}
+
+fn learner() -> anyhow::Result<()> {
     cabc_proto::telemetry::init();
     cabc_models::flush_denormals();
     match Cli::parse().command {

@@ -9,7 +9,7 @@ use crate::watch::BusMetrics;
 use anyhow::{Context, Result};
 use cabc_actor::local::LocalActors;
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::rollouts::ZenohActors;
+use cabc_bus::rollouts::{Waits, ZenohActors};
 use cabc_bus::{Bus, Role};
 use cabc_expert::relabel::{Background, Expert, Relabeller};
 use cabc_learning::algorithm::{self, Ending};
@@ -18,13 +18,17 @@ use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
+use cabc_supervise::status::Status;
 use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.
 pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let interrupt = Interrupt::on_ctrl_c();
     let keys = Keys::new(&config.run.name)?;
-    let timeout = Duration::from_secs_f64(config.bus.epoch_timeout_s);
+    let waits = Waits {
+        epoch_timeout: Duration::from_secs_f64(config.bus.epoch_timeout_s),
+        no_actor_timeout: Duration::from_secs_f64(config.bus.no_actor_timeout_s),
+    };
     let bus = Bus::join(&config.bus, Role::of_learner(&config.bus), keys, "learner")
         .context("opening the bus (is another learner already listening on the same endpoint?)")?;
     tracing::info!(
@@ -34,12 +38,21 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
         "learner up; waiting for actors"
     );
     // Subscribe first: actors reconnecting to a restarted learner flush what they could not deliver at once.
-    let expected = config.actors.count as usize;
     let metrics = Box::new(BusMetrics::new(bus.metrics_out()));
-    let mut actors = ZenohActors::new(bus, expected, timeout, interrupt)?;
+    let mut actors = ZenohActors::new(bus, &config, waits, interrupt)?;
     // What the router's access control refused (this process's router: zenoh logs its decisions only at TRACE).
     let acl_denials = Box::new(cabc_proto::telemetry::acl_denials);
+    let folder = run_dir.path().to_path_buf();
     let mut learner = cabc_outputs::learner_on_bus(config, run_dir, resume, metrics, acl_denials)?;
+    // Under a supervisor (`cabc supervise`, which writes supervision.json before it starts the learner): its restarts
+    // by role, read at each epoch's end.
+    if Status::read(&folder).is_some() {
+        learner = learner.with_restarts(Box::new(move || {
+            Status::read(&folder)
+                .map(|s| s.restarts.into_iter().collect())
+                .unwrap_or_default()
+        }));
+    }
     run_to_the_end(&mut learner, &mut actors)?;
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));

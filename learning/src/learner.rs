@@ -52,6 +52,19 @@ const REPLAY: &str = "replay.bin";
 /// warning and the summary's. In process there is no bus, and nothing refused: `Box::new(BTreeMap::new)`.
 pub type AclDenials = Box<dyn Fn() -> BTreeMap<String, u64>>;
 
+/// The run's processes restarted so far by its supervisor, by role (`learner`, `expert`, `actor`, `evaluator`), as the
+/// `learner` binary reads them from the run folder's `supervision.json` (issue 64): the `restarts_<role>` columns and
+/// the summary's `restarts`.
+pub type Restarts = Box<dyn Fn() -> BTreeMap<String, u64>>;
+
+/// The roles whose restarts are columns of `metrics.csv`, in order.
+pub const RESTARTED_ROLES: [(&str, &str); 4] = [
+    ("learner", "restarts_learner"),
+    ("expert", "restarts_expert"),
+    ("actor", "restarts_actor"),
+    ("evaluator", "restarts_evaluator"),
+];
+
 /// The epoch in progress, from [`Learner::begin_epoch`] to [`Learner::end_epoch`]: its record and its counts.
 struct Epoch {
     record: Record,
@@ -88,6 +101,7 @@ pub struct Learner {
     folder: PathBuf,
     sink: Box<dyn Sink>,
     acl_denials: AclDenials,
+    restarts: Option<Restarts>,
     /// The segments of the epoch being collected, until [`Learner::partition`].
     d_new: Vec<Checked>,
     epoch: Epoch,
@@ -175,11 +189,18 @@ impl Learner {
             folder,
             sink,
             acl_denials,
+            restarts: None,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
             half_width,
             image_log,
         })
+    }
+
+    /// Reads the supervisor's restarts at each epoch's end (a run under `cabc supervise`).
+    pub fn with_restarts(mut self, restarts: Restarts) -> Self {
+        self.restarts = Some(restarts);
+        self
     }
 
     /// The run folder (the checkpoint's parent).
@@ -447,6 +468,12 @@ impl Learner {
         record.count("dynamics_only", self.replay.len_dynamics_only());
         self.state.evaluations.put(&mut record);
         record.count("acl_denied", self.acl_denied());
+        if let Some(restarts) = &self.restarts {
+            let by = restarts();
+            for (role, column) in RESTARTED_ROLES {
+                record.count(column, by.get(role).copied().unwrap_or(0));
+            }
+        }
         record.real("epoch_s", started.elapsed().as_secs_f64(), 3);
         let epoch = record.epoch();
         tracing::info!("epoch done: {record}");
@@ -559,6 +586,7 @@ impl Learner {
             versions_not_evaluated: evaluations.not_evaluated(),
             rejected_messages: rejected,
             acl_denied: (self.acl_denials)(),
+            restarts: self.restarts.as_ref().map(|r| r()),
             d_plus: self.replay.len_plus(),
             d_uncertain: self.replay.len_uncertain(),
             d_minus: self.replay.len_minus(),

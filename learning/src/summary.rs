@@ -49,6 +49,10 @@ pub struct Summary {
     pub refused_evals: u64,
     /// Messages the bus refused (foreign, malformed).
     pub rejected_messages: u64,
+    /// The run's processes restarted by its supervisor, by role (`cabc supervise`'s `supervision.json`; absent in a
+    /// run without one).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub restarts: Option<BTreeMap<String, u64>>,
     pub rho: f64,
     pub run: String,
     /// Segments refused before the ledger saw them (images not of the run's observation size).
@@ -103,6 +107,7 @@ mod tests {
             precision: Precision::Bf16,
             refused_evals: 8,
             rejected_messages: 9,
+            restarts: Some(BTreeMap::from([("actor".to_string(), 1)])),
             rho: 0.5,
             run: "r".into(),
             segments_not_stored: 10,

@@ -38,6 +38,7 @@ pub struct RunConfig {
     pub training: TrainingSection,
     pub actors: ActorsSection,
     pub bus: BusSection,
+    pub supervision: SupervisionSection,
 }
 
 /// A configuration that could not be read.

@@ -19,7 +19,20 @@ pub enum PortError {
     /// The transport failed.
     #[error("{0}")]
     Transport(String),
+    /// No actor was alive for `waited_s` while epoch `epoch` collected: the run cannot go on (issue 64). Its last
+    /// checkpoint stays, and `--resume` continues it once actors are back.
+    #[error(
+        "no live actor for {waited_s} s (bus.no_actor_timeout_s) in epoch {epoch}: the run cannot collect; its \
+         checkpoint stays, and `learner run --resume` (deploy/run-local.sh --resume) continues it once actors run"
+    )]
+    NoActors { epoch: u64, waited_s: f64 },
 }
+
+/// How far a policy version may jump past the last one a process followed before it is taken for a forged or
+/// replayed update rather than the learner's pace (the learner publishes one version per epoch; an actor skips only
+/// those published while it finished a share or an evaluation, a handful; issue 57's replay was 1,000 ahead): an actor
+/// logs such a jump, and a collector over the bus asks the learner to vouch for it (issue 64).
+pub const FAR_AHEAD: u64 = 100;
 
 /// What a policy source hands an actor next.
 #[derive(Clone, Debug, PartialEq)]

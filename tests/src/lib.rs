@@ -80,6 +80,26 @@ pub fn test_dir() -> tempfile::TempDir {
     dir
 }
 
+/// The column `name` of a CSV file (`metrics.csv`, `evals.csv`), as integers (a value that is not one: u64::MAX).
+pub fn csv_column(path: &Path, name: &str) -> Vec<u64> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let i = header
+        .iter()
+        .position(|h| *h == name)
+        .unwrap_or_else(|| panic!("{} has no column {name}", path.display()));
+    lines
+        .map(|l| {
+            l.split(',')
+                .nth(i)
+                .unwrap_or("")
+                .parse()
+                .unwrap_or(u64::MAX)
+        })
+        .collect()
+}
+
 /// A run's child processes; all are killed on drop.
 pub struct Cluster {
     pub dir: PathBuf,
@@ -311,6 +331,22 @@ impl Cluster {
         let stdout = self.wait_success(label, Duration::from_secs(400));
         serde_json::from_str(&stdout)
             .unwrap_or_else(|e| panic!("{label}'s stdout is not the summary ({e}): {stdout}"))
+    }
+
+    /// Waits until the run's `metrics.csv` holds `epochs` rows (240 s at most; then panics with `learner`'s log).
+    pub fn wait_for_epochs(&self, epochs: usize, learner: &str) {
+        let path = self.dir.join("metrics.csv");
+        let started = Instant::now();
+        while std::fs::read_to_string(&path).map_or(0, |t| t.lines().count().saturating_sub(1))
+            < epochs
+        {
+            assert!(
+                started.elapsed() < Duration::from_secs(240),
+                "{epochs} epochs not done:\n{}",
+                self.log_tail(learner)
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// The last lines of a child's log (for failure messages).

@@ -2,33 +2,11 @@
 //! started again. Each run must go on to its last epoch with every step the actors said they published for an epoch
 //! stored, none twice (`metrics.csv`: `steps_collected` against `steps_published`; `summary.json`: duplicates).
 
-use cabc_tests::Cluster;
-use std::path::Path;
-use std::time::{Duration, Instant};
+use cabc_tests::{csv_column, Cluster};
+use std::time::Duration;
 
-fn csv_column(path: &Path, name: &str) -> Vec<u64> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let i = header.iter().position(|h| *h == name).unwrap();
-    lines
-        .map(|l| l.split(',').nth(i).unwrap().parse().unwrap_or(u64::MAX))
-        .collect()
-}
-
-/// Waits until `metrics.csv` holds `epochs` rows.
 fn wait_for_epochs(cluster: &Cluster, epochs: usize) {
-    let path = cluster.dir.join("metrics.csv");
-    let started = Instant::now();
-    while std::fs::read_to_string(&path).map_or(0, |t| t.lines().count().saturating_sub(1)) < epochs
-    {
-        assert!(
-            started.elapsed() < Duration::from_secs(240),
-            "{epochs} epochs not done:\n{}",
-            cluster.log_tail("learner")
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    cluster.wait_for_epochs(epochs, "learner");
 }
 
 fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Value {

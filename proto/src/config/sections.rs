@@ -459,6 +459,9 @@ pub struct BusSection {
     pub connect: Vec<String>,
     /// Seconds the learner waits for the last actor of an epoch before it closes the epoch without it.
     pub epoch_timeout_s: f64,
+    /// Seconds an epoch waits while no actor is alive (none started yet, or all dead and not restarted) before the
+    /// learner ends the run with an error; its checkpoint stays for `--resume` (issue 64).
+    pub no_actor_timeout_s: f64,
     /// zenoh multicast scouting; off by default, so that a loopback run never meets strangers.
     pub multicast_scouting: bool,
     /// TLS, passwords and access control (`[bus.security]`); off by default.
@@ -471,8 +474,37 @@ impl Default for BusSection {
             listen: vec!["tcp/127.0.0.1:7447".into()],
             connect: vec!["tcp/127.0.0.1:7447".into()],
             epoch_timeout_s: 120.0,
+            no_actor_timeout_s: 300.0,
             multicast_scouting: false,
             security: SecuritySection::default(),
+        }
+    }
+}
+
+/// How `cabc supervise` (the local job's and each scale-out machine's supervisor) restarts the run's processes
+/// (issue 64): a dead actor, evaluator or expert server is started again after a backoff that doubles with each
+/// death in the window, the learner with `--resume`; a process that dies `max_restarts` times within `window_s`
+/// stops the run with an error naming it and its log.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisionSection {
+    /// Deaths of one process within `window_s` that end the run (a crash loop); 0: never restarted.
+    pub max_restarts: u32,
+    /// The crash loop's window, in seconds.
+    pub window_s: f64,
+    /// The wait before the first restart, in seconds; doubled for each further death in the window.
+    pub backoff_s: f64,
+    /// The longest wait before a restart, in seconds.
+    pub backoff_max_s: f64,
+}
+
+impl Default for SupervisionSection {
+    fn default() -> Self {
+        SupervisionSection {
+            max_restarts: 5,
+            window_s: 300.0,
+            backoff_s: 1.0,
+            backoff_max_s: 30.0,
         }
     }
 }

@@ -20,6 +20,21 @@ impl RunConfig {
                 "use letters, digits, '-', '_' or '.'",
             );
         }
+        for (key, value) in [
+            ("bus.epoch_timeout_s", self.bus.epoch_timeout_s),
+            ("bus.no_actor_timeout_s", self.bus.no_actor_timeout_s),
+            ("supervision.window_s", self.supervision.window_s),
+            ("supervision.backoff_s", self.supervision.backoff_s),
+            ("supervision.backoff_max_s", self.supervision.backoff_max_s),
+        ] {
+            if !(value > 0.0 && value.is_finite()) {
+                return invalid(
+                    key,
+                    value.to_string(),
+                    "must be a positive number of seconds",
+                );
+            }
+        }
         if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
             return invalid(
                 "algorithm.lambda",

@@ -1,0 +1,93 @@
+//! `cabc supervise`: a run's processes under [`cabc_supervise::Supervisor`]: the main job's (deploy/run-local.sh),
+//! or those a machine adds to a running run (`--roles actor`, deploy/SCALE-OUT.md).
+
+use anyhow::{Context, Result};
+use cabc_proto::config::RunConfig;
+use cabc_supervise::roster::{Role, Roster};
+use cabc_supervise::{Ended, Supervisor};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The run's configuration file (the run folder's config.toml: `learner prepare` writes it).
+    #[arg(long, short)]
+    config: PathBuf,
+    /// The run folder: the logs (logs/<process>.log) and supervision.json go there.
+    #[arg(long)]
+    run_dir: PathBuf,
+    /// The folder of the binaries (learner, actor, expert-server).
+    #[arg(long)]
+    bin: PathBuf,
+    /// The roles run here, comma-separated: learner, expert, actor, evaluator (default: all four).
+    #[arg(long, value_delimiter = ',')]
+    roles: Vec<Role>,
+    /// Collecting actors started here (default: actors.count).
+    #[arg(long)]
+    actors: Option<u32>,
+    /// The number of the first actor's id (actor-<first>, actor-<first+1>, ...): another machine's actors take ids
+    /// the run does not use yet.
+    #[arg(long, default_value_t = 0)]
+    first_actor: u32,
+    /// The bus endpoints every process but the learner dials (default: bus.connect).
+    #[arg(long)]
+    connect: Vec<String>,
+    /// The learner's full log lines on the terminal instead of its progress bar.
+    #[arg(long)]
+    verbose: bool,
+    /// Arguments for the learner (--resume, --fresh, ...), after `--`.
+    #[arg(last = true)]
+    learner_args: Vec<String>,
+}
+
+/// Supervises the run; returns the exit status for the command.
+pub fn run(args: &Args) -> Result<i32> {
+    let config = RunConfig::load(&args.config.display().to_string())
+        .with_context(|| format!("loading {}", args.config.display()))?;
+    let roster = Roster {
+        bin: args.bin.clone(),
+        config_file: args.config.clone(),
+        run_dir: args.run_dir.clone(),
+        roles: if args.roles.is_empty() {
+            Role::ALL.to_vec()
+        } else {
+            args.roles.clone()
+        },
+        actors: args.actors,
+        first_actor: args.first_actor,
+        connect: args.connect.clone(),
+        learner_args: args.learner_args.clone(),
+    };
+    for program in roster.specs(&config).iter().map(|s| &s.program) {
+        anyhow::ensure!(
+            program.is_file(),
+            "{} was not built (cargo build --release)",
+            program.display()
+        );
+    }
+    // On a terminal the learner draws its progress bar; --verbose or RUST_LOG bring its lines instead.
+    let brief =
+        std::io::stderr().is_terminal() && !args.verbose && std::env::var_os("RUST_LOG").is_none();
+    let mut supervisor = Supervisor::new(roster, &config, brief);
+    match supervisor.run() {
+        Ok(Ended::Learner { code, after }) => {
+            let s = after.as_secs();
+            eprintln!(
+                "[run-local] learner finished (exit {code}) after {} min {} s; summary: {}",
+                s / 60,
+                s % 60,
+                args.run_dir.join("summary.json").display()
+            );
+            Ok(code)
+        }
+        Ok(Ended::Interrupted) => {
+            eprintln!("[run-local] stopped");
+            Ok(0)
+        }
+        Ok(Ended::Finished) => Ok(0),
+        Err(e) => {
+            eprintln!("[run-local] error: {e}");
+            Ok(e.exit_code())
+        }
+    }
+}

@@ -1,0 +1,563 @@
+//! The run's supervisor (issue 64): starts the processes of a run ([`roster`]), restarts each one that dies with a
+//! backoff ([`policy`]; the learner with `--resume`), says so on the terminal and in the process's log, counts the
+//! restarts by role in the run folder's `supervision.json` ([`status`], which the learner puts in `metrics.csv` and
+//! `summary.json`), and stops the run with an error naming the process and its log when one keeps dying. One Ctrl-C
+//! (or SIGTERM) stops every process; the run ends when the learner does.
+//!
+//! `cabc supervise` is its command; `deploy/run-local.sh` runs it for the main job, and a machine that adds actors to a
+//! running run runs it with `--roles actor` (deploy/SCALE-OUT.md).
+//!
+//! A process that exits 0 has finished (an actor after the learner's stop) and is not started again; the learner's
+//! exit 0 ends the run, and its [`EXIT_NO_ACTORS`] (it waited `bus.no_actor_timeout_s` with no live actor) ends it
+//! with an error: restarting the learner would not bring actors back.
+
+pub mod policy;
+pub mod roster;
+pub mod status;
+
+use cabc_proto::config::SupervisionSection;
+use policy::{Deaths, Decision};
+use roster::{Role, Roster, Spec};
+use status::{ProcessStatus, Status};
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, BufReader, Write};
+use std::net::{TcpStream, ToSocketAddrs};
+use std::os::unix::process::CommandExt;
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// The learner's exit status when it gave up for want of actors (`PortError::NoActors`: no live actor for
+/// `bus.no_actor_timeout_s`); the `learner` binary exits with it.
+pub const EXIT_NO_ACTORS: i32 = 3;
+
+/// How long the learner's bus may take to accept connections before the others start regardless.
+const BUS_WAIT: Duration = Duration::from_secs(60);
+/// How often the processes are looked at.
+const POLL: Duration = Duration::from_millis(100);
+/// How long the processes have after the learner's end (its stop reached them) before they are interrupted.
+const AFTER_LEARNER: Duration = Duration::from_secs(5);
+/// How long an interrupted process has before SIGTERM, and then before SIGKILL.
+const GRACE: Duration = Duration::from_secs(5);
+
+/// Why the supervisor could not run, or stopped, the run.
+#[derive(Debug, thiserror::Error)]
+pub enum SuperviseError {
+    #[error(
+        "{endpoint} (bus.listen) is in use: another run on this machine? Give this run its own port: --set \
+         'bus.listen=[\"tcp/127.0.0.1:PORT\"]' --set 'bus.connect=[\"tcp/127.0.0.1:PORT\"]'"
+    )]
+    PortInUse { endpoint: String },
+    #[error("the learner ended ({how}) before its bus opened; see {log}", log = .log.display())]
+    LearnerDidNotStart {
+        how: String,
+        code: Option<i32>,
+        log: PathBuf,
+    },
+    #[error(
+        "{name} died {deaths} times within {window_s} s (last: {how}): a crash loop, so the run is stopped; its log: \
+         {log}", log = .log.display()
+    )]
+    CrashLoop {
+        name: String,
+        deaths: usize,
+        window_s: f64,
+        how: String,
+        log: PathBuf,
+    },
+    #[error(
+        "the learner gave up: no live actor for bus.no_actor_timeout_s; its checkpoint stays (--resume continues \
+         the run); its log: {log}", log = .log.display()
+    )]
+    NoActors { log: PathBuf },
+    #[error("starting {name} ({program}): {source}", program = .program.display())]
+    Spawn {
+        name: String,
+        program: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{what}: {source}")]
+    Io {
+        what: String,
+        source: std::io::Error,
+    },
+}
+
+impl SuperviseError {
+    /// The exit status a command should end with: the learner's own where it ended the run, else 1.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            SuperviseError::LearnerDidNotStart { code: Some(c), .. } if *c != 0 => *c,
+            SuperviseError::NoActors { .. } => EXIT_NO_ACTORS,
+            _ => 1,
+        }
+    }
+}
+
+/// How a supervised run ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Ended {
+    /// The learner ended by itself (early stop, budget, its own Ctrl-C): its exit status.
+    Learner { code: i32, after: Duration },
+    /// Ctrl-C or SIGTERM reached the supervisor.
+    Interrupted,
+    /// No learner here, and every process finished (the learner's stop reached them).
+    Finished,
+}
+
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::SeqCst);
+}
+
+/// Ctrl-C and SIGTERM set a flag that the loop reads (the processes of a terminal's Ctrl-C get it themselves too).
+fn catch_signals() {
+    let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
+    }
+}
+
+fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::SeqCst)
+}
+
+/// "exit 1", "signal 9 (SIGKILL)".
+pub fn describe(status: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(code), _) => format!("exit {code}"),
+        (None, Some(9)) => "signal 9 (SIGKILL)".into(),
+        (None, Some(signal)) => format!("signal {signal}"),
+        (None, None) => "an unknown end".into(),
+    }
+}
+
+/// One supervised process.
+struct Managed {
+    spec: Spec,
+    child: Option<Child>,
+    started: Instant,
+    deaths: Deaths,
+    /// When it is started again, after a death.
+    restart_at: Option<Instant>,
+    /// It exited 0: not started again.
+    finished: bool,
+}
+
+/// Runs a [`Roster`]'s processes until the run ends.
+pub struct Supervisor {
+    roster: Roster,
+    policy: SupervisionSection,
+    /// Where the learner's bus accepts connections (empty: no TCP endpoint, or no learner here).
+    listen: Vec<(String, u16)>,
+    /// The learner draws its progress bar on this terminal (and writes its own log file).
+    brief: bool,
+    procs: Vec<Managed>,
+    status: Status,
+}
+
+impl Supervisor {
+    /// A supervisor of `roster` under `config`'s `[supervision]`; with `brief` the learner draws its progress bar on
+    /// the terminal, else its lines go to its log and to this process's stderr.
+    pub fn new(roster: Roster, config: &cabc_proto::config::RunConfig, brief: bool) -> Self {
+        let specs = roster.specs(config);
+        let listen = if roster.roles.contains(&Role::Learner) {
+            roster::listen_addresses(&config.bus.listen)
+        } else {
+            Vec::new()
+        };
+        let procs = specs
+            .into_iter()
+            .map(|spec| Managed {
+                spec,
+                child: None,
+                started: Instant::now(),
+                deaths: Deaths::new(&config.supervision),
+                restart_at: None,
+                finished: false,
+            })
+            .collect();
+        Supervisor {
+            roster,
+            policy: config.supervision.clone(),
+            listen,
+            brief,
+            procs,
+            status: Status::new(),
+        }
+    }
+
+    /// The names of the processes, in the order they start.
+    pub fn names(&self) -> Vec<String> {
+        self.procs.iter().map(|p| p.spec.name.clone()).collect()
+    }
+
+    /// Starts the run's processes and supervises them until the run ends.
+    pub fn run(&mut self) -> Result<Ended, SuperviseError> {
+        catch_signals();
+        // A bus endpoint another run holds: refused before anything starts (this run's actors would join that bus).
+        if let Some((host, port)) = self.listen.iter().find(|a| accepting(a)) {
+            return Err(SuperviseError::PortInUse {
+                endpoint: format!("{host}:{port}"),
+            });
+        }
+        let logs = self.roster.run_dir.join("logs");
+        std::fs::create_dir_all(&logs).map_err(|source| SuperviseError::Io {
+            what: format!("creating {}", logs.display()),
+            source,
+        })?;
+        for p in &self.procs {
+            self.status.processes.insert(
+                p.spec.name.clone(),
+                ProcessStatus {
+                    role: p.spec.role.as_str().into(),
+                    restarts: 0,
+                    pid: None,
+                    last_exit: None,
+                    log: p.spec.log.display().to_string(),
+                },
+            );
+        }
+        self.write_status()?;
+        let started = Instant::now();
+        let result = self.start_and_watch(started);
+        self.stop_all(Duration::ZERO);
+        for entry in self.status.processes.values_mut() {
+            entry.pid = None;
+        }
+        if let Err(e) = &result {
+            self.status.ended = Some(e.to_string());
+        }
+        let _ = self.write_status();
+        result
+    }
+
+    fn start_and_watch(&mut self, started: Instant) -> Result<Ended, SuperviseError> {
+        let learner = self.procs.iter().position(|p| p.spec.role == Role::Learner);
+        if let Some(i) = learner {
+            self.start(i, false)?;
+            if !self.wait_for_bus(i)? {
+                return Ok(Ended::Interrupted);
+            }
+        }
+        for i in 0..self.procs.len() {
+            if Some(i) != learner {
+                self.start(i, false)?;
+            }
+        }
+        loop {
+            if interrupted() {
+                return Ok(Ended::Interrupted);
+            }
+            let now = Instant::now();
+            for i in 0..self.procs.len() {
+                if let Some(ended) = self.look_at(i, now, started)? {
+                    return Ok(ended);
+                }
+            }
+            if learner.is_none() && self.procs.iter().all(|p| p.finished) {
+                return Ok(Ended::Finished);
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+
+    /// Process `i`: handles its death (a restart planned, or the run's end), or starts it again when due.
+    fn look_at(
+        &mut self,
+        i: usize,
+        now: Instant,
+        started: Instant,
+    ) -> Result<Option<Ended>, SuperviseError> {
+        let exited = match self.procs[i].child.as_mut().map(Child::try_wait) {
+            Some(Ok(Some(status))) => status,
+            Some(Ok(None)) | None => {
+                if self.procs[i].restart_at.is_some_and(|at| now >= at) {
+                    self.procs[i].restart_at = None;
+                    self.start(i, true)?;
+                }
+                return Ok(None);
+            }
+            Some(Err(e)) => {
+                return Err(SuperviseError::Io {
+                    what: format!("waiting for {}", self.procs[i].spec.name),
+                    source: e,
+                })
+            }
+        };
+        let p = &mut self.procs[i];
+        p.child = None;
+        let (name, role, log) = (p.spec.name.clone(), p.spec.role, p.spec.log.clone());
+        let how = describe(exited);
+        let lived = now.duration_since(p.started);
+        let decision = if exited.success()
+            || (role == Role::Learner && exited.code() == Some(EXIT_NO_ACTORS))
+            || interrupted()
+        {
+            None
+        } else {
+            Some(p.deaths.died(now))
+        };
+        if exited.success() && role != Role::Learner {
+            p.finished = true;
+        }
+        if let Some(Decision::Restart(wait)) = decision {
+            p.restart_at = Some(now + wait);
+        }
+        if let Some(entry) = self.status.processes.get_mut(&name) {
+            entry.last_exit = Some(how.clone());
+            entry.pid = None;
+        }
+        match decision {
+            None if role == Role::Learner && exited.success() => {
+                self.write_status()?;
+                self.wind_down(AFTER_LEARNER);
+                Ok(Some(Ended::Learner {
+                    code: 0,
+                    after: now.duration_since(started),
+                }))
+            }
+            None if role == Role::Learner && exited.code() == Some(EXIT_NO_ACTORS) => {
+                Err(SuperviseError::NoActors { log })
+            }
+            None if interrupted() => Ok(Some(Ended::Interrupted)),
+            None => {
+                self.write_status()?;
+                Ok(None)
+            }
+            Some(Decision::GiveUp { deaths }) => Err(SuperviseError::CrashLoop {
+                name,
+                deaths,
+                window_s: self.policy.window_s,
+                how,
+                log,
+            }),
+            Some(Decision::Restart(wait)) => {
+                let count = match self.status.processes.get_mut(&name) {
+                    Some(entry) => {
+                        entry.restarts += 1;
+                        entry.restarts
+                    }
+                    None => 1,
+                };
+                *self
+                    .status
+                    .restarts
+                    .entry(role.as_str().to_string())
+                    .or_default() += 1;
+                self.write_status()?;
+                let line = format!(
+                    "[supervise] warning: {name} died ({how}) after {:.0} s; restarting it in {:.1} s (restart \
+                     {count}; log {})",
+                    lived.as_secs_f64(),
+                    wait.as_secs_f64(),
+                    log.display()
+                );
+                eprintln!("{line}");
+                append(&log, &line);
+                Ok(None)
+            }
+        }
+    }
+
+    /// Starts process `i` (again, with its restart arguments, when `restart`).
+    fn start(&mut self, i: usize, restart: bool) -> Result<(), SuperviseError> {
+        let p = &mut self.procs[i];
+        let args = if restart {
+            p.spec.restart_args(&self.roster.run_dir)
+        } else {
+            p.spec.args.clone()
+        };
+        let child = spawn(&p.spec, &args, self.brief).map_err(|source| SuperviseError::Spawn {
+            name: p.spec.name.clone(),
+            program: p.spec.program.clone(),
+            source,
+        })?;
+        let pid = child.id();
+        p.child = Some(child);
+        p.started = Instant::now();
+        let name = p.spec.name.clone();
+        if let Some(entry) = self.status.processes.get_mut(&name) {
+            entry.pid = Some(pid);
+        }
+        self.write_status()
+    }
+
+    /// Waits until the learner's bus accepts connections (up to [`BUS_WAIT`]; at once without a TCP endpoint). False
+    /// on an interrupt; an error when the learner ends first.
+    fn wait_for_bus(&mut self, learner: usize) -> Result<bool, SuperviseError> {
+        if self.listen.is_empty() {
+            std::thread::sleep(Duration::from_secs(1));
+            return Ok(true);
+        }
+        let until = Instant::now() + BUS_WAIT;
+        while Instant::now() < until {
+            if interrupted() {
+                return Ok(false);
+            }
+            let p = &mut self.procs[learner];
+            if let Some(Ok(Some(status))) = p.child.as_mut().map(Child::try_wait) {
+                p.child = None;
+                return Err(SuperviseError::LearnerDidNotStart {
+                    how: describe(status),
+                    code: status.code(),
+                    log: p.spec.log.clone(),
+                });
+            }
+            if self.listen.iter().all(accepting) {
+                return Ok(true);
+            }
+            std::thread::sleep(POLL);
+        }
+        Ok(true)
+    }
+
+    /// Waits up to `wait` for the processes to end by themselves, then stops the rest.
+    fn wind_down(&mut self, wait: Duration) {
+        let until = Instant::now() + wait;
+        while Instant::now() < until && self.reap() > 0 {
+            std::thread::sleep(POLL);
+        }
+    }
+
+    /// Stops every process still running: SIGINT (each ends cleanly: the learner keeps its checkpoint), then after
+    /// [`GRACE`] SIGTERM, then SIGKILL. `first` waits before anything is sent.
+    fn stop_all(&mut self, first: Duration) {
+        self.wind_down(first);
+        for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGKILL] {
+            if self.reap() == 0 {
+                return;
+            }
+            for p in &self.procs {
+                if let Some(child) = &p.child {
+                    // SAFETY: kill(2) on a child's pid that has not been reaped (reap() takes it away first).
+                    unsafe {
+                        libc::kill(child.id() as libc::pid_t, signal);
+                    }
+                }
+            }
+            self.wind_down(GRACE);
+        }
+    }
+
+    /// Reaps the processes that ended; returns how many still run.
+    fn reap(&mut self) -> usize {
+        let mut running = 0;
+        for p in &mut self.procs {
+            if let Some(child) = &mut p.child {
+                match child.try_wait() {
+                    Ok(Some(_)) | Err(_) => p.child = None,
+                    Ok(None) => running += 1,
+                }
+            }
+        }
+        running
+    }
+
+    fn write_status(&self) -> Result<(), SuperviseError> {
+        self.status
+            .write(&self.roster.run_dir)
+            .map_err(|source| SuperviseError::Io {
+                what: format!("writing {}", Status::path(&self.roster.run_dir).display()),
+                source,
+            })
+    }
+}
+
+/// Starts `spec`'s program with `args`, its stderr (and stdout) appended to its log; the learner's stderr on the
+/// terminal under `brief` (it draws its progress bar and writes its own log file), else to its log and this process's
+/// stderr.
+fn spawn(spec: &Spec, args: &[String], brief: bool) -> std::io::Result<Child> {
+    append(
+        &spec.log,
+        &format!(
+            "[supervise] starting {} {}",
+            spec.program.display(),
+            args.join(" ")
+        ),
+    );
+    let log = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&spec.log)?;
+    let mut command = Command::new(&spec.program);
+    command.args(args).stdin(Stdio::null());
+    // A supervisor that dies takes its processes with it (SIGINT: each ends cleanly) instead of leaving them
+    // unsupervised; its own supervisor (or the user) starts the run again with --resume.
+    // SAFETY: prctl(2) is async-signal-safe, as a pre_exec closure must be.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGINT) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut tee = false;
+    if spec.role == Role::Learner {
+        if brief {
+            command
+                .env_remove(cabc_proto::telemetry::NO_LOG_FILE)
+                .env(cabc_proto::telemetry::BRIEF, "1")
+                .stderr(Stdio::inherit());
+        } else {
+            command
+                .env(cabc_proto::telemetry::NO_LOG_FILE, "1")
+                .stderr(Stdio::piped());
+            tee = true;
+        }
+    } else {
+        command
+            .env(cabc_proto::telemetry::NO_LOG_FILE, "1")
+            .stdout(log.try_clone()?)
+            .stderr(log);
+    }
+    let mut child = command.spawn()?;
+    if tee {
+        if let Some(stderr) = child.stderr.take() {
+            tee_lines(stderr, spec.log.clone());
+        }
+    }
+    Ok(child)
+}
+
+/// Whether something accepts TCP connections at `(host, port)`.
+fn accepting((host, port): &(String, u16)) -> bool {
+    let Ok(addresses) = (host.as_str(), *port).to_socket_addrs() else {
+        return false;
+    };
+    addresses
+        .into_iter()
+        .any(|a| TcpStream::connect_timeout(&a, Duration::from_millis(200)).is_ok())
+}
+
+/// Appends a line to a log (a failure is said on stderr, never fatal).
+fn append(log: &PathBuf, line: &str) {
+    let written = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(log)
+        .and_then(|mut f| writeln!(f, "{line}"));
+    if let Err(e) = written {
+        eprintln!("[supervise] warning: writing {}: {e}", log.display());
+    }
+}
+
+/// Copies a process's stderr, line by line, to this process's stderr and to its log.
+fn tee_lines(stderr: std::process::ChildStderr, log: PathBuf) {
+    std::thread::spawn(move || {
+        let mut file: Option<File> = OpenOptions::new().create(true).append(true).open(&log).ok();
+        for line in BufReader::new(stderr).lines() {
+            let Ok(line) = line else { break };
+            eprintln!("{line}");
+            if let Some(f) = file.as_mut() {
+                let _ = writeln!(f, "{line}");
+            }
+        }
+    });
+}

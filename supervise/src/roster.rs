@@ -1,0 +1,311 @@
+//! Which processes a supervisor runs, from the run configuration and the command line: the learner (`learner run`),
+//! the expert server (`expert-server serve`, none under `expert.placement = "in-actor"`), the collecting actors and
+//! the evaluators (`actor`, `actor --eval`), each with its log under `<run>/logs/`.
+
+use cabc_proto::config::{ExpertPlacement, RunConfig};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A process's role in the run: what its restarts are counted under.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Role {
+    Learner,
+    Expert,
+    Actor,
+    Evaluator,
+}
+
+impl Role {
+    pub const ALL: [Role; 4] = [Role::Learner, Role::Expert, Role::Actor, Role::Evaluator];
+
+    /// The name in `supervision.json`, `metrics.csv` (`restarts_<role>`) and `--roles`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Learner => "learner",
+            Role::Expert => "expert",
+            Role::Actor => "actor",
+            Role::Evaluator => "evaluator",
+        }
+    }
+}
+
+impl fmt::Display for Role {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Role {
+    type Err = String;
+
+    /// `learner`, `expert`, `actor` or `evaluator` (plurals too: `actors`, `evaluators`).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let singular = s.strip_suffix('s').unwrap_or(s);
+        Role::ALL
+            .into_iter()
+            .find(|r| r.as_str() == singular)
+            .ok_or_else(|| format!("a role is learner, expert, actor or evaluator, not `{s}`"))
+    }
+}
+
+/// One supervised process.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Spec {
+    /// Its name: `learner`, `expert-server-0`, `actor-3`, `eval` (also its log's name).
+    pub name: String,
+    pub role: Role,
+    pub program: PathBuf,
+    pub args: Vec<String>,
+    /// Where its stderr goes (appended to across restarts).
+    pub log: PathBuf,
+}
+
+impl Spec {
+    /// The arguments of a restart: the learner's with `--resume` (and without `--fresh`) once the run folder holds a
+    /// checkpoint; any other process's as at its start.
+    pub fn restart_args(&self, run_dir: &Path) -> Vec<String> {
+        if self.role != Role::Learner || !has_checkpoint(run_dir) {
+            return self.args.clone();
+        }
+        let mut args: Vec<String> = self
+            .args
+            .iter()
+            .filter(|a| *a != "--fresh" && *a != "--resume")
+            .cloned()
+            .collect();
+        args.push("--resume".into());
+        args
+    }
+}
+
+/// Whether a run folder holds a checkpoint that `--resume` continues (`checkpoint/`, or `checkpoint.old/` while a
+/// new one was being swapped in).
+pub fn has_checkpoint(run_dir: &Path) -> bool {
+    run_dir.join("checkpoint").exists() || run_dir.join("checkpoint.old").exists()
+}
+
+/// What a supervisor runs.
+#[derive(Clone, Debug)]
+pub struct Roster {
+    /// The folder of the binaries (`learner`, `actor`, `expert-server`).
+    pub bin: PathBuf,
+    /// The run configuration's file, as the processes take it (`--config`).
+    pub config_file: PathBuf,
+    pub run_dir: PathBuf,
+    /// The roles to run here (all four on one machine; `actor`, `evaluator` on a machine that adds actors).
+    pub roles: Vec<Role>,
+    /// How many collecting actors (default: `actors.count`), named `actor-<first_actor>` on.
+    pub actors: Option<u32>,
+    pub first_actor: u32,
+    /// `--connect` for every process but the learner (default: the configuration's `bus.connect`).
+    pub connect: Vec<String>,
+    /// The learner's own arguments (`--resume`, `--fresh`, ...).
+    pub learner_args: Vec<String>,
+}
+
+impl Roster {
+    /// The processes, in the order they start: the learner, the expert server, the actors, the evaluators.
+    pub fn specs(&self, config: &RunConfig) -> Vec<Spec> {
+        let logs = self.run_dir.join("logs");
+        let config_file = self.config_file.display().to_string();
+        let connect: Vec<String> = self
+            .connect
+            .iter()
+            .flat_map(|c| ["--connect".to_string(), c.clone()])
+            .collect();
+        let spec = |name: String, role: Role, program: &str, args: Vec<String>| Spec {
+            log: logs.join(format!("{name}.log")),
+            name,
+            role,
+            program: self.bin.join(program),
+            args,
+        };
+        let runs = |role| self.roles.contains(&role);
+        let mut specs = Vec::new();
+        if runs(Role::Learner) {
+            let mut args = vec![
+                "run".to_string(),
+                "--config".into(),
+                config_file.clone(),
+                "--run-dir".into(),
+                self.run_dir.display().to_string(),
+            ];
+            args.extend(self.learner_args.iter().cloned());
+            specs.push(spec("learner".into(), Role::Learner, "learner", args));
+        }
+        if runs(Role::Expert) && config.expert.placement == ExpertPlacement::Server {
+            let mut args = vec![
+                "--config".to_string(),
+                config_file.clone(),
+                "serve".into(),
+                "--id".into(),
+                "0".into(),
+            ];
+            args.extend(connect.iter().cloned());
+            specs.push(spec(
+                "expert-server-0".into(),
+                Role::Expert,
+                "expert-server",
+                args,
+            ));
+        }
+        if runs(Role::Actor) {
+            let count = self.actors.unwrap_or(config.actors.count);
+            for i in self.first_actor..self.first_actor + count {
+                let id = format!("actor-{i}");
+                let mut args = vec![
+                    "--config".to_string(),
+                    config_file.clone(),
+                    "--id".into(),
+                    id.clone(),
+                ];
+                args.extend(connect.iter().cloned());
+                specs.push(spec(id, Role::Actor, "actor", args));
+            }
+        }
+        if runs(Role::Evaluator) {
+            let n = config.actors.evaluators;
+            for i in 0..n {
+                // One evaluator is `eval`; several are eval-0 .. eval-<n-1> (evaluator i takes v mod n = i).
+                let id = if n == 1 {
+                    "eval".to_string()
+                } else {
+                    format!("eval-{i}")
+                };
+                let mut args = vec![
+                    "--config".to_string(),
+                    config_file.clone(),
+                    "--id".into(),
+                    id.clone(),
+                    "--eval".into(),
+                ];
+                args.extend(connect.iter().cloned());
+                specs.push(spec(id, Role::Evaluator, "actor", args));
+            }
+        }
+        specs
+    }
+}
+
+/// The (host, port) of each TCP or TLS endpoint of `bus.listen` (`tcp/HOST:PORT`, `tls/[V6]:PORT#iface=..`), with
+/// the unspecified addresses as loopback: where the learner's bus accepts connections once it is up.
+pub fn listen_addresses(listen: &[String]) -> Vec<(String, u16)> {
+    listen
+        .iter()
+        .filter_map(|endpoint| {
+            let address = endpoint
+                .strip_prefix("tcp/")
+                .or_else(|| endpoint.strip_prefix("tls/"))?;
+            let address = address.split(['#', '?']).next()?;
+            let (host, port) = address.rsplit_once(':')?;
+            let port: u16 = port.parse().ok()?;
+            let host = host.trim_start_matches('[').trim_end_matches(']');
+            let host = match host {
+                "0.0.0.0" | "" => "127.0.0.1",
+                "::" => "::1",
+                h => h,
+            };
+            Some((host.to_string(), port))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn roster(roles: Vec<Role>) -> Roster {
+        Roster {
+            bin: "/b".into(),
+            config_file: "/r/config.toml".into(),
+            run_dir: "/r".into(),
+            roles,
+            actors: None,
+            first_actor: 0,
+            connect: Vec::new(),
+            learner_args: vec!["--fresh".into()],
+        }
+    }
+
+    #[test]
+    fn one_machine_runs_every_role_in_order() {
+        let mut config = RunConfig::default();
+        config.actors.count = 2;
+        config.expert.placement = ExpertPlacement::Server;
+        let specs = roster(Role::ALL.to_vec()).specs(&config);
+        let names: Vec<_> = specs.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["learner", "expert-server-0", "actor-0", "actor-1", "eval"]
+        );
+        assert_eq!(specs[0].args[..2], ["run", "--config"]);
+        assert_eq!(specs[2].log, PathBuf::from("/r/logs/actor-0.log"));
+        assert_eq!(specs[4].args.last().map(String::as_str), Some("--eval"));
+        config.expert.placement = ExpertPlacement::InActor;
+        config.actors.evaluators = 2;
+        let names: Vec<_> = roster(Role::ALL.to_vec())
+            .specs(&config)
+            .into_iter()
+            .map(|s| s.name)
+            .collect();
+        assert_eq!(names, ["learner", "actor-0", "actor-1", "eval-0", "eval-1"]);
+    }
+
+    #[test]
+    fn a_machine_that_adds_actors_names_them_from_its_first() {
+        let config = RunConfig::default();
+        let mut r = roster(vec![Role::Actor]);
+        r.actors = Some(2);
+        r.first_actor = 4;
+        r.connect = vec!["tcp/10.0.0.1:7447".into()];
+        let specs = r.specs(&config);
+        let names: Vec<_> = specs.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["actor-4", "actor-5"]);
+        assert!(specs[0]
+            .args
+            .windows(2)
+            .any(|w| w == ["--connect", "tcp/10.0.0.1:7447"]));
+    }
+
+    #[test]
+    fn the_learner_restarts_with_resume_once_there_is_a_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut r = roster(vec![Role::Learner]);
+        r.run_dir = dir.path().to_path_buf();
+        let learner = &r.specs(&RunConfig::default())[0];
+        assert_eq!(
+            learner.restart_args(dir.path()),
+            learner.args,
+            "no checkpoint yet: started as before"
+        );
+        std::fs::create_dir(dir.path().join("checkpoint")).unwrap();
+        let again = learner.restart_args(dir.path());
+        assert_eq!(again.last().map(String::as_str), Some("--resume"));
+        assert!(!again.iter().any(|a| a == "--fresh"));
+    }
+
+    #[test]
+    fn roles_are_read_in_both_numbers() {
+        assert_eq!("actors".parse::<Role>(), Ok(Role::Actor));
+        assert_eq!("evaluator".parse::<Role>(), Ok(Role::Evaluator));
+        assert!("router".parse::<Role>().is_err());
+    }
+
+    #[test]
+    fn the_listen_endpoints_are_dialled_on_loopback() {
+        let listen = [
+            "tcp/0.0.0.0:7447".to_string(),
+            "tls/[::]:7448#iface=lo".into(),
+            "tcp/10.1.2.3:7449".into(),
+            "udp/1.2.3.4:1".into(),
+        ];
+        assert_eq!(
+            listen_addresses(&listen),
+            vec![
+                ("127.0.0.1".to_string(), 7447),
+                ("::1".into(), 7448),
+                ("10.1.2.3".into(), 7449)
+            ]
+        );
+    }
+}

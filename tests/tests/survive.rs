@@ -1,0 +1,242 @@
+//! The distributed run survives its own processes (issue 64), on the real binaries over loopback, smoke-sized:
+//! * under `cabc supervise` (what `deploy/run-local.sh` runs) each role killed with SIGKILL mid-run (an actor, the
+//!   evaluator, the expert server, the learner) is started again, the run goes on to its last epoch with nothing
+//!   stored twice, the evaluations go on after the evaluator's death, and the restarts are counted by role in
+//!   `supervision.json`, `metrics.csv` and `summary.json`; a process that keeps dying stops the run with an error
+//!   naming it and its log;
+//! * without a supervisor, the gate follows the live set: an actor killed mid-epoch costs no `epoch_timeout_s`, its
+//!   share goes to the live actor, and with no actor left the learner ends after `bus.no_actor_timeout_s` with its
+//!   checkpoint, which `--resume` continues once an actor runs again;
+//! * a forged policy update with a huge version on a plain bus leaves the evaluation running.
+
+use cabc_proto::config::RunConfig;
+use cabc_tests::{bin_dir, csv_column, Cluster};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// Starts `cabc supervise` for the cluster's run as the child `supervise` (its stderr in `<run>/supervise.log`).
+fn supervise(cluster: &mut Cluster, bin: &Path) {
+    let config = cluster.config.display().to_string();
+    let run_dir = cluster.dir.display().to_string();
+    let bin = bin.display().to_string();
+    let args = [
+        "supervise",
+        "--config",
+        &config,
+        "--run-dir",
+        &run_dir,
+        "--bin",
+        &bin,
+    ];
+    cluster.start("supervise", "cabc", &args).unwrap();
+}
+
+/// The pid of the supervised process `name` once it runs (from `supervision.json`).
+fn pid_of(run: &Path, name: &str) -> u32 {
+    let started = Instant::now();
+    loop {
+        let status: Option<serde_json::Value> = std::fs::read(run.join("supervision.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        if let Some(pid) = status
+            .as_ref()
+            .and_then(|s| s["processes"][name]["pid"].as_u64())
+        {
+            return pid as u32;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "{name} never ran: {status:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// SIGKILL to a supervised process, as a crash.
+fn kill_supervised(run: &Path, name: &str) {
+    let pid = pid_of(run, name);
+    let status = std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success(), "kill -9 {pid} ({name})");
+}
+
+#[test]
+fn a_supervised_run_survives_the_death_of_each_of_its_processes() {
+    let tmp = cabc_tests::test_dir();
+    let extra = "[supervision]\nbackoff_s = 0.2\n";
+    let mut cluster = Cluster::new(tmp.path(), "supervised", 12, extra).unwrap();
+    supervise(&mut cluster, &bin_dir());
+    let run = cluster.dir.clone();
+    let kills = [
+        (2, "actor-0"),
+        (4, "eval"),
+        (5, "expert-server-0"),
+        (7, "learner"),
+    ];
+    for (epochs, name) in kills {
+        cluster.wait_for_epochs(epochs, "supervise");
+        kill_supervised(&run, name);
+    }
+    let (status, _) = cluster
+        .wait("supervise", Duration::from_secs(300))
+        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail("supervise")));
+    let stderr = std::fs::read_to_string(run.join("supervise.log")).unwrap();
+    assert!(status.success(), "{}", cluster.log_tail("supervise"));
+    for (_, name) in kills {
+        assert!(
+            stderr.contains(&format!("warning: {name} died (signal 9 (SIGKILL))")),
+            "{name}: {stderr}"
+        );
+    }
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(
+        summary["restarts"],
+        serde_json::json!({"actor": 1, "evaluator": 1, "expert": 1, "learner": 1}),
+        "{summary:#}"
+    );
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = run.join("metrics.csv");
+    assert_eq!(csv_column(&metrics, "epoch"), (0..12).collect::<Vec<_>>());
+    // The learner's restart resumed from its checkpoint: the last rows count all four restarts.
+    assert_eq!(csv_column(&metrics, "restarts_actor").last(), Some(&1));
+    assert_eq!(csv_column(&metrics, "restarts_learner").last(), Some(&1));
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    // The evaluator's restart took up the evaluations: versions after its death were evaluated.
+    let evaluated = csv_column(&run.join("evals.csv"), "version");
+    assert!(
+        evaluated.iter().any(|&v| v >= 8),
+        "no evaluation after the evaluator's restart: {evaluated:?}"
+    );
+    println!("survive: actor, evaluator, expert server and learner killed once each (SIGKILL), restarted; evaluated {evaluated:?}");
+}
+
+#[test]
+fn a_process_that_keeps_dying_stops_the_run_and_is_named() {
+    let tmp = cabc_tests::test_dir();
+    // The real binaries, but an actor that dies at once.
+    let bin = tmp.path().join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    for name in ["learner", "expert-server"] {
+        std::os::unix::fs::symlink(bin_dir().join(name), bin.join(name)).unwrap();
+    }
+    let actor = bin.join("actor");
+    std::fs::write(
+        &actor,
+        "#!/bin/sh\necho 'actor: cannot start' >&2\nexit 1\n",
+    )
+    .unwrap();
+    std::process::Command::new("chmod")
+        .args(["+x", &actor.display().to_string()])
+        .status()
+        .unwrap();
+    let extra = "[supervision]\nmax_restarts = 2\nwindow_s = 60.0\nbackoff_s = 0.1\n";
+    let mut cluster = Cluster::new(tmp.path(), "loop", 50, extra).unwrap();
+    supervise(&mut cluster, &bin);
+    let (status, _) = cluster.wait("supervise", Duration::from_secs(120)).unwrap();
+    let stderr = cluster.log_tail("supervise");
+    assert_eq!(status.code(), Some(1), "{stderr}");
+    // The actors and the evaluator all run the failing `actor`: the first of them to die a third time is named.
+    let name = ["actor-0", "actor-1", "eval"]
+        .into_iter()
+        .find(|n| {
+            stderr.contains(&format!(
+                "{n} died 3 times within 60 s (last: exit 1): a crash loop"
+            ))
+        })
+        .unwrap_or_else(|| panic!("no crash loop named: {stderr}"));
+    let log = cluster.dir.join(format!("logs/{name}.log"));
+    assert!(stderr.contains(&log.display().to_string()), "{stderr}");
+    assert!(std::fs::read_to_string(&log)
+        .unwrap()
+        .contains("actor: cannot start"));
+    let status: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(cluster.dir.join("supervision.json")).unwrap())
+            .unwrap();
+    assert!(
+        status["ended"]
+            .as_str()
+            .is_some_and(|e| e.contains("crash loop")),
+        "{status:#}"
+    );
+    // Every process was stopped with the run: no pid left in the status.
+    for (name, process) in status["processes"].as_object().unwrap() {
+        assert!(
+            process.get("pid").is_none(),
+            "{name} still running: {status:#}"
+        );
+    }
+}
+
+#[test]
+fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
+    let tmp = cabc_tests::test_dir();
+    // Written into [bus]: the learner waits 4 s for an actor when none is alive.
+    let mut cluster = Cluster::new(tmp.path(), "gate", 9, "no_actor_timeout_s = 4.0\n").unwrap();
+    cluster.start_all(2, false).unwrap();
+    cluster.wait_for_epochs(2, "learner");
+    cluster.kill("actor-1").unwrap();
+    let killed = Instant::now();
+    cluster.wait_for_epochs(5, "learner");
+    // The epoch in flight closed on actor-0's markers, not on `epoch_timeout_s` (30 s in this run).
+    assert!(
+        killed.elapsed() < Duration::from_secs(25),
+        "{:?}:\n{}",
+        killed.elapsed(),
+        cluster.log_tail("learner")
+    );
+    // actor-1's share went to actor-0: the next epochs took their whole budget (256 steps) from it alone.
+    let taken = csv_column(&cluster.dir.join("metrics.csv"), "steps_taken");
+    assert_eq!(taken[4], 256, "{taken:?}");
+    cluster.kill("actor-0").unwrap();
+    let (status, _) = cluster.wait("learner", Duration::from_secs(60)).unwrap();
+    assert_eq!(status.code(), Some(3), "{}", cluster.log_tail("learner"));
+    let log = cluster.log_tail("learner");
+    assert!(log.contains("no live actor"), "{log}");
+    assert!(cluster.dir.join("checkpoint").exists());
+    // An actor back and the learner resumed: the run ends.
+    let config = cluster.config.display().to_string();
+    cluster
+        .start(
+            "actor-0-again",
+            "actor",
+            &["--config", &config, "--id", "actor-0"],
+        )
+        .unwrap();
+    cluster.start_learner("learner-resumed", true).unwrap();
+    let summary = cluster.summary("learner-resumed");
+    assert_eq!(summary["epochs"], 9, "{summary:#}");
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    println!("survive: steps taken per epoch {taken:?}");
+}
+
+#[test]
+fn a_forged_update_with_a_huge_version_leaves_the_evaluation_running() {
+    let tmp = cabc_tests::test_dir();
+    let mut cluster = Cluster::new(tmp.path(), "forged", 10, "").unwrap();
+    cluster.start_all(2, false).unwrap();
+    cluster.wait_for_epochs(2, "learner");
+    let config = RunConfig::load(&cluster.config.display().to_string()).unwrap();
+    let keys = cabc_proto::keys::Keys::new(&config.run.name).unwrap();
+    let forger = cabc_bus::Bus::join(&config.bus, cabc_bus::Role::Connect, keys, "forger").unwrap();
+    // A version far past the learner's, with weights no actor takes (issue 64: the evaluator stayed at it).
+    let forged = cabc_fixtures::policy_update(1_000_000, "forged", vec![0; 64]);
+    forger.put_blocking(&forger.keys.policy(), &forged).unwrap();
+    let summary = cluster.summary("learner");
+    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    let evaluated = csv_column(&cluster.dir.join("evals.csv"), "version");
+    assert!(
+        evaluated.contains(&9) || evaluated.contains(&8),
+        "the evaluation stopped at the forged update: {evaluated:?}"
+    );
+    let eval = std::fs::read_to_string(cluster.dir.join("eval.log")).unwrap();
+    assert!(eval.contains("the learner did not publish"), "{eval}");
+    drop(forger);
+}
