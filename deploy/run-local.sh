@@ -2,7 +2,7 @@
 # README command 1: a local multi-process training run on loopback.
 #
 #   deploy/run-local.sh [--baseline] [--resume|--fresh] [--verbose] [--set KEY=VALUE ...] [PRESET|CONFIG.toml]
-#                       [-- extra learner args]
+#                       [--chaos SEED [--chaos-every MIN-MAX]] [-- extra learner args]
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server (none under
 # expert.placement = "in-actor"), N actors and an eval actor as separate processes, under the run's supervisor
@@ -20,11 +20,15 @@
 # on a terminal (a pipe, CI): the full lines, as the log.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
+# --chaos SEED runs it under `cabc chaos`: a process killed every 10-30 s (--chaos-every), drawn from SEED, and the
+# report in runs/<run>/chaos.json (deploy/chaos.sh).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
 
 config=""
+chaos=()
+chaos_every=()
 baseline=0
 verbose=0
 learner_args=()
@@ -35,8 +39,10 @@ while [ $# -gt 0 ]; do
     --resume) learner_args+=(--resume) ;;
     --fresh) learner_args+=(--fresh) ;;
     --verbose) verbose=1 ;;
+    --chaos) [ $# -ge 2 ] || { echo "--chaos needs a seed" >&2; exit 2; }; chaos=(--seed "$2"); shift ;;
+    --chaos-every) [ $# -ge 2 ] || { echo "--chaos-every needs MIN-MAX" >&2; exit 2; }; chaos_every=(--every "$2"); shift ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
@@ -77,4 +83,9 @@ echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s)
 # its log. One Ctrl-C stops them all; the run ends when the learner does, with its exit status.
 supervise=()
 [ "$verbose" = 1 ] && supervise+=(--verbose)
+if [ ${#chaos[@]} -gt 0 ]; then
+  # deploy/chaos.sh: the same run under a seeded schedule of faults, reported in $run_dir/chaos.json.
+  exec "$bin/cabc" chaos "${chaos[@]}" "${chaos_every[@]}" --config "$cfg" --run-dir "$run_dir" --bin "$bin" \
+    "${supervise[@]}" -- "${learner_args[@]}"
+fi
 exec "$bin/cabc" supervise --config "$cfg" --run-dir "$run_dir" --bin "$bin" "${supervise[@]}" -- "${learner_args[@]}"

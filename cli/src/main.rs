@@ -117,6 +117,10 @@ enum Command {
     /// (supervision.max_restarts deaths within supervision.window_s) stopping the run with an error that names the
     /// process and its log. deploy/run-local.sh runs it.
     Supervise(supervise::Args),
+    /// A supervised run under a seeded schedule of faults (issue 64): every 10-30 s (--every) one of its processes is
+    /// killed with SIGKILL; <run>/chaos.json reports the faults, the restarts, the time each cost, the stalls, the
+    /// steps published and stored, the duplicates and the early stop. deploy/chaos.sh runs it on the main job.
+    Chaos(supervise::ChaosArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -149,6 +153,10 @@ fn main() -> anyhow::Result<()> {
         Command::Reproduce(args) => campaign::reproduce(&args),
         Command::Supervise(args) => {
             let code = supervise::run(&args)?;
+            std::process::exit(code)
+        }
+        Command::Chaos(args) => {
+            let code = supervise::chaos(&args)?;
             std::process::exit(code)
         }
     }

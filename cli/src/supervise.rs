@@ -1,8 +1,10 @@
 //! `cabc supervise`: a run's processes under [`cabc_supervise::Supervisor`]: the main job's (deploy/run-local.sh),
-//! or those a machine adds to a running run (`--roles actor`, deploy/SCALE-OUT.md).
+//! or those a machine adds to a running run (`--roles actor`, deploy/SCALE-OUT.md). `cabc chaos`: the same under a
+//! seeded schedule of faults ([`cabc_supervise::chaos`]), with its report.
 
 use anyhow::{Context, Result};
 use cabc_proto::config::RunConfig;
+use cabc_supervise::chaos::Chaos;
 use cabc_supervise::roster::{Role, Roster};
 use cabc_supervise::{Ended, Supervisor};
 use std::io::IsTerminal;
@@ -90,4 +92,65 @@ pub fn run(args: &Args) -> Result<i32> {
             Ok(e.exit_code())
         }
     }
+}
+
+#[derive(clap::Args)]
+pub struct ChaosArgs {
+    /// The seed of the schedule: the same seed, the same gaps and the same draws of a target.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Seconds between two faults, drawn uniformly in MIN-MAX.
+    #[arg(long, default_value = "10-30")]
+    every: String,
+    /// The roles whose processes may be killed, comma-separated (default: learner, expert, actor, evaluator).
+    #[arg(long, value_delimiter = ',')]
+    kill: Vec<Role>,
+    #[command(flatten)]
+    run: Args,
+}
+
+/// The supervised run under the schedule; prints the report (also in <run>/chaos.json). Returns the exit status.
+pub fn chaos(args: &ChaosArgs) -> Result<i32> {
+    let (lo, hi) = args
+        .every
+        .split_once('-')
+        .and_then(|(a, b)| Some((a.parse::<f64>().ok()?, b.parse::<f64>().ok()?)))
+        .filter(|(a, b)| *a > 0.0 && a <= b)
+        .with_context(|| format!("--every {}: MIN-MAX seconds, 0 < MIN <= MAX", args.every))?;
+    let config = RunConfig::load(&args.run.config.display().to_string())
+        .with_context(|| format!("loading {}", args.run.config.display()))?;
+    let run = &args.run;
+    let mut supervise = vec![
+        std::env::current_exe()?.display().to_string(),
+        "supervise".to_string(),
+        "--config".into(),
+        run.config.display().to_string(),
+        "--run-dir".into(),
+        run.run_dir.display().to_string(),
+        "--bin".into(),
+        run.bin.display().to_string(),
+    ];
+    if run.verbose {
+        supervise.push("--verbose".into());
+    }
+    for role in &run.roles {
+        supervise.extend(["--roles".to_string(), role.as_str().to_string()]);
+    }
+    supervise.push("--".into());
+    supervise.extend(run.learner_args.iter().cloned());
+    let chaos = Chaos {
+        seed: args.seed,
+        gap_s: (lo, hi),
+        roles: if args.kill.is_empty() {
+            Role::ALL.to_vec()
+        } else {
+            args.kill.clone()
+        },
+        supervise,
+        run_dir: run.run_dir.clone(),
+        epoch_timeout_s: config.bus.epoch_timeout_s,
+    };
+    let report = chaos.run().context("running the chaos")?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(report.exit.unwrap_or(1))
 }

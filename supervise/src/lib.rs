@@ -11,6 +11,7 @@
 //! exit 0 ends the run, and its [`EXIT_NO_ACTORS`] (it waited `bus.no_actor_timeout_s` with no live actor) ends it
 //! with an error: restarting the learner would not bring actors back.
 
+pub mod chaos;
 pub mod policy;
 pub mod roster;
 pub mod status;

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# The main job under a seeded schedule of faults (issue 64): deploy/run-local.sh under `cabc chaos` instead of
+# `cabc supervise`. Every MIN-MAX seconds (default 10-30) one of the run's processes (learner, expert server, actor,
+# evaluator) is killed with SIGKILL; the supervisor restarts it; when the run ends, runs/<run>/chaos.json says the
+# faults, the restarts, the time each fault cost, the stalls, the steps published and stored, the duplicates and the
+# early stop (also printed).
+#
+#   deploy/chaos.sh [--seed N] [--every MIN-MAX] [run-local.sh's arguments: --set KEY=VALUE ..., PRESET ...]
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+seed=1
+every=10-30
+args=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --seed) seed=$2; shift ;;
+    --every) every=$2; shift ;;
+    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+    *) args+=("$1") ;;
+  esac
+  shift
+done
+exec "$root/deploy/run-local.sh" --chaos "$seed" --chaos-every "$every" "${args[@]}"

@@ -1,0 +1,342 @@
+//! Chaos (issue 64): a supervised run under a seeded schedule of faults, and what they cost. [`Chaos::run`] starts
+//! the run's supervisor (`cabc supervise`) as a child, then, every `gap` seconds (drawn from the seed), kills one of
+//! its live processes with SIGKILL (drawn too, among the roles asked for), watches `metrics.csv` for the epochs'
+//! ends, and when the run is over writes `<run>/chaos.json`: the faults by kind and target, the restarts, the time
+//! each fault cost (the interval between the epochs around it less the median interval of the epochs without one),
+//! the stalls (an epoch that took longer than `bus.epoch_timeout_s`), the steps published, stored and short, the
+//! duplicates, and whether and where the run stopped early.
+//!
+//! Faults are only kills here: a cut link and a restarted router need network namespaces and a router of their own
+//! (the end-to-end tests make those); the report says which kinds ran.
+
+use crate::roster::Role;
+use crate::status::Status;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+/// A reproducible stream of draws (SplitMix64): the same seed, the same schedule.
+#[derive(Clone, Debug)]
+pub struct Draws(u64);
+
+impl Draws {
+    pub fn new(seed: u64) -> Self {
+        Draws(seed)
+    }
+
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        let unit = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        lo + (hi - lo) * unit
+    }
+
+    /// Uniform among `n` (n > 0).
+    pub fn index(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+}
+
+/// One fault injected.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Fault {
+    /// Seconds since the run started.
+    pub at_s: f64,
+    pub kind: String,
+    /// The process (`actor-1`, `learner`, ...), and its role.
+    pub target: String,
+    pub role: String,
+    /// The epoch in progress (the rows of `metrics.csv` when it struck).
+    pub epoch: usize,
+    /// The interval between the epochs around it less the median interval without faults, once the run went on.
+    pub lost_s: Option<f64>,
+}
+
+/// The report of a chaos run (`<run>/chaos.json`).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    pub seed: u64,
+    /// The range of seconds between two faults.
+    pub gap_s: (f64, f64),
+    /// The fault kinds that ran.
+    pub kinds: Vec<String>,
+    pub faults: Vec<Fault>,
+    pub faults_by_target_role: BTreeMap<String, u64>,
+    /// The supervisor's restarts by role.
+    pub restarts: BTreeMap<String, u64>,
+    pub wall_s: f64,
+    pub epochs: usize,
+    /// The median interval between two epochs' ends without a fault in between.
+    pub median_epoch_s: Option<f64>,
+    /// Epochs that took longer than `bus.epoch_timeout_s` (a stall), or the run that never ended one.
+    pub stalls: usize,
+    pub max_lost_s: Option<f64>,
+    /// The steps the actors said they published (their markers), and the steps the ledger stored.
+    pub steps_published: u64,
+    pub steps_stored: u64,
+    /// Epochs that stored fewer steps than their markers said were published (a published step lost): 0 expected.
+    pub epochs_short: usize,
+    pub duplicate_segments: u64,
+    pub early_stop_version: Option<u64>,
+    pub ended: String,
+    /// The supervisor's exit status.
+    pub exit: Option<i32>,
+}
+
+/// A chaos run's settings.
+#[derive(Clone, Debug)]
+pub struct Chaos {
+    pub seed: u64,
+    pub gap_s: (f64, f64),
+    /// The roles whose processes may be killed.
+    pub roles: Vec<Role>,
+    /// The supervisor's command (`cabc supervise ...`).
+    pub supervise: Vec<String>,
+    pub run_dir: PathBuf,
+    pub epoch_timeout_s: f64,
+}
+
+impl Chaos {
+    /// Runs the supervised run under the schedule until it ends; writes and returns the report.
+    pub fn run(&self) -> std::io::Result<Report> {
+        let (program, args) = self
+            .supervise
+            .split_first()
+            .ok_or_else(|| std::io::Error::other("no supervisor command"))?;
+        let mut child: Child = Command::new(program).args(args).spawn()?;
+        let started = Instant::now();
+        let mut draws = Draws::new(self.seed);
+        let mut next_fault = started + self.gap(&mut draws);
+        let mut faults = Vec::new();
+        let mut epoch_ends: Vec<f64> = Vec::new();
+        let metrics = self.run_dir.join("metrics.csv");
+        let exit = loop {
+            if let Some(status) = child.try_wait()? {
+                break status.code();
+            }
+            let rows = rows(&metrics);
+            while epoch_ends.len() < rows {
+                epoch_ends.push(started.elapsed().as_secs_f64());
+            }
+            if Instant::now() >= next_fault {
+                if let Some(fault) = self.strike(&mut draws, started, rows) {
+                    eprintln!(
+                        "[chaos] {:.0} s: {} of {} ({}) in epoch {}",
+                        fault.at_s, fault.kind, fault.target, fault.role, fault.epoch
+                    );
+                    faults.push(fault);
+                }
+                next_fault = Instant::now() + self.gap(&mut draws);
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        };
+        let report = self.report(faults, &epoch_ends, started.elapsed().as_secs_f64(), exit);
+        let text = serde_json::to_string_pretty(&report).map_err(std::io::Error::other)?;
+        std::fs::write(self.run_dir.join("chaos.json"), text + "\n")?;
+        Ok(report)
+    }
+
+    fn gap(&self, draws: &mut Draws) -> Duration {
+        Duration::from_secs_f64(draws.uniform(self.gap_s.0, self.gap_s.1).max(0.0))
+    }
+
+    /// Kills one live process of the roles asked for (SIGKILL), if any runs.
+    fn strike(&self, draws: &mut Draws, started: Instant, epoch: usize) -> Option<Fault> {
+        let status = Status::read(&self.run_dir)?;
+        let live: Vec<(&String, &crate::status::ProcessStatus)> = status
+            .processes
+            .iter()
+            .filter(|(_, p)| p.pid.is_some() && self.roles.iter().any(|r| r.as_str() == p.role))
+            .collect();
+        if live.is_empty() {
+            return None;
+        }
+        let (name, process) = live[draws.index(live.len())];
+        let pid = process.pid? as libc::pid_t;
+        // SAFETY: kill(2) on a pid the supervisor just reported as running.
+        if unsafe { libc::kill(pid, libc::SIGKILL) } != 0 {
+            return None;
+        }
+        Some(Fault {
+            at_s: started.elapsed().as_secs_f64(),
+            kind: "kill".into(),
+            target: name.clone(),
+            role: process.role.clone(),
+            epoch,
+            lost_s: None,
+        })
+    }
+
+    /// The report from the faults, the epochs' end times and the run folder's files.
+    fn report(
+        &self,
+        mut faults: Vec<Fault>,
+        epoch_ends: &[f64],
+        wall_s: f64,
+        exit: Option<i32>,
+    ) -> Report {
+        // Interval i: from the end of epoch i - 1 (or the start) to the end of epoch i.
+        let intervals: Vec<f64> = epoch_ends
+            .iter()
+            .enumerate()
+            .map(|(i, &end)| end - if i == 0 { 0.0 } else { epoch_ends[i - 1] })
+            .collect();
+        let struck: Vec<usize> = faults.iter().map(|f| f.epoch).collect();
+        let mut calm: Vec<f64> = intervals
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| *i > 0 && !struck.contains(i))
+            .map(|(_, &d)| d)
+            .collect();
+        calm.sort_by(f64::total_cmp);
+        let median = (!calm.is_empty()).then(|| calm[calm.len() / 2]);
+        for fault in &mut faults {
+            fault.lost_s = intervals
+                .get(fault.epoch)
+                .zip(median)
+                .map(|(d, m)| (d - m).max(0.0));
+        }
+        let mut stalls = intervals
+            .iter()
+            .filter(|&&d| d > self.epoch_timeout_s)
+            .count();
+        let summary: serde_json::Value = std::fs::read(self.run_dir.join("summary.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .unwrap_or_default();
+        if summary.is_null() {
+            stalls += 1;
+        }
+        let metrics = self.run_dir.join("metrics.csv");
+        let published = column(&metrics, "steps_published");
+        let stored = column(&metrics, "steps_collected");
+        let mut by_role = BTreeMap::new();
+        for f in &faults {
+            *by_role.entry(f.role.clone()).or_insert(0) += 1;
+        }
+        Report {
+            seed: self.seed,
+            gap_s: self.gap_s,
+            kinds: vec!["kill".into()],
+            faults_by_target_role: by_role,
+            restarts: Status::read(&self.run_dir)
+                .map(|s| s.restarts)
+                .unwrap_or_default(),
+            wall_s,
+            epochs: epoch_ends.len(),
+            median_epoch_s: median,
+            stalls,
+            max_lost_s: faults
+                .iter()
+                .filter_map(|f| f.lost_s)
+                .max_by(f64::total_cmp),
+            steps_published: published.iter().sum(),
+            steps_stored: summary["steps_stored"].as_u64().unwrap_or(0),
+            epochs_short: stored.iter().zip(&published).filter(|(s, p)| s < p).count(),
+            duplicate_segments: summary["duplicate_segments"].as_u64().unwrap_or(0),
+            early_stop_version: summary["early_stop_version"].as_u64(),
+            ended: summary["ended"]
+                .as_str()
+                .unwrap_or("no summary")
+                .to_string(),
+            exit,
+            faults,
+        }
+    }
+}
+
+/// The data rows of a CSV file (0 when it is missing).
+fn rows(path: &Path) -> usize {
+    std::fs::read_to_string(path).map_or(0, |t| t.lines().count().saturating_sub(1))
+}
+
+/// A CSV column as integers (a cell that is not one is 0).
+fn column(path: &Path, name: &str) -> Vec<u64> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
+    let mut lines = text.lines();
+    let Some(i) = lines
+        .next()
+        .and_then(|h| h.split(',').position(|c| c == name))
+    else {
+        return Vec::new();
+    };
+    lines
+        .map(|l| {
+            l.split(',')
+                .nth(i)
+                .and_then(|c| c.parse().ok())
+                .unwrap_or(0)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_same_seed_draws_the_same_schedule() {
+        let draw = |seed| {
+            let mut d = Draws::new(seed);
+            (0..8)
+                .map(|_| (d.uniform(10.0, 30.0), d.index(5)))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(draw(3), draw(3));
+        assert_ne!(draw(3), draw(4));
+        assert!(draw(3)
+            .iter()
+            .all(|&(g, i)| (10.0..30.0).contains(&g) && i < 5));
+    }
+
+    #[test]
+    fn a_fault_costs_its_epochs_interval_less_the_calm_median() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("metrics.csv"),
+            "epoch,steps_published,steps_collected\n0,10,10\n1,10,12\n2,10,9\n3,10,10\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.path().join("summary.json"),
+            r#"{"steps_stored": 41, "duplicate_segments": 0, "early_stop_version": 3, "ended": "early stop"}"#,
+        )
+        .unwrap();
+        let chaos = Chaos {
+            seed: 1,
+            gap_s: (1.0, 2.0),
+            roles: vec![Role::Actor],
+            supervise: Vec::new(),
+            run_dir: dir.path().to_path_buf(),
+            epoch_timeout_s: 6.0,
+        };
+        let fault = Fault {
+            at_s: 3.0,
+            kind: "kill".into(),
+            target: "actor-0".into(),
+            role: "actor".into(),
+            epoch: 2,
+            lost_s: None,
+        };
+        // Epoch ends at 2, 4, 11, 13 s: intervals 2, 2, 7, 2; the fault struck epoch 2.
+        let report = chaos.report(vec![fault], &[2.0, 4.0, 11.0, 13.0], 14.0, Some(0));
+        assert_eq!(report.median_epoch_s, Some(2.0));
+        assert_eq!(report.faults[0].lost_s, Some(5.0));
+        assert_eq!(report.stalls, 1, "7 s > the 6 s timeout");
+        assert_eq!(report.epochs_short, 1, "epoch 2 stored 9 of 10");
+        assert_eq!(report.steps_published, 40);
+        assert_eq!(report.steps_stored, 41);
+        assert_eq!(report.early_stop_version, Some(3));
+    }
+}
