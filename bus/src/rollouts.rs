@@ -152,6 +152,8 @@ pub struct ZenohActors {
     evaluators: BTreeSet<String>,
     /// The run's evaluators (`actors.evaluators`): none alive is warned about once they could have joined.
     evaluators_expected: usize,
+    /// The share of the last publication (a change is logged).
+    last_share: Option<u64>,
     /// Whether the learner has said that no evaluator is alive (said once until one is back).
     warned_no_evaluator: bool,
     /// The steps of epoch j, all actors together (`RunConfig::epoch_steps`).
@@ -276,6 +278,7 @@ impl ZenohActors {
             evaluators: BTreeSet::new(),
             evaluators_expected: config.actors.evaluators as usize,
             warned_no_evaluator: false,
+            last_share: None,
             budget,
             epoch_timeout: waits.epoch_timeout,
             no_actor_timeout: waits.no_actor_timeout,
@@ -543,16 +546,19 @@ impl Rollouts for ZenohActors {
         self.follow_evaluators(update.version);
         // The epoch's steps dealt over the actors there are now (the learner's update assumes `actors.count`).
         let share = share((self.budget)(update.version), self.members());
-        // Encoded once: held for the queryable, published, and published again, from the same buffer.
-        let encoded = if share == update.steps_per_actor {
-            Bytes::from(codec::encode(update))
-        } else {
+        if self.last_share != Some(share) {
+            self.last_share = Some(share);
             tracing::info!(
                 epoch = update.version,
                 live = ?self.live,
                 share,
                 "the epoch's steps dealt over the live actors"
             );
+        }
+        // Encoded once: held for the queryable, published, and published again, from the same buffer.
+        let encoded = if share == update.steps_per_actor {
+            Bytes::from(codec::encode(update))
+        } else {
             Bytes::from(codec::encode(&PolicyUpdate {
                 steps_per_actor: share,
                 ..update.clone()

@@ -31,6 +31,8 @@ pub struct NetnsPair {
     pub servers: String,
     /// The actors' namespace (has [`ACTOR_IP`]).
     pub actors: String,
+    /// The actors' end of the veth pair.
+    actors_link: String,
     made: Vec<String>,
 }
 
@@ -41,6 +43,7 @@ impl NetnsPair {
         let mut pair = NetnsPair {
             servers: format!("cabc-{tag}-s"),
             actors: format!("cabc-{tag}-a"),
+            actors_link: format!("cv{tag}a"),
             made: Vec::new(),
         };
         for ns in [pair.servers.clone(), pair.actors.clone()] {
@@ -73,6 +76,14 @@ impl NetnsPair {
             ip(&["-n", ns, "link", "set", dev, "up"])?;
         }
         Ok(pair)
+    }
+
+    /// Cuts the link between the two hosts (the actors' end of the veth pair down), or mends it: no packet passes
+    /// while it is down, and the connections over it stay open until their own timeouts (zenoh's lease) end them.
+    /// (This kernel has no `netem` qdisc, so the cut is the link's state rather than `tc`'s loss.)
+    pub fn set_link(&self, up: bool) -> Result<()> {
+        let state = if up { "up" } else { "down" };
+        ip(&["-n", &self.actors, "link", "set", &self.actors_link, state])
     }
 
     /// The wrapper that runs a command in namespace `ns` (for `Cluster::start_in`).

@@ -7,7 +7,10 @@
 //! * without a supervisor, the gate follows the live set: an actor killed mid-epoch costs no `epoch_timeout_s`, its
 //!   share goes to the live actor, and with no actor left the learner ends after `bus.no_actor_timeout_s` with its
 //!   checkpoint, which `--resume` continues once an actor runs again;
-//! * a forged policy update with a huge version on a plain bus leaves the evaluation running.
+//! * a forged policy update with a huge version on a plain bus leaves the evaluation running;
+//! * a link cut longer than zenoh's lease between the learner's host and the actors' (two network namespaces) costs
+//!   the time of the cut and no step: the actors leave, the learner waits for them, they come back and the epoch
+//!   closes with its whole budget.
 
 use cabc_proto::config::RunConfig;
 use cabc_tests::{bin_dir, csv_column, Cluster};
@@ -50,6 +53,25 @@ fn pid_of(run: &Path, name: &str) -> u32 {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// A log without its ANSI colours.
+fn plain(log: &str) -> String {
+    let mut out = String::with_capacity(log.len());
+    let mut chars = log.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            // An escape sequence ends with its first letter.
+            for c in chars.by_ref() {
+                if c.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// SIGKILL to a supervised process, as a crash.
@@ -195,21 +217,40 @@ fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
     // actor-1's share went to actor-0: the next epochs took their whole budget (256 steps) from it alone.
     let taken = csv_column(&cluster.dir.join("metrics.csv"), "steps_taken");
     assert_eq!(taken[4], 256, "{taken:?}");
+    // An actor under a new id joins the running run: from the next publication the epoch is dealt over two.
+    let config = cluster.config.display().to_string();
+    cluster
+        .start(
+            "actor-7",
+            "actor",
+            &["--config", &config, "--id", "actor-7"],
+        )
+        .unwrap();
+    let log = cluster.dir.join("learner.log");
+    let started = Instant::now();
+    let dealt = r#"live={"actor-0", "actor-7"} share=128"#;
+    while !plain(&std::fs::read_to_string(&log).unwrap_or_default()).contains(dealt) {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "actor-7 never took a share:\n{}",
+            cluster.log_tail("learner")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    cluster.kill("actor-7").unwrap();
     cluster.kill("actor-0").unwrap();
     let (status, _) = cluster.wait("learner", Duration::from_secs(60)).unwrap();
     assert_eq!(status.code(), Some(3), "{}", cluster.log_tail("learner"));
     let log = cluster.log_tail("learner");
     assert!(log.contains("no live actor"), "{log}");
     assert!(cluster.dir.join("checkpoint").exists());
-    // An actor back and the learner resumed: the run ends.
-    let config = cluster.config.display().to_string();
-    cluster
-        .start(
-            "actor-0-again",
-            "actor",
-            &["--config", &config, "--id", "actor-0"],
-        )
-        .unwrap();
+    // The actors back and the learner resumed: the run ends.
+    for id in ["actor-0", "actor-1"] {
+        let label = format!("{id}-again");
+        cluster
+            .start(&label, "actor", &["--config", &config, "--id", id])
+            .unwrap();
+    }
     cluster.start_learner("learner-resumed", true).unwrap();
     let summary = cluster.summary("learner-resumed");
     assert_eq!(summary["epochs"], 9, "{summary:#}");
@@ -239,4 +280,55 @@ fn a_forged_update_with_a_huge_version_leaves_the_evaluation_running() {
     let eval = std::fs::read_to_string(cluster.dir.join("eval.log")).unwrap();
     assert!(eval.contains("the learner did not publish"), "{eval}");
     drop(forger);
+}
+
+/// The actors in another network namespace lose their link to the learner's host for 12 s (`CABC_CUT_S`), longer
+/// than zenoh's lease (10 s): both actors leave, the learner waits for one (`bus.no_actor_timeout_s`), they come back
+/// when the link does, and the run goes on with every epoch's whole budget and every step the actors published
+/// stored once.
+#[test]
+fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
+    let pair = match cabc_tests::netns::NetnsPair::new() {
+        Ok(pair) => pair,
+        Err(e) => {
+            eprintln!("skipped: no network namespaces here ({e})");
+            return;
+        }
+    };
+    let tmp = cabc_tests::test_dir();
+    let port = cabc_tests::free_port();
+    let listen = format!("tcp/0.0.0.0:{port}");
+    let connect = format!("tcp/{}:{port}", cabc_tests::netns::SERVER_IP);
+    let mut cluster = Cluster::on(tmp.path(), "cut", 10, &listen, &connect, "").unwrap();
+    let servers = cabc_tests::netns::NetnsPair::exec(&pair.servers);
+    let actors = cabc_tests::netns::NetnsPair::exec(&pair.actors);
+    cluster.start_all_in(2, false, &servers, &actors).unwrap();
+    cluster.wait_for_epochs(3, "learner");
+    pair.set_link(false).unwrap();
+    let cut = Instant::now();
+    let secs = std::env::var("CABC_CUT_S")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(12);
+    std::thread::sleep(Duration::from_secs(secs));
+    pair.set_link(true).unwrap();
+    let summary = cluster.summary("learner");
+    let healed = cut.elapsed();
+    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    let taken = csv_column(&metrics, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| t == 256),
+        "every epoch closed with its whole budget: {taken:?}"
+    );
+    println!("survive: a {secs} s cut; the run ended {healed:?} after it began; stored {stored:?}, published {published:?}");
+    drop(cluster);
+    drop(pair);
 }
