@@ -6,6 +6,11 @@
 # early stop (also printed).
 #
 #   deploy/chaos.sh [--seed N] [--every MIN-MAX] [run-local.sh's arguments: --set KEY=VALUE ..., PRESET ...]
+#
+# The faults are injected on purpose, so the supervisor's crash-loop stop is off here (supervision.max_restarts =
+# 1000) and its window shorter (supervision.window_s = 60: a process killed again a minute later restarts after the
+# first backoff, not a doubled one); a --set of either after these wins. A real crash loop is what
+# tests/tests/survive.rs's a_process_that_keeps_dying_stops_the_run_and_is_named checks.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 seed=1
@@ -20,4 +25,5 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
-exec "$root/deploy/run-local.sh" --chaos "$seed" --chaos-every "$every" "${args[@]}"
+exec "$root/deploy/run-local.sh" --chaos "$seed" --chaos-every "$every" \
+  --set supervision.max_restarts=1000 --set supervision.window_s=60 "${args[@]}"
