@@ -152,6 +152,8 @@ pub struct ZenohActors {
     evaluators: BTreeSet<String>,
     /// The run's evaluators (`actors.evaluators`): none alive is warned about once they could have joined.
     evaluators_expected: usize,
+    /// The actors an epoch's steps were last dealt over while some were alive.
+    last_members: usize,
     /// The share of the last publication (a change is logged).
     last_share: Option<u64>,
     /// Whether the learner has said that no evaluator is alive (said once until one is back).
@@ -279,6 +281,7 @@ impl ZenohActors {
             evaluators_expected: config.actors.evaluators as usize,
             warned_no_evaluator: false,
             last_share: None,
+            last_members: 0,
             budget,
             epoch_timeout: waits.epoch_timeout,
             no_actor_timeout: waits.no_actor_timeout,
@@ -392,12 +395,17 @@ impl ZenohActors {
     }
 
     /// How many actors an epoch's steps are dealt over now: the live ones, or, in the first epoch this learner
-    /// gathers, the run's `actors.count` less those that left while some have not been seen yet.
-    fn members(&self) -> usize {
-        self.live
+    /// gathers, the run's `actors.count` less those that left while some have not been seen yet. With none alive (a
+    /// router restarting, a link cut: they all left at once and will come back), as many as were alive last.
+    fn members(&mut self) -> usize {
+        let now = self
+            .live
             .len()
-            .max(self.expected.saturating_sub(self.left.len()))
-            .max(1)
+            .max(self.expected.saturating_sub(self.left.len()));
+        if now > 0 {
+            self.last_members = now;
+        }
+        self.last_members.max(1)
     }
 
     /// Publishes `encoded` (version `version`), holds it for the queryable, and remembers it as the round to gather.

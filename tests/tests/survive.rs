@@ -332,3 +332,51 @@ fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
     drop(cluster);
     drop(pair);
 }
+
+/// deploy/SCALE-OUT.md §2's standalone router (plain TCP on loopback here), restarted mid-run: the learner and the
+/// actors are its clients, lose it for a few seconds and find it again; the run goes on with every epoch's whole
+/// budget and every step the actors published stored once.
+#[test]
+fn a_restarted_router_costs_its_time_and_no_step() {
+    let tmp = cabc_tests::test_dir();
+    let port = cabc_tests::free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let zenohd_config = tmp.path().join("zenohd.json5");
+    std::fs::write(
+        &zenohd_config,
+        format!(
+            "{{ mode: \"router\", listen: {{ endpoints: [\"{endpoint}\"] }}, \
+             scouting: {{ multicast: {{ enabled: false }} }} }}"
+        ),
+    )
+    .unwrap();
+    let zenohd = cabc_tests::bin("zenohd").unwrap();
+    let zenohd_args = ["-c", zenohd_config.to_str().unwrap()];
+    let mut cluster = Cluster::on(tmp.path(), "routed", 10, "", &endpoint, "").unwrap();
+    cluster
+        .start_program("zenohd", &[], &zenohd, &zenohd_args, "info")
+        .unwrap();
+    cluster.start_all(2, false).unwrap();
+    cluster.wait_for_epochs(3, "learner");
+    cluster.kill("zenohd").unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    cluster
+        .start_program("zenohd-again", &[], &zenohd, &zenohd_args, "info")
+        .unwrap();
+    let summary = cluster.summary("learner");
+    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    let metrics = cluster.dir.join("metrics.csv");
+    let stored = csv_column(&metrics, "steps_collected");
+    let published = csv_column(&metrics, "steps_published");
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    let taken = csv_column(&metrics, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| t == 256),
+        "every epoch closed with its whole budget: {taken:?}"
+    );
+    println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}");
+}
