@@ -685,3 +685,44 @@ fn a_password_run_completes_and_refuses_wrong_passwords() {
     println!("password mode: bad logins tried 2, refused {refused}");
     assert_eq!(refused, 2);
 }
+
+/// Issue 64 part 3, elastic membership under mutual TLS: identities made ahead (`make-certs.sh --actors 4`) and
+/// listed in `bus.security.actors` beyond `actors.count` (2); actor-3 joins the running run with its own
+/// certificate, the learner's access control lets it in, and from the next publication the epoch is dealt over
+/// three actors; the run ends with every epoch's budget and nothing refused.
+#[test]
+fn an_actor_from_a_pool_of_identities_joins_a_running_mtls_run() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let certs = tmp.path().join("certs");
+    make_certs(&certs, &["--actors", "4"]).unwrap();
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    let extra = format!(
+        "[bus.security]\nmode = \"mtls\"\ncerts = \"{}\"\nactors = [\"actor-0\", \"actor-1\", \"actor-2\", \"actor-3\"]\n",
+        certs.display()
+    );
+    let mut cluster = Cluster::on(tmp.path(), "pool", 30, &endpoint, &endpoint, &extra).unwrap();
+    cluster.start_all(2, false).unwrap();
+    wait_for_epochs(&cluster, 2);
+    let config = cluster.config.display().to_string();
+    cluster
+        .start("actor-3", "actor", &["--config", &config, "--id", "actor-3"])
+        .unwrap();
+    let started = Instant::now();
+    let dealt = r#"live={"actor-0", "actor-1", "actor-3"} share=86"#;
+    loop {
+        let log = std::fs::read_to_string(cluster.dir.join("logs/learner.log")).unwrap_or_default();
+        if log.contains(dealt) {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "actor-3 never took a share:\n{}",
+            cluster.log_tail("learner")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let summary = check_run(&mut cluster, 30);
+    assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
+    cluster.wait_success("actor-3", Duration::from_secs(60));
+}

@@ -1,0 +1,61 @@
+#!/usr/bin/env python3
+"""Issue 64's chaos table: one row per run of docs/chaos/<run>/chaos.json (deploy/chaos.sh's report), beside the
+undisturbed run of the same seed (its summary.json: docs/reproduction/v-b-robust-judged-s<k>/, or docs/chaos/calm-v-b-s<k>/
+when it ran here). A fault's cost is its epoch's interval less the median of the epochs without one; an epoch struck
+twice is counted once, under its first fault.
+
+    python3 docs/chaos/table.py > docs/chaos/table.md
+"""
+import json
+import statistics
+from pathlib import Path
+
+here = Path(__file__).resolve().parent
+repro = here.parent / "reproduction"
+
+
+def calm(k):
+    for path in (here / f"calm-v-b-s{k}" / "summary.json", repro / f"v-b-robust-judged-s{k}" / "summary.json"):
+        if path.exists():
+            return json.loads(path.read_text()), path.parent
+    return None, None
+
+
+def cost(faults, role):
+    seen, costs = set(), []
+    for f in faults:
+        if f["lost_s"] is None or f["epoch"] in seen:
+            continue
+        seen.add(f["epoch"])
+        if f["role"] == role:
+            costs.append(f["lost_s"])
+    return costs
+
+
+def fmt(costs):
+    if not costs:
+        return "–"
+    return f"{statistics.median(costs):.1f} [{min(costs):.1f}–{max(costs):.1f}] ({len(costs)})"
+
+
+print("| run | faults (learner / actor / evaluator) | wall clock | stalls | steps published / stored | epochs short "
+      "| duplicates | early stop (undisturbed) | cost of a learner kill, s | of an actor kill, s | of an evaluator kill, s |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
+for report_path in sorted(here.glob("chaos-v-b-s*/chaos.json")):
+    r = json.loads(report_path.read_text())
+    k = int(report_path.parent.name.rsplit("-s", 1)[1])
+    undisturbed, where = calm(k)
+    by = r["faults_by_target_role"]
+    stop = r["early_stop_version"]
+    base = undisturbed.get("early_stop_version") if undisturbed else None
+    rel = f" ({base}: {100 * (stop - base) / base:+.0f} %)" if stop is not None and base else f" ({base})"
+    print(
+        f"| {report_path.parent.name} | {len(r['faults'])} ({by.get('learner', 0)} / {by.get('actor', 0)} / "
+        f"{by.get('evaluator', 0)}) | {r['wall_s'] / 60:.1f} min | {r['stalls']} | "
+        f"{r['steps_published']} / {r['steps_stored']} | {r['epochs_short']} | {r['duplicate_segments']} | "
+        f"{stop}{rel} | {fmt(cost(r['faults'], 'learner'))} | {fmt(cost(r['faults'], 'actor'))} | "
+        f"{fmt(cost(r['faults'], 'evaluator'))} |"
+    )
+print()
+print("Median epoch interval without a fault (s): " + ", ".join(
+    f"{p.parent.name} {json.loads(p.read_text())['median_epoch_s']:.1f}" for p in sorted(here.glob("chaos-v-b-s*/chaos.json"))))
