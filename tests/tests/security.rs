@@ -706,7 +706,11 @@ fn an_actor_from_a_pool_of_identities_joins_a_running_mtls_run() {
     wait_for_epochs(&cluster, 2);
     let config = cluster.config.display().to_string();
     cluster
-        .start("actor-3", "actor", &["--config", &config, "--id", "actor-3"])
+        .start(
+            "actor-3",
+            "actor",
+            &["--config", &config, "--id", "actor-3"],
+        )
         .unwrap();
     let started = Instant::now();
     let dealt = r#"live={"actor-0", "actor-1", "actor-3"} share=86"#;
