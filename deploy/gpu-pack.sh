@@ -6,6 +6,8 @@
 # against the machine's own libtorch 2.11.0 (the version this source builds against).
 #
 #   deploy/gpu-pack.sh            # here; then, with the device tool: carry [".gpu"], command ".gpu/run.sh learner ..."
+#   deploy/gpu-pack.sh --scaling  # the learner, the actor and cabc (its supervisor) alone: gpu-session.sh's
+#                                 # --part scaling runs actor processes (the full pack and the actor are over 64 MiB)
 #
 # On that machine PyTorch 2.11.0 lives in /opt/torch/.venv/lib/python3.12/site-packages/torch (its lib/ is
 # libtorch); TORCH_LIB overrides that. The binary's runpath names this machine's .deps/, which is not there, so
@@ -13,16 +15,22 @@
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
+scaling=0
+case "${1:-}" in --scaling) scaling=1 ;; "") ;; *) echo "[gpu-pack] unknown option $1" >&2; exit 2 ;; esac
 "$root/deploy/setup.sh"
-cargo build --release --quiet --bin learner --bin cabc --bin cabc-sim
+cargo build --release --quiet --bin learner --bin cabc --bin cabc-sim --bin actor
 # The CUDA test (learning/tests/cuda.rs), which runs there as `.gpu/run.sh cuda-test`.
 test_bin=$(cargo test --release --workspace --test cuda --no-run 2>&1 | grep -o 'target/release/deps/cuda-[0-9a-f]*' | head -1)
 [ -x "$test_bin" ] || { echo "[gpu-pack] error: the CUDA test was not built" >&2; exit 1; }
 rm -rf .gpu && mkdir -p .gpu/lib
 strip -o .gpu/learner target/release/learner
 strip -o .gpu/cabc target/release/cabc
-strip -o .gpu/cabc-sim target/release/cabc-sim
-strip -o .gpu/cuda-test "$test_bin"
+if [ "$scaling" = 1 ]; then
+  strip -o .gpu/actor target/release/actor
+else
+  strip -o .gpu/cabc-sim target/release/cabc-sim
+  strip -o .gpu/cuda-test "$test_bin"
+fi
 # Everything the binary needs besides glibc, the C++ runtime and libtorch: the plots' fontconfig and freetype and
 # what they pull in.
 { ldd target/release/learner; ldd target/release/cabc; } | awk '$3 ~ /^\// {print $1, $3}' | sort -u | while read -r name path; do
