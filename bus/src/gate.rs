@@ -36,6 +36,8 @@ pub struct EpochGate {
     lost: BTreeSet<String>,
     /// When each actor was last heard from in this epoch (a segment or a marker).
     heard: BTreeMap<String, Instant>,
+    /// The actors alive when the epoch opened.
+    opened_with: BTreeSet<String>,
     /// Since when no actor has been live (None while one is).
     nobody_since: Option<Instant>,
     /// The publication's time, when markers must answer that publication and not an earlier one of the version.
@@ -56,6 +58,7 @@ impl EpochGate {
             opened: now,
             timeout,
             nobody_since: live.is_empty().then_some(now),
+            opened_with: live.clone(),
             live,
             done: BTreeMap::new(),
             expected: 0,
@@ -154,11 +157,16 @@ impl EpochGate {
         self.done.values()
     }
 
-    /// Live actors not yet done.
+    /// Live actors not yet done that the epoch waits for: those alive when it opened (also when they left and came
+    /// back: a link cut, a router restart, a restart under the same id, each still answers this publication), and,
+    /// while the epoch still expects actors it has not seen (the run's start), any that joined. An actor that joins
+    /// under a new id later is not waited for: its share is the next publication's.
     pub fn missing(&self) -> Vec<String> {
+        let expecting = self.done.len() < self.expected;
         self.live
             .iter()
             .filter(|a| !self.done.contains_key(*a))
+            .filter(|a| expecting || self.opened_with.contains(*a))
             .cloned()
             .collect()
     }
@@ -309,6 +317,40 @@ mod tests {
     }
 
     #[test]
+    fn an_actor_joining_mid_epoch_is_not_waited_for_one_coming_back_is() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(4, Duration::from_secs(120), ["a".into(), "b".into()], t0)
+            .expecting(2, Duration::from_secs(60));
+        // b loses its link and comes back; c joins.
+        g.gone("b", t0);
+        g.alive("b");
+        g.alive("c");
+        g.done(marker("a", 4));
+        assert_eq!(
+            g.missing(),
+            vec!["b".to_string()],
+            "b still answers this publication"
+        );
+        g.done(marker("b", 4));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone), "c is not waited for");
+        assert_eq!(g.lost().count(), 0);
+    }
+
+    #[test]
+    fn at_the_start_the_actors_that_join_are_waited_for() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(0, Duration::from_secs(120), Vec::<String>::new(), t0)
+            .expecting(2, Duration::from_secs(60));
+        g.alive("a");
+        g.alive("b");
+        g.done(marker("a", 0));
+        assert_eq!(g.missing(), vec!["b".to_string()]);
+        assert_eq!(g.closed(t0), None);
+        g.done(marker("b", 0));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+    }
+
+    #[test]
     fn an_epoch_with_no_live_actor_is_abandoned_after_the_wait() {
         let t0 = Instant::now();
         let wait = Duration::from_secs(30);
@@ -353,12 +395,25 @@ mod tests {
     }
 
     #[test]
-    fn an_actor_joining_late_is_waited_for() {
+    fn an_actor_joining_late_is_waited_for_only_while_actors_are_expected() {
         let t0 = Instant::now();
         let mut g = EpochGate::open(0, Duration::from_secs(60), ["a".into()], t0);
         g.alive("c");
         g.done(marker("a", 0));
+        assert_eq!(
+            g.closed(t0),
+            Some(Closed::AllDone),
+            "c takes its share from the next publication"
+        );
+        let mut g = EpochGate::open(0, Duration::from_secs(60), ["a".into()], t0)
+            .expecting(2, Duration::from_secs(30));
+        g.alive("c");
+        g.done(marker("a", 0));
+        assert_eq!(
+            g.missing(),
+            vec!["c".to_string()],
+            "the run's start: c is one of the two"
+        );
         assert_eq!(g.closed(t0), None);
-        assert_eq!(g.missing(), vec!["c".to_string()]);
     }
 }
