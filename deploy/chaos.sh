@@ -20,7 +20,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --seed) seed=$2; shift ;;
     --every) every=$2; shift ;;
-    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
     *) args+=("$1") ;;
   esac
   shift

@@ -387,7 +387,7 @@ pub fn acl_denials_in_log(text: &str) -> BTreeMap<String, u64> {
 }
 
 /// `text` without its terminal colour codes (`ESC [ ... m`).
-fn strip_ansi(text: &str) -> String {
+pub fn strip_ansi(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     let mut chars = text.chars();
     while let Some(c) = chars.next() {

@@ -349,6 +349,24 @@ impl Cluster {
         }
     }
 
+    /// The run's `metrics.csv` says nothing was lost: every epoch stored at least the steps its markers said were
+    /// published, and closed with `budget` steps taken. Returns (stored, published) per epoch.
+    pub fn assert_nothing_lost(&self, budget: u64) -> (Vec<u64>, Vec<u64>) {
+        let metrics = self.dir.join("metrics.csv");
+        let stored = csv_column(&metrics, "steps_collected");
+        let published = csv_column(&metrics, "steps_published");
+        assert!(
+            stored.iter().zip(&published).all(|(s, p)| s >= p),
+            "{stored:?} vs {published:?}"
+        );
+        let taken = csv_column(&metrics, "steps_taken");
+        assert!(
+            taken.iter().all(|&t| t == budget),
+            "every epoch closed with its whole budget: {taken:?}"
+        );
+        (stored, published)
+    }
+
     /// The last lines of a child's log (for failure messages).
     pub fn log_tail(&self, label: &str) -> String {
         let text =

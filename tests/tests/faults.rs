@@ -22,23 +22,9 @@ fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Valu
 /// After a learner restart with the actors up: no epoch stored less than the actors published, and every epoch
 /// closed with both actors' markers (its full budget). Returns (stored, published) per epoch.
 fn assert_nothing_lost(cluster: &Cluster) -> (Vec<u64>, Vec<u64>) {
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t == 256),
-        "every epoch closed with both actors' markers: {taken:?}"
-    );
-    (stored, published)
+    cluster.assert_nothing_lost(256)
 }
 
-/// An actor and the expert server are killed mid-run and started again under the same names: the restarted
-/// actor's segments are stored (a new incarnation, not duplicates of its first life's), and the run loses nothing.
 #[test]
 fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
     let tmp = cabc_tests::test_dir();

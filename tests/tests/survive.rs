@@ -13,6 +13,7 @@
 //!   closes with its whole budget.
 
 use cabc_proto::config::RunConfig;
+use cabc_proto::telemetry::strip_ansi;
 use cabc_tests::{bin_dir, csv_column, Cluster};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -53,25 +54,6 @@ fn pid_of(run: &Path, name: &str) -> u32 {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-}
-
-/// A log without its ANSI colours.
-fn plain(log: &str) -> String {
-    let mut out = String::with_capacity(log.len());
-    let mut chars = log.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            // An escape sequence ends with its first letter.
-            for c in chars.by_ref() {
-                if c.is_ascii_alphabetic() {
-                    break;
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
 }
 
 /// SIGKILL to a supervised process, as a crash.
@@ -229,7 +211,7 @@ fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
     let log = cluster.dir.join("learner.log");
     let started = Instant::now();
     let dealt = r#"live={"actor-0", "actor-7"} share=128"#;
-    while !plain(&std::fs::read_to_string(&log).unwrap_or_default()).contains(dealt) {
+    while !strip_ansi(&std::fs::read_to_string(&log).unwrap_or_default()).contains(dealt) {
         assert!(
             started.elapsed() < Duration::from_secs(60),
             "actor-7 never took a share:\n{}",
@@ -316,18 +298,7 @@ fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
     let healed = cut.elapsed();
     assert_eq!(summary["epochs"], 10, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t == 256),
-        "every epoch closed with its whole budget: {taken:?}"
-    );
+    let (stored, published) = cluster.assert_nothing_lost(256);
     println!("survive: a {secs} s cut; the run ended {healed:?} after it began; stored {stored:?}, published {published:?}");
     drop(cluster);
     drop(pair);
@@ -366,17 +337,6 @@ fn a_restarted_router_costs_its_time_and_no_step() {
     let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], 10, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
-    let metrics = cluster.dir.join("metrics.csv");
-    let stored = csv_column(&metrics, "steps_collected");
-    let published = csv_column(&metrics, "steps_published");
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
-    let taken = csv_column(&metrics, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t == 256),
-        "every epoch closed with its whole budget: {taken:?}"
-    );
+    let (stored, published) = cluster.assert_nothing_lost(256);
     println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}");
 }
