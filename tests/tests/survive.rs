@@ -113,10 +113,10 @@ fn a_supervised_run_survives_the_death_of_each_of_its_processes() {
         stored.iter().zip(&published).all(|(s, p)| s >= p),
         "{stored:?} vs {published:?}"
     );
-    // The evaluator's restart took up the evaluations: versions after its death were evaluated.
+    // The evaluator's restart took up the evaluations: versions after its death (at epoch 4) were evaluated.
     let evaluated = csv_column(&run.join("evals.csv"), "version");
     assert!(
-        evaluated.iter().any(|&v| v >= 8),
+        evaluated.iter().any(|&v| v >= 5),
         "no evaluation after the evaluator's restart: {evaluated:?}"
     );
     println!("survive: actor, evaluator, expert server and learner killed once each (SIGKILL), restarted; evaluated {evaluated:?}");
