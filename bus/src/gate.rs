@@ -188,6 +188,25 @@ impl EpochGate {
     }
 }
 
+/// How an epoch's steps are dealt: `budget` steps over `members` actors, each collecting its share rounded up (the
+/// epoch collects at least its budget). `members` is the live actors, or more while actors of `actors.count` have
+/// not been seen yet (the run's start); at least one.
+pub fn share(budget: u64, members: usize) -> u64 {
+    budget.div_ceil(members.max(1) as u64)
+}
+
+/// The steps of their shares that the actors which left an epoch before their marker did not deliver: `share` each,
+/// less the steps of that version heard from it.
+pub fn undone<'a>(
+    lost: impl IntoIterator<Item = &'a str>,
+    share: u64,
+    heard: &BTreeMap<String, u64>,
+) -> u64 {
+    lost.into_iter()
+        .map(|actor| share.saturating_sub(heard.get(actor).copied().unwrap_or(0)))
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -415,5 +434,26 @@ mod tests {
             "the run's start: c is one of the two"
         );
         assert_eq!(g.closed(t0), None);
+    }
+
+    #[test]
+    fn an_epochs_steps_are_dealt_over_its_members() {
+        assert_eq!(share(1024, 2), 512);
+        assert_eq!(
+            share(1024, 1),
+            1024,
+            "the one actor left collects the whole epoch"
+        );
+        assert_eq!(share(1024, 3), 342, "rounded up: at least the budget");
+        assert_eq!(share(1024, 0), 1024);
+    }
+
+    #[test]
+    fn what_a_lost_actor_did_not_deliver_is_undone() {
+        let heard: BTreeMap<String, u64> = [("a".to_string(), 300), ("b".to_string(), 600)].into();
+        assert_eq!(undone(["a"], 512, &heard), 212);
+        assert_eq!(undone(["b"], 512, &heard), 0, "it delivered its share");
+        assert_eq!(undone(["a", "c"], 512, &heard), 212 + 512, "c sent nothing");
+        assert_eq!(undone([], 512, &heard), 0);
     }
 }

@@ -18,6 +18,8 @@ pub mod interrupt;
 pub mod ports;
 pub mod rollouts;
 pub mod security;
+pub mod senders;
+pub mod vouch;
 pub mod zenohd;
 
 use cabc_proto::codec::{self, Message};

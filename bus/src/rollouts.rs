@@ -19,8 +19,11 @@
 //! while the learner trains; when full, zenoh's reliable delivery holds the publishers back rather than dropping),
 //! [`EVAL_QUEUE`] reports. Each message is at most [`crate::MAX_MESSAGE`] bytes (zenoh reassembles nothing larger).
 
-use crate::gate::{Closed, EpochGate};
+use crate::gate::{share, undone, Closed, EpochGate};
 use crate::interrupt::Interrupt;
+pub use crate::senders::{
+    actor_of_token, check_eval, check_traj, eval_sender, evaluator_of_token, traj_sender,
+};
 use crate::{decode_sample, encoding_of, Bus};
 use bytes::Bytes;
 use cabc_proto::codec;
@@ -58,77 +61,6 @@ const HELD_BYTES: usize = 256 << 20;
 
 fn transport(e: impl std::fmt::Display) -> PortError {
     PortError::Transport(e.to_string())
-}
-
-/// The component name of an actor's liveliness token `.../alive/actor/<id>`.
-pub fn actor_of_token(key: &str) -> Option<String> {
-    let (_, rest) = key.split_once("/alive/actor/")?;
-    Some(rest.to_string())
-}
-
-/// The id of an evaluator's liveliness token `.../alive/eval/<id>`.
-pub fn evaluator_of_token(key: &str) -> Option<String> {
-    let (_, rest) = key.split_once("/alive/eval/")?;
-    Some(rest.to_string())
-}
-
-/// How an epoch's steps are dealt: `budget` steps over `members` actors, each collecting its share rounded up (the
-/// epoch collects at least its budget). `members` is the live actors, or more while actors of `actors.count` have
-/// not been seen yet (the run's start); at least one.
-pub fn share(budget: u64, members: usize) -> u64 {
-    budget.div_ceil(members.max(1) as u64)
-}
-
-/// The steps of their shares that the actors which left an epoch before their marker did not deliver: `share` each,
-/// less the steps of that version heard from it.
-pub fn undone<'a>(
-    lost: impl IntoIterator<Item = &'a str>,
-    share: u64,
-    heard: &BTreeMap<String, u64>,
-) -> u64 {
-    lost.into_iter()
-        .map(|actor| share.saturating_sub(heard.get(actor).copied().unwrap_or(0)))
-        .sum()
-}
-
-/// The `<actor>` of a key `.../traj/<actor>` (one chunk, nothing after it).
-pub fn traj_sender(key: &str) -> Option<&str> {
-    let (_, actor) = key.rsplit_once("/traj/")?;
-    (!actor.is_empty() && !actor.contains('/')).then_some(actor)
-}
-
-/// The `<id>` of a key `.../eval/<id>` (one chunk, nothing after it).
-pub fn eval_sender(key: &str) -> Option<&str> {
-    let (_, id) = key.rsplit_once("/eval/")?;
-    (!id.is_empty() && !id.contains('/')).then_some(id)
-}
-
-/// A segment's or a marker's `actor` must be the actor of the key it came on.
-pub fn check_traj(key: &str, message: &TrajMessage) -> Result<(), String> {
-    let named = match message {
-        TrajMessage::Segment(s) => &s.actor,
-        TrajMessage::EpochDone(d) => &d.actor,
-    };
-    match traj_sender(key) {
-        Some(sender) if sender == named => Ok(()),
-        Some(sender) => Err(format!("names actor `{named}` but came from `{sender}`")),
-        None => Err(format!("not an actor's key (names actor `{named}`)")),
-    }
-}
-
-/// An evaluation report counts only from an evaluator's key `eval/<id>` with `report.actor == id`.
-pub fn check_eval(key: &str, report: &EvalReport) -> Result<(), String> {
-    match eval_sender(key) {
-        Some(id) if id == report.actor => Ok(()),
-        Some(id) => Err(format!(
-            "an evaluation report of `{}` from `{id}`",
-            report.actor
-        )),
-        None => Err(format!(
-            "not an evaluator's key (report of `{}`)",
-            report.actor
-        )),
-    }
 }
 
 /// The actors of a run, as the learner sees them over zenoh.
@@ -681,118 +613,5 @@ impl Rollouts for ZenohActors {
 
     fn rejected(&self) -> u64 {
         self.bus.rejects.count()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_epochs_steps_are_dealt_over_its_members() {
-        assert_eq!(share(1024, 2), 512);
-        assert_eq!(
-            share(1024, 1),
-            1024,
-            "the one actor left collects the whole epoch"
-        );
-        assert_eq!(share(1024, 3), 342, "rounded up: at least the budget");
-        assert_eq!(share(1024, 0), 1024);
-    }
-
-    #[test]
-    fn what_a_lost_actor_did_not_deliver_is_undone() {
-        let heard: BTreeMap<String, u64> = [("a".to_string(), 300), ("b".to_string(), 600)].into();
-        assert_eq!(undone(["a"], 512, &heard), 212);
-        assert_eq!(undone(["b"], 512, &heard), 0, "it delivered its share");
-        assert_eq!(undone(["a", "c"], 512, &heard), 212 + 512, "c sent nothing");
-        assert_eq!(undone([], 512, &heard), 0);
-    }
-
-    #[test]
-    fn evaluator_tokens_are_recognised() {
-        assert_eq!(
-            evaluator_of_token("cabc/r/alive/eval/eval-0").as_deref(),
-            Some("eval-0")
-        );
-        assert_eq!(evaluator_of_token("cabc/r/alive/actor/actor-1"), None);
-    }
-
-    #[test]
-    fn actor_tokens_are_recognised() {
-        assert_eq!(
-            actor_of_token("cabc/r/alive/actor/actor-1").as_deref(),
-            Some("actor-1")
-        );
-        assert_eq!(actor_of_token("cabc/r/alive/eval/e"), None);
-        assert_eq!(actor_of_token("cabc/r/alive/learner"), None);
-    }
-
-    fn marker(actor: &str) -> TrajMessage {
-        TrajMessage::EpochDone(cabc_proto::messages::EpochDone {
-            actor: actor.into(),
-            version: 1,
-            published_unix_ms: 0,
-            segments: 0,
-            steps: 0,
-            taken: 0,
-            staged: 0,
-            shielded: 0,
-        })
-    }
-
-    fn segment(actor: &str) -> TrajMessage {
-        TrajMessage::Segment(Segment {
-            actor: actor.into(),
-            incarnation: 0,
-            env: 0,
-            episode: 0,
-            seq: 0,
-            policy_version: 0,
-            outcome: cabc_proto::messages::Outcome::Lap,
-            steps: Vec::new(),
-        })
-    }
-
-    fn report(actor: &str) -> EvalReport {
-        EvalReport {
-            actor: actor.into(),
-            version: 0,
-            laps: 0,
-            lap_times: Vec::new(),
-            end_reason: cabc_proto::messages::EndReason::Stall,
-            steps: 0,
-            line: Vec::new(),
-            spawn_episodes: 0,
-            spawn_crashes: 0,
-        }
-    }
-
-    #[test]
-    fn senders_are_read_from_their_keys() {
-        assert_eq!(traj_sender("cabc/r/traj/actor-1"), Some("actor-1"));
-        assert_eq!(traj_sender("cabc/r/traj/"), None);
-        assert_eq!(traj_sender("cabc/r/traj/a/b"), None);
-        assert_eq!(traj_sender("cabc/r/eval/a"), None);
-        assert_eq!(eval_sender("cabc/r/eval/eval-0"), Some("eval-0"));
-        assert_eq!(eval_sender("cabc/r/traj/eval-0"), None);
-        assert_eq!(eval_sender("cabc/r/eval/x/y"), None);
-    }
-
-    #[test]
-    fn segments_and_markers_must_come_on_their_actor_key() {
-        let key = "cabc/r/traj/actor-1";
-        assert!(check_traj(key, &segment("actor-1")).is_ok());
-        assert!(check_traj(key, &marker("actor-1")).is_ok());
-        assert!(check_traj(key, &segment("actor-2")).is_err());
-        assert!(check_traj(key, &marker("actor-2")).is_err());
-        assert!(check_traj("cabc/r/eval/actor-1", &segment("actor-1")).is_err());
-    }
-
-    #[test]
-    fn evaluation_reports_count_only_from_their_evaluator() {
-        assert!(check_eval("cabc/r/eval/eval-0", &report("eval-0")).is_ok());
-        assert!(check_eval("cabc/r/eval/eval-0", &report("eval-1")).is_err());
-        assert!(check_eval("cabc/r/traj/eval-0", &report("eval-0")).is_err());
     }
 }

@@ -14,7 +14,7 @@ use crate::replay::{Checked, Frames, ImageLog, Replay};
 use crate::schedule::{Due, Schedule};
 use crate::sink::{Sink, SinkError};
 use crate::state::{LearnerState, StateError, CHECKPOINT};
-use crate::summary::{LapTime, Summary};
+use crate::summary::{LapTime, Restarts, Summary, RESTARTED_ROLES};
 use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_models::Network;
@@ -51,19 +51,6 @@ const REPLAY: &str = "replay.bin";
 /// them (the `learner` binary: its router's, `cabc_proto::telemetry::acl_denials`): the `acl_denied` column, its
 /// warning and the summary's. In process there is no bus, and nothing refused: `Box::new(BTreeMap::new)`.
 pub type AclDenials = Box<dyn Fn() -> BTreeMap<String, u64>>;
-
-/// The run's processes restarted so far by its supervisor, by role (`learner`, `expert`, `actor`, `evaluator`), as the
-/// `learner` binary reads them from the run folder's `supervision.json` (issue 64): the `restarts_<role>` columns and
-/// the summary's `restarts`.
-pub type Restarts = Box<dyn Fn() -> BTreeMap<String, u64>>;
-
-/// The roles whose restarts are columns of `metrics.csv`, in order.
-pub const RESTARTED_ROLES: [(&str, &str); 4] = [
-    ("learner", "restarts_learner"),
-    ("expert", "restarts_expert"),
-    ("actor", "restarts_actor"),
-    ("evaluator", "restarts_evaluator"),
-];
 
 /// The epoch in progress, from [`Learner::begin_epoch`] to [`Learner::end_epoch`]: its record and its counts.
 struct Epoch {

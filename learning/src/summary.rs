@@ -8,6 +8,19 @@ use cabc_proto::config::Precision;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
+/// The run's processes restarted so far by its supervisor, by role (`learner`, `expert`, `actor`, `evaluator`), as the
+/// `learner` binary reads them from the run folder's `supervision.json` (issue 64): the `restarts_<role>` columns and
+/// the summary's `restarts`.
+pub type Restarts = Box<dyn Fn() -> BTreeMap<String, u64>>;
+
+/// The roles whose restarts are columns of `metrics.csv`, in order.
+pub const RESTARTED_ROLES: [(&str, &str); 4] = [
+    ("learner", "restarts_learner"),
+    ("expert", "restarts_expert"),
+    ("actor", "restarts_actor"),
+    ("evaluator", "restarts_evaluator"),
+];
+
 /// The run's summary. Its fields are in alphabetical order, the order of `summary.json`'s keys since the file was
 /// first written (a JSON object of sorted keys), so that a run's file reads the same as before.
 #[derive(Clone, Debug, Default, Serialize)]
