@@ -183,7 +183,7 @@ fn a_process_that_keeps_dying_stops_the_run_and_is_named() {
 fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
     let tmp = cabc_tests::test_dir();
     // Written into [bus]: the learner waits 4 s for an actor when none is alive.
-    let mut cluster = Cluster::new(tmp.path(), "gate", 9, "no_actor_timeout_s = 4.0\n").unwrap();
+    let mut cluster = Cluster::new(tmp.path(), "gate", 40, "no_actor_timeout_s = 4.0\n").unwrap();
     cluster.start_all(2, false).unwrap();
     cluster.wait_for_epochs(2, "learner");
     cluster.kill("actor-1").unwrap();
@@ -235,7 +235,7 @@ fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
     }
     cluster.start_learner("learner-resumed", true).unwrap();
     let summary = cluster.summary("learner-resumed");
-    assert_eq!(summary["epochs"], 9, "{summary:#}");
+    assert_eq!(summary["epochs"], 40, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     println!("survive: steps taken per epoch {taken:?}");
 }
