@@ -5,6 +5,8 @@
 #   * the C libraries of the plots (fontconfig, freetype), when missing and apt is usable;
 #   * openssl (deploy/make-certs.sh), when missing and apt is usable.
 #   * the Python package's tools (maturin, numpy, gymnasium, pyarrow, pytest) in a virtual environment, .deps/venv.
+#   * cargo-machete 0.9.2 (deploy/test.sh's check that no crate declares a dependency it does not use), from
+#     crates.io with `cargo install --locked` into .deps/tools (a few minutes the first time).
 # (The standalone router of deploy/SCALE-OUT.md §2, zenohd, is a member of the workspace, third_party/zenohd: the
 # release build makes it, target/release/zenohd.)
 # Prints what it does; fails with a message that names what is missing.
@@ -69,5 +71,13 @@ if [ ! -f "$venv_marker" ]; then
   "$venv/bin/pip" install --quiet --disable-pip-version-check -r "$requirements" \
     || die "pip install -r python/requirements-dev.txt failed (is PyPI reachable? numpy 2.4 needs Python 3.11 or later)"
   touch "$venv_marker"
+fi
+# cargo-machete (issue 67): deploy/test.sh's unused-deps step; installed again when the pinned version changes.
+MACHETE_VERSION=0.9.2
+machete="$deps/tools/bin/cargo-machete"
+if [ "$("$machete" --version 2>/dev/null)" != "$MACHETE_VERSION" ]; then
+  say "installing cargo-machete $MACHETE_VERSION (cargo install --locked) into $deps/tools"
+  cargo install --quiet --locked --root "$deps/tools" "cargo-machete@$MACHETE_VERSION" \
+    || die "cargo install cargo-machete@$MACHETE_VERSION failed (is crates.io reachable?)"
 fi
 say "ready (LIBTORCH=$torch_dir/torch, set for cargo in .cargo/config.toml)"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# README command 2: set-up, release build, then every test of the workspace, the learning tests again under the
-# oldest CPU kernels, and the Python package's tests.
+# README command 2: set-up, release build, the check for unused dependencies, then every test of the workspace, the
+# learning tests again under the oldest CPU kernels, and the Python package's tests.
 #
 #   deploy/test.sh [ARGS for cargo test ...]
 #
@@ -42,6 +42,11 @@ start=$(date +%s)
 # one step whose failure stops the rest.
 cargo build --release --workspace --bins
 echo "build $(( $(date +%s) - start )) s" | tee -a "$logs/times.txt" >&2
+# No crate declares a dependency it does not use (issue 67: each one costs a fresh clone's build time): cargo-machete
+# (deploy/setup.sh installs it) reads every crate's sources under the root and exits 1 on a finding. A dependency it
+# cannot see used (a derive through a re-export, a feature-only crate) goes into that crate's
+# `[package.metadata.cargo-machete] ignored`, with a comment why.
+step unused-deps "$root/.deps/tools/bin/cargo-machete" "$root"
 step workspace cargo test --release --workspace --no-fail-fast "$@"
 
 if [ "${CABC_OLDEST_KERNELS:-1}" != 0 ]; then
