@@ -73,10 +73,11 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
         config.expert.max_streams,
         config.expert.max_batch,
     ));
+    let dir = run_dir.path().to_path_buf();
     let mut learner = cabc_outputs::learner(config, run_dir, resume)?;
     tracing::info!(
         run = learner.config().run.name,
-        dir = %learner.folder().display(),
+        dir = %dir.display(),
         device = ?learner.device(),
         "learner up, actors in-process"
     );

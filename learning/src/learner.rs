@@ -1,19 +1,21 @@
 //! What the learner holds between epochs of Algorithm 1 ([`crate::algorithm`]): D+, D? and D- (the replay), the
 //! three networks and their optimisers (the trainer), the exactly-once ledger, the evaluations, the epochs' records
-//! and the checkpoint; and, within an epoch, its record. Everything it writes besides the checkpoint goes through one
-//! port, a [`Sink`] (the cabc-outputs crate has the run folder's, the `learner` binary the bus's); what it reads of
-//! the bus besides the actors' port, the access control's refusals, is given to it too ([`AclDenials`]).
+//! and the checkpoint; and, within an epoch, its record. It keeps its checkpoint through one port, a [`Checkpointer`]
+//! (the run folder's, [`InFolder`]; one in memory for tests), and writes everything else through another, a [`Sink`]
+//! (the cabc-outputs crate has the run folder's, the `learner` binary the bus's); what it reads of the bus besides
+//! the actors' port, the access control's refusals, is given to it too ([`AclDenials`]).
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
-use crate::checkpoint::{Checkpoint, CheckpointError};
+use crate::checkpoint::{CheckpointError, InFolder};
+use crate::checkpointer::Checkpointer;
 use crate::evaluations::Evaluations;
 use crate::ledger::Ledger;
 use crate::provenance::Provenance;
 use crate::record::Record;
-use crate::replay::{Checked, Frames, ImageLog, Replay};
+use crate::replay::{Checked, Frames, Replay};
 use crate::schedule::{Due, Schedule};
 use crate::sink::{Sink, SinkError};
-use crate::state::{LearnerState, StateError, CHECKPOINT};
+use crate::state::{LearnerState, StateError};
 use crate::summary::{LapTime, Restarts, Summary, RESTARTED_ROLES};
 use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
@@ -23,7 +25,7 @@ use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, ShieldNet
 use cabc_proto::ports::{Collected, PortError};
 use cabc_sim::track::Track;
 use std::collections::{BTreeMap, HashSet};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 use tch::Device;
 
@@ -43,9 +45,6 @@ pub enum LearnerError {
     #[error("{0}")]
     Checkpoint(String),
 }
-
-/// The replay's file in the checkpoint.
-const REPLAY: &str = "replay.bin";
 
 /// The access control's refusals so far, by "<subject>: <action> on <key>", as the side that knows the bus counts
 /// them (the `learner` binary: its router's, `cabc_proto::telemetry::acl_denials`): the `acl_denied` column, its
@@ -84,8 +83,7 @@ pub struct Learner {
     replay: Replay,
     /// The records, the evaluations, the ledger: what the checkpoint saves besides networks and replay.
     state: LearnerState,
-    /// The run folder: the checkpoint and D+'s image logs.
-    folder: PathBuf,
+    checkpointer: Box<dyn Checkpointer>,
     sink: Box<dyn Sink>,
     acl_denials: AclDenials,
     restarts: Option<Restarts>,
@@ -95,60 +93,58 @@ pub struct Learner {
     expert_streams: HashSet<(String, u32, u64)>,
     /// The track's half-width (off-track spawns in [`Provenance`]).
     half_width: f64,
-    /// D+'s images on disk (`replay-images-<generation>.log` in the run folder), appended to at each checkpoint.
-    image_log: Option<ImageLog>,
 }
 
 impl Learner {
-    /// A fresh learner for `config` with its checkpoint in `folder` (`folder/checkpoint`, and D+'s image logs),
-    /// writing its outputs through `sink` and reading the access control's refusals from `acl_denials`; or the one
-    /// of its checkpoint with `resume` (refused without `resume` when a checkpoint exists).
+    /// A fresh learner for `config` with its checkpoint in the run folder `folder` ([`InFolder`]:
+    /// `folder/checkpoint`, and D+'s image logs), or the one of its checkpoint with `resume`
+    /// ([`Learner::open_with`]).
     pub fn open(
         config: RunConfig,
         folder: PathBuf,
+        sink: Box<dyn Sink>,
+        acl_denials: AclDenials,
+        resume: bool,
+    ) -> Result<Self, LearnerError> {
+        let checkpointer = Box::new(InFolder::new(folder));
+        Self::open_with(config, sink, checkpointer, acl_denials, resume)
+    }
+
+    /// A fresh learner for `config` keeping its checkpoint with `checkpointer`, writing its outputs through `sink`
+    /// and reading the access control's refusals from `acl_denials`; or the one of its checkpoint with `resume`
+    /// (refused without `resume` when a checkpoint exists).
+    pub fn open_with(
+        config: RunConfig,
         mut sink: Box<dyn Sink>,
+        mut checkpointer: Box<dyn Checkpointer>,
         acl_denials: AclDenials,
         resume: bool,
     ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
-        let checkpoint = folder.join(CHECKPOINT);
-        let (trainer, replay, image_log, state) = if Checkpoint::exists(&checkpoint) {
+        let (trainer, replay, state) = if checkpointer.exists() {
             if !resume {
                 return Err(LearnerError::Checkpoint(format!(
-                    "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
-                    folder.display()
+                    "{checkpointer} holds a checkpoint: pass --resume to continue that run, or --fresh to start over"
                 )));
             }
-            let ck = Checkpoint::open(&checkpoint)?;
-            let state = LearnerState::load(&ck)?;
+            let (parts, replay) = checkpointer.load()?;
+            let state = LearnerState::load(&*parts)?;
             let mut trainer = Trainer::with_device(&config, device);
-            trainer.load(&ck)?;
-            let (replay, image_log) = ck
-                .read(REPLAY)
-                .map_err(|e| LearnerError::Checkpoint(e.to_string()))
-                .and_then(|bytes| {
-                    Replay::from_checkpoint(&bytes, &folder)
-                        .map(|(replay, log)| {
-                            let replay = replay
-                                .with_frames(Frames::of(&config))
-                                .with_dynamics_only(config.replay.dynamics_only);
-                            (replay, log)
-                        })
-                        .map_err(|e| LearnerError::Checkpoint(format!("loading the replay: {e}")))
-                })?;
+            trainer.load(&*parts)?;
+            let replay = replay
+                .with_frames(Frames::of(&config))
+                .with_dynamics_only(config.replay.dynamics_only);
             tracing::info!(
                 epoch = state.next_epoch,
                 d_plus = replay.len_plus(),
                 d_uncertain = replay.len_uncertain(),
                 "resumed from {}",
-                ck.path().display()
+                parts.path().display()
             );
-            (trainer, replay, image_log, state)
+            (trainer, replay, state)
         } else if resume {
             return Err(LearnerError::Checkpoint(format!(
-                "{} holds no checkpoint to resume (not even checkpoint.old/): nothing was started; drop --resume to \
-                 start a new run",
-                folder.display()
+                "{checkpointer} holds no checkpoint to resume: nothing was started; drop --resume to start a new run"
             )));
         } else {
             let replay = Replay::from_config(&config);
@@ -163,7 +159,7 @@ impl Learner {
                 trunk_init: Some(trainer.init_trunk()?),
                 ..LearnerState::default()
             };
-            (trainer, replay, None, state)
+            (trainer, replay, state)
         };
         sink.open(&state.history());
         let half_width = Track::from_kind(config.sim.track).half_width();
@@ -173,14 +169,13 @@ impl Learner {
             replay,
             epoch: Epoch::new(state.next_epoch, &state.ledger),
             state,
-            folder,
+            checkpointer,
             sink,
             acl_denials,
             restarts: None,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
             half_width,
-            image_log,
         })
     }
 
@@ -188,11 +183,6 @@ impl Learner {
     pub fn with_restarts(mut self, restarts: Restarts) -> Self {
         self.restarts = Some(restarts);
         self
-    }
-
-    /// The run folder (the checkpoint's parent).
-    pub fn folder(&self) -> &Path {
-        &self.folder
     }
 
     /// The run's configuration.
@@ -494,23 +484,11 @@ impl Learner {
         self.sink.phase(epoch, phase);
     }
 
-    /// The networks, the replay and the learner state, written atomically (see `crate::checkpoint`).
-    /// D+'s images go to the image log first (only those new since the last checkpoint); a generation the
-    /// committed checkpoint no longer names is removed after the commit.
+    /// The networks, the replay and the learner state, through the checkpointer.
     fn checkpoint(&mut self) -> Result<(), LearnerError> {
         let mut files = self.trainer.to_checkpoint();
-        let replay = self
-            .replay
-            .checkpoint_bytes(&self.folder, &mut self.image_log)
-            .map_err(|e| LearnerError::Checkpoint(format!("saving the replay: {e}")))?;
-        files.push((REPLAY, replay));
-        self.state.save(&self.folder.join(CHECKPOINT), files)?;
-        if let Some(log) = &self.image_log {
-            if let Err(e) = log.prune() {
-                tracing::warn!("removing an old image log: {e}");
-            }
-        }
-        Ok(())
+        files.push(self.state.part()?);
+        Ok(self.checkpointer.save(files, &mut self.replay)?)
     }
 
     /// Ends the run: the final outputs (unless interrupted) and the summary, written through the sink and returned.

@@ -1,6 +1,7 @@
 //! cabc-learning: the learning core of constraint-aware behaviour cloning, the paper's Algorithm 1 and the state it
 //! keeps between epochs. It knows nothing of the bus, the run folder's files, plots, videos, TensorBoard or datasets:
-//! everything it writes besides its checkpoint goes through one port, [`sink::Sink`].
+//! it keeps its checkpoint through one port, [`checkpointer::Checkpointer`], and writes everything else through
+//! another, [`sink::Sink`].
 //!
 //! Algorithm 1, line by line, and where each part lives:
 //!
@@ -18,7 +19,8 @@
 //! | an epoch's metrics, one line where each is computed | [`record`], written through [`sink`] |
 //! | the run's summary (`summary.json`) | [`summary`] |
 //! | what a run's data lets a policy copy (`cabc probe`, issue 58) | [`probe`] |
-//! | the checkpoint (atomic, one writer) | [`checkpoint`], the learner's part in [`state`]; old formats read in `replay::migrate` and `record::rows` |
+//! | the checkpoint: the learner's port | [`checkpointer`] (and one in memory), the learner's part in [`state`] |
+//! | the checkpoint in a run folder (atomic, one writer) | [`checkpoint`]; old formats read in `replay::migrate` and `record::rows` |
 //!
 //! The actors are a port (`cabc_proto::ports::Rollouts`): over zenoh in a run (the `learner` binary), in-process
 //! in a test. The sinks of a run folder (CSV tables, plots, GIFs, TensorBoard, the progress bar) are the
@@ -27,6 +29,7 @@
 pub mod algorithm;
 pub mod autolabel;
 pub mod checkpoint;
+pub mod checkpointer;
 pub mod evaluations;
 pub mod fault;
 pub mod hull;

@@ -1,7 +1,7 @@
 //! The learner's bookkeeping besides networks and replay, saved as `state.json` in each checkpoint (with the
-//! trainer's and the replay's files, through the one writer, [`crate::checkpoint`]).
+//! trainer's and the replay's files, through the learner's checkpointer, [`crate::checkpointer`]).
 
-use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter};
+use crate::checkpoint::{CheckpointError, CheckpointWriter, Parts};
 use crate::evaluations::Evaluations;
 use crate::record::Record;
 use crate::sink::History;
@@ -58,6 +58,15 @@ impl LearnerState {
         }
     }
 
+    /// This state as a checkpoint's part: `state.json`.
+    pub fn part(&self) -> Result<(&'static str, Vec<u8>), StateError> {
+        let json = serde_json::to_vec(self).map_err(|e| StateError::Format {
+            path: PathBuf::from(STATE),
+            message: e.to_string(),
+        })?;
+        Ok((STATE, json))
+    }
+
     /// Writes a checkpoint into `dir` atomically: `files` (the trainer's, the replay's) and this state as
     /// `state.json`.
     pub fn save<N: AsRef<str>>(
@@ -65,19 +74,16 @@ impl LearnerState {
         dir: &Path,
         files: impl IntoIterator<Item = (N, Vec<u8>)>,
     ) -> Result<(), StateError> {
-        let json = serde_json::to_vec(self).map_err(|e| StateError::Format {
-            path: dir.join(STATE),
-            message: e.to_string(),
-        })?;
+        let (name, json) = self.part()?;
         CheckpointWriter::new(dir)
             .files(files)
-            .file(STATE, json)
+            .file(name, json)
             .commit()?;
         Ok(())
     }
 
     /// The state of a checkpoint.
-    pub fn load(checkpoint: &Checkpoint) -> Result<Self, StateError> {
+    pub fn load(checkpoint: &dyn Parts) -> Result<Self, StateError> {
         let bytes = checkpoint.read(STATE)?;
         serde_json::from_slice(&bytes).map_err(|e| StateError::Format {
             path: checkpoint.path().join(STATE),
@@ -89,6 +95,7 @@ impl LearnerState {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::checkpoint::Checkpoint;
 
     #[test]
     fn checkpoint_round_trip_and_fresh_start() {

@@ -6,7 +6,7 @@
 
 use super::fit::Opt;
 use super::{Standardiser, TrainError, Trainer};
-use crate::checkpoint::{Checkpoint, CheckpointError};
+use crate::checkpoint::{CheckpointError, Parts};
 use cabc_models::{Network, Policy};
 use cabc_proto::config::RunConfig;
 use rand::SeedableRng;
@@ -83,7 +83,7 @@ impl Trainer {
 
     /// Restores what [`Trainer::to_checkpoint`] wrote into this trainer (built from the same configuration; weights
     /// of another architecture are refused).
-    pub fn load(&mut self, checkpoint: &Checkpoint) -> Result<(), TrainError> {
+    pub fn load(&mut self, checkpoint: &dyn Parts) -> Result<(), TrainError> {
         let state: TrainerState =
             serde_json::from_slice(&checkpoint.read(STATE)?).map_err(|e| TrainError::State {
                 path: checkpoint.path().join(STATE).display().to_string(),
@@ -125,7 +125,7 @@ impl Trainer {
     }
 
     /// A trainer from `config` on `training.device`, restored from `checkpoint`.
-    pub fn resume(config: &RunConfig, checkpoint: &Checkpoint) -> Result<Self, TrainError> {
+    pub fn resume(config: &RunConfig, checkpoint: &dyn Parts) -> Result<Self, TrainError> {
         let mut t = Trainer::new(config)?;
         t.load(checkpoint)?;
         Ok(t)
@@ -133,7 +133,7 @@ impl Trainer {
 }
 
 /// Restores one optimiser's Adam state from `name`; without that file (an older checkpoint) the moments restart.
-fn load_adam(opt: &mut Opt, checkpoint: &Checkpoint, name: &str) -> Result<(), TrainError> {
+fn load_adam(opt: &mut Opt, checkpoint: &dyn Parts, name: &str) -> Result<(), TrainError> {
     match checkpoint.read(name) {
         Ok(bytes) => opt
             .adam
