@@ -96,9 +96,8 @@ pub struct Learner {
 }
 
 impl Learner {
-    /// A fresh learner for `config` with its checkpoint in the run folder `folder` ([`InFolder`]:
-    /// `folder/checkpoint`, and D+'s image logs), or the one of its checkpoint with `resume`
-    /// ([`Learner::open_with`]).
+    /// The learner of the run folder `folder`: [`Learner::new`] with its checkpoint there ([`InFolder`]:
+    /// `folder/checkpoint`, and D+'s image logs), [`Learner::restore`]d.
     pub fn open(
         config: RunConfig,
         folder: PathBuf,
@@ -107,66 +106,23 @@ impl Learner {
         resume: bool,
     ) -> Result<Self, LearnerError> {
         let checkpointer = Box::new(InFolder::new(folder));
-        Self::open_with(config, sink, checkpointer, acl_denials, resume)
+        Self::new(config, sink, checkpointer, acl_denials)?.restore(resume)
     }
 
-    /// A fresh learner for `config` keeping its checkpoint with `checkpointer`, writing its outputs through `sink`
-    /// and reading the access control's refusals from `acl_denials`; or the one of its checkpoint with `resume`
-    /// (refused without `resume` when a checkpoint exists).
-    pub fn open_with(
+    /// The learner of `config`, assembled: its networks on `training.device`, an empty replay and state, its
+    /// checkpoint kept with `checkpointer`, its outputs written through `sink` and the access control's refusals read
+    /// from `acl_denials`. It runs once [`Learner::restore`]d.
+    pub fn new(
         config: RunConfig,
-        mut sink: Box<dyn Sink>,
-        mut checkpointer: Box<dyn Checkpointer>,
+        sink: Box<dyn Sink>,
+        checkpointer: Box<dyn Checkpointer>,
         acl_denials: AclDenials,
-        resume: bool,
     ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
-        let (trainer, replay, state) = if checkpointer.exists() {
-            if !resume {
-                return Err(LearnerError::Checkpoint(format!(
-                    "{checkpointer} holds a checkpoint: pass --resume to continue that run, or --fresh to start over"
-                )));
-            }
-            let (parts, replay) = checkpointer.load()?;
-            let state = LearnerState::load(&*parts)?;
-            let mut trainer = Trainer::with_device(&config, device);
-            trainer.load(&*parts)?;
-            let replay = replay
-                .with_frames(Frames::of(&config))
-                .with_dynamics_only(config.replay.dynamics_only);
-            tracing::info!(
-                epoch = state.next_epoch,
-                d_plus = replay.len_plus(),
-                d_uncertain = replay.len_uncertain(),
-                "resumed from {}",
-                parts.path().display()
-            );
-            (trainer, replay, state)
-        } else if resume {
-            return Err(LearnerError::Checkpoint(format!(
-                "{checkpointer} holds no checkpoint to resume: nothing was started; drop --resume to start a new run"
-            )));
-        } else {
-            let replay = Replay::from_config(&config);
-            tracing::info!(
-                d_plus_capacity = replay.plus.capacity(),
-                capacity = config.replay.capacity,
-                max_bytes = config.replay.max_bytes,
-                "replay"
-            );
-            let mut trainer = Trainer::with_device(&config, device);
-            let state = LearnerState {
-                trunk_init: Some(trainer.init_trunk()?),
-                ..LearnerState::default()
-            };
-            (trainer, replay, state)
-        };
-        sink.open(&state.history());
-        let half_width = Track::from_kind(config.sim.track).half_width();
+        let state = LearnerState::default();
         Ok(Learner {
-            config,
-            trainer,
-            replay,
+            trainer: Trainer::with_device(&config, device),
+            replay: Replay::from_config(&config),
             epoch: Epoch::new(state.next_epoch, &state.ledger),
             state,
             checkpointer,
@@ -175,8 +131,63 @@ impl Learner {
             restarts: None,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
-            half_width,
+            half_width: Track::from_kind(config.sim.track).half_width(),
+            config,
         })
+    }
+
+    /// Starts the run: a fresh one, or with `resume` the checkpoint's (refused without `resume` when the
+    /// checkpointer holds one, and with it when it holds none); then opens the sink with what the run wrote so far.
+    pub fn restore(mut self, resume: bool) -> Result<Self, LearnerError> {
+        match (self.checkpointer.exists(), resume) {
+            (true, true) => self.resume()?,
+            (false, false) => self.start()?,
+            (true, false) => {
+                return Err(LearnerError::Checkpoint(format!(
+                    "{} holds a checkpoint: pass --resume to continue that run, or --fresh to start over",
+                    self.checkpointer
+                )))
+            }
+            (false, true) => {
+                return Err(LearnerError::Checkpoint(format!(
+                    "{} holds no checkpoint to resume: nothing was started; drop --resume to start a new run",
+                    self.checkpointer
+                )))
+            }
+        }
+        self.epoch = Epoch::new(self.state.next_epoch, &self.state.ledger);
+        self.sink.open(&self.state.history());
+        Ok(self)
+    }
+
+    /// A fresh run: the policy's trunk from `observation.pretrained` (or not), said in the summary.
+    fn start(&mut self) -> Result<(), LearnerError> {
+        tracing::info!(
+            d_plus_capacity = self.replay.plus.capacity(),
+            capacity = self.config.replay.capacity,
+            max_bytes = self.config.replay.max_bytes,
+            "replay"
+        );
+        self.state.trunk_init = Some(self.trainer.init_trunk()?);
+        Ok(())
+    }
+
+    /// The checkpoint's run: its networks and optimisers, its replay and the learner state.
+    fn resume(&mut self) -> Result<(), LearnerError> {
+        let (parts, replay) = self.checkpointer.load()?;
+        self.state = LearnerState::load(&*parts)?;
+        self.trainer.load(&*parts)?;
+        self.replay = replay
+            .with_frames(Frames::of(&self.config))
+            .with_dynamics_only(self.config.replay.dynamics_only);
+        tracing::info!(
+            epoch = self.state.next_epoch,
+            d_plus = self.replay.len_plus(),
+            d_uncertain = self.replay.len_uncertain(),
+            "resumed from {}",
+            parts.path().display()
+        );
+        Ok(())
     }
 
     /// Reads the supervisor's restarts at each epoch's end (a run under `cabc supervise`).

@@ -1,10 +1,11 @@
 //! The learner's state across epochs and resumes, and what it is given at construction: the count of segments not
 //! stored and the early stop go with the checkpoint (a resumed learner writes the count the run had, and one that
-//! had reached its early stop ends there), a segment of a version never
-//! published is refused, and the access control's refusals come from the source the bus side passes in (none in
-//! process).
+//! had reached its early stop ends there; in a run folder and in memory), a restore refuses to resume nothing or
+//! to start over a checkpoint, a segment of a version never published is refused, and the access control's refusals
+//! come from the source the bus side passes in (none in process).
 
 use cabc_learning::algorithm::{self, Ending};
+use cabc_learning::checkpointer::{Checkpointer, InMemory};
 use cabc_learning::learner::{AclDenials, Learner};
 use cabc_learning::record::Record;
 use cabc_learning::sink::{Sink, SinkError};
@@ -40,7 +41,16 @@ impl Sink for Told {
     }
 }
 
-fn open(dir: &Path, sink: Told, acl_denials: AclDenials, resume: bool) -> Learner {
+/// The smoke run's learner, its checkpoint kept in `checkpoints`, restored (fresh, or with `resume` resumed).
+fn open(checkpoints: &InMemory, sink: Told, acl_denials: AclDenials, resume: bool) -> Learner {
+    let config = RunConfig::load("smoke").unwrap();
+    let checkpointer = Box::new(checkpoints.clone());
+    let learner = Learner::new(config, Box::new(sink), checkpointer, acl_denials).unwrap();
+    learner.restore(resume).unwrap()
+}
+
+/// [`open`] with the checkpoint in the run folder `dir`.
+fn open_folder(dir: &Path, sink: Told, acl_denials: AclDenials, resume: bool) -> Learner {
     let config = RunConfig::load("smoke").unwrap();
     Learner::open(config, dir.into(), Box::new(sink), acl_denials, resume).unwrap()
 }
@@ -64,7 +74,7 @@ fn epoch(learner: &mut Learner, j: u64, segments: Vec<Segment>, live: &[&str]) -
 fn segments_not_stored_survive_a_resume() {
     let dir = tempfile::tempdir().unwrap();
     let none = || -> AclDenials { Box::new(BTreeMap::new) };
-    let mut learner = open(dir.path(), Told::default(), none(), false);
+    let mut learner = open_folder(dir.path(), Told::default(), none(), false);
     let first = epoch(
         &mut learner,
         0,
@@ -74,7 +84,7 @@ fn segments_not_stored_survive_a_resume() {
     assert_eq!(first.u64("segments_not_stored"), Some(1), "{first}");
     assert_eq!(first.u64("segments"), Some(1), "{first}");
     drop(learner);
-    let mut learner = open(dir.path(), Told::default(), none(), true);
+    let mut learner = open_folder(dir.path(), Told::default(), none(), true);
     assert_eq!(learner.next_epoch(), 1);
     let second = epoch(&mut learner, 1, vec![segment(2, false)], &[]);
     assert_eq!(
@@ -94,8 +104,13 @@ fn segments_not_stored_survive_a_resume() {
 /// one, is stored.
 #[test]
 fn a_segment_of_a_version_never_published_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut learner = open(dir.path(), Told::default(), Box::new(BTreeMap::new), false);
+    let checkpoints = InMemory::default();
+    let mut learner = open(
+        &checkpoints,
+        Told::default(),
+        Box::new(BTreeMap::new),
+        false,
+    );
     let forged = |seq: u64, version: u64| {
         let mut s = segment(seq, false);
         s.policy_version = version;
@@ -114,9 +129,8 @@ fn a_segment_of_a_version_never_published_is_refused() {
     assert_eq!(second.u64("segments_not_stored"), Some(2), "{second}");
     assert_eq!(second.u64("segments"), Some(2), "{second}");
     // Before any version is published, no segment is believed.
-    let other = tempfile::tempdir().unwrap();
     let mut fresh = open(
-        other.path(),
+        &InMemory::default(),
         Told::default(),
         Box::new(BTreeMap::new),
         false,
@@ -132,7 +146,7 @@ fn a_segment_of_a_version_never_published_is_refused() {
 
 #[test]
 fn the_acl_source_passed_in_shows_in_the_record_and_the_summary() {
-    let dir = tempfile::tempdir().unwrap();
+    let checkpoints = InMemory::default();
     let refused = Rc::new(Cell::new(0));
     let source = refused.clone();
     let acl_denials: AclDenials = Box::new(move || match source.get() {
@@ -140,7 +154,7 @@ fn the_acl_source_passed_in_shows_in_the_record_and_the_summary() {
         n => BTreeMap::from([("actor-9: put on cabc/r/traj/actor-0".to_string(), n)]),
     });
     let told = Told::default();
-    let mut learner = open(dir.path(), told.clone(), acl_denials, false);
+    let mut learner = open(&checkpoints, told.clone(), acl_denials, false);
     let first = epoch(&mut learner, 0, vec![segment(0, false)], &["actor-0"]);
     assert_eq!(first.u64("acl_denied"), Some(0), "{first}");
     refused.set(3);
@@ -167,9 +181,8 @@ fn the_acl_source_passed_in_shows_in_the_record_and_the_summary() {
         ]
     );
     // In process nothing is refused.
-    let other = tempfile::tempdir().unwrap();
     let mut learner = open(
-        other.path(),
+        &InMemory::default(),
         Told::default(),
         Box::new(BTreeMap::new),
         false,
@@ -213,9 +226,9 @@ impl Rollouts for Idle {
 /// trained an epoch more and stopped at 64) ends there when resumed, with the version that stopped it.
 #[test]
 fn a_run_resumed_after_its_early_stop_ends_there() {
-    let dir = tempfile::tempdir().unwrap();
+    let checkpoints = InMemory::default();
     let none = || -> AclDenials { Box::new(BTreeMap::new) };
-    let mut learner = open(dir.path(), Told::default(), none(), false);
+    let mut learner = open(&checkpoints, Told::default(), none(), false);
     let rules = learner.config().collection.clone();
     let laps = vec![19.0; rules.eval_laps as usize];
     let last = u64::from(rules.early_stop_successes.max(1)) - 1;
@@ -235,7 +248,7 @@ fn a_run_resumed_after_its_early_stop_ends_there() {
     }
     assert_eq!(learner.early_stop(), Some(last));
     drop(learner);
-    let mut resumed = open(dir.path(), Told::default(), none(), true);
+    let mut resumed = open(&checkpoints, Told::default(), none(), true);
     assert_eq!(resumed.next_epoch(), last + 1);
     assert_eq!(resumed.early_stop(), Some(last), "from the checkpoint");
     assert_eq!(
@@ -243,4 +256,31 @@ fn a_run_resumed_after_its_early_stop_ends_there() {
         Ending::EarlyStop(last),
         "no epoch more"
     );
+}
+
+/// A restore starts a fresh run, or with `resume` the checkpoint's, and refuses the other two cases: resuming where
+/// there is no checkpoint (nothing is saved) and starting over one.
+#[test]
+fn a_restore_refuses_to_resume_nothing_or_to_start_over_a_checkpoint() {
+    let checkpoints = InMemory::default();
+    let learner = || {
+        let config = RunConfig::load("smoke").unwrap();
+        let checkpointer = Box::new(checkpoints.clone());
+        Learner::new(
+            config,
+            Box::new(Told::default()),
+            checkpointer,
+            Box::new(BTreeMap::new),
+        )
+        .unwrap()
+    };
+    let refused = learner().restore(true).err().unwrap().to_string();
+    assert!(refused.contains("no checkpoint to resume"), "{refused}");
+    assert!(!checkpoints.exists());
+    let mut first = learner().restore(false).unwrap();
+    epoch(&mut first, 0, vec![segment(0, false)], &[]);
+    drop(first);
+    let refused = learner().restore(false).err().unwrap().to_string();
+    assert!(refused.contains("holds a checkpoint"), "{refused}");
+    assert_eq!(learner().restore(true).unwrap().next_epoch(), 1);
 }
