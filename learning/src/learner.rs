@@ -75,7 +75,10 @@ impl Epoch {
     }
 }
 
-/// Everything the learner holds.
+/// Everything the learner holds. Made with [`Learner::new`] and [`Learner::restore`] (a run folder's:
+/// [`Learner::open`]); Algorithm 1 ([`crate::algorithm::run`]) drives it an epoch at a time ([`Learner::begin_epoch`],
+/// [`Learner::policy_update`], [`Learner::store`], [`Learner::partition`], [`Learner::autolabel`], its training,
+/// [`Learner::on_eval`], [`Learner::end_epoch`]); the binaries end it ([`Learner::finish`]).
 pub struct Learner {
     config: RunConfig,
     trainer: Trainer,
@@ -206,8 +209,8 @@ impl Learner {
         self.trainer.device()
     }
 
-    /// The run's schedule, the trainer's ([`Trainer::schedule`]).
-    pub fn schedule(&self) -> &Schedule {
+    /// The run's schedule, the trainer's ([`Trainer::schedule`]), which Algorithm 1's loop reads.
+    pub(crate) fn schedule(&self) -> &Schedule {
         self.trainer.schedule()
     }
 
@@ -415,7 +418,7 @@ impl Learner {
 
     /// ComputeGradient and Update: the trainer's epoch on the replay ([`Trainer::train`]), f_hat and p_hat as `due`
     /// says; its losses go into the epoch's record.
-    pub fn train(&mut self, due: Due) -> Result<(), LearnerError> {
+    pub(crate) fn train(&mut self, due: Due) -> Result<(), LearnerError> {
         let epoch = self.epoch.record.epoch();
         self.progress(epoch, "training");
         self.measure_critic();
