@@ -2,6 +2,7 @@
 //! and `summary.json`, as one [`RunRecord`].
 
 use crate::stats::median;
+use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
 use std::path::{Path, PathBuf};
 
@@ -95,11 +96,11 @@ impl RunRecord {
             path: dir.to_path_buf(),
             why,
         };
-        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join("summary.json"))
+        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join(RunDir::SUMMARY))
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok());
         // A folder of results without config.toml (older copies): the name and lambda from summary.json.
-        let config_path = dir.join("config.toml");
+        let config_path = dir.join(RunDir::CONFIG);
         let (name, lambda, seed, eval_laps) = if config_path.exists() {
             let config = RunConfig::load(&config_path.display().to_string())
                 .map_err(|e| fail(e.to_string()))?;
@@ -120,8 +121,8 @@ impl RunRecord {
                 cabc_proto::config::CollectionSection::default().eval_laps,
             )
         };
-        let metrics =
-            Table::read(&dir.join("metrics.csv")).map_err(|e| fail(format!("metrics.csv: {e}")))?;
+        let metrics = Table::read(&dir.join(RunDir::METRICS))
+            .map_err(|e| fail(format!("metrics.csv: {e}")))?;
         let column = |name| {
             metrics
                 .column(name)
@@ -159,7 +160,7 @@ impl RunRecord {
             _ => Vec::new(),
         };
         let evals_table =
-            Table::read(&dir.join("evals.csv")).map_err(|e| fail(format!("evals.csv: {e}")))?;
+            Table::read(&dir.join(RunDir::EVALS)).map_err(|e| fail(format!("evals.csv: {e}")))?;
         let evals_column = |name| {
             evals_table
                 .column(name)

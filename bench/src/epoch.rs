@@ -255,7 +255,7 @@ fn step_parts(config: &RunConfig, options: &EpochBenchOptions) -> anyhow::Result
 /// A run's collection per step: the median over its epochs of collect_s / steps_taken (ms).
 fn measured_step_ms(run: &std::path::Path) -> anyhow::Result<f64> {
     use anyhow::Context;
-    let path = run.join("metrics.csv");
+    let path = run.join(cabc_outputs::RunDir::METRICS);
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let (header, rows) = cabc_learning::record::csv_rows(&text)

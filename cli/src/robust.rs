@@ -2,9 +2,10 @@
 //! spawns under action and state noise ([`cabc_bench::robust`]); the summary as JSON on stdout, the full report
 //! (with every spawn and its outcome per level) in OUT/robust.json, the figure in OUT/robust.png.
 
-use crate::show::{load_policy, run_config};
+use crate::show::run_config;
 use anyhow::Context;
 use cabc_bench::robust::{self, RobustOptions};
+use cabc_outputs::rundir::{load_policy, KeptPolicy, RunDir};
 use cabc_sim::track::Track;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,9 +27,9 @@ pub struct Args {
 
 /// The policy file `which` names for `run`.
 fn policy_path(run: &Path, which: &str) -> PathBuf {
-    match which {
-        "best" | "final" => run.join(format!("{which}-policy.safetensors")),
-        file => PathBuf::from(file),
+    match which.parse::<KeptPolicy>() {
+        Ok(kept) => run.join(RunDir::policy_file(kept)),
+        Err(_) => PathBuf::from(which),
     }
 }
 

@@ -15,6 +15,7 @@
 use anyhow::{bail, Context, Result};
 use cabc_learning::checkpoint::Checkpoint;
 use cabc_learning::state::{LearnerState, CHECKPOINT};
+use cabc_outputs::rundir::{load_policy, KeptPolicy, RunDir};
 use cabc_outputs::video::{self, CameraView};
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
@@ -79,16 +80,17 @@ pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
         .as_ref()
         .and_then(|s| s.evaluations.best())
         .map(|e| e.version);
+    // The video's file unless `out` names one (None: the kept policy's, RunDir::policy_video).
     let (weights, version, default_out) = match which {
-        Which::Best => ("best", best.unwrap_or(0), run.join("best-policy.gif")),
+        Which::Best => (KeptPolicy::Best, best.unwrap_or(0), None),
         // The version the final policy would have been published as.
         Which::Final => (
-            "final",
+            KeptPolicy::Final,
             state.as_ref().map_or(0, |s| s.next_epoch),
-            run.join("final-policy.gif"),
+            None,
         ),
         Which::Version(n) => {
-            let drawn = run.join("plots").join(format!("eval-v{n}.gif"));
+            let drawn = run.join(RunDir::eval_video(n));
             if drawn.exists() {
                 let gif = match out {
                     Some(out) => {
@@ -111,14 +113,16 @@ pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
                      and the final policy's): try --gif best or --gif final",
                     run.display(),
                     config.collection.eval_laps,
-                    drawn_versions(run),
+                    RunDir::eval_videos(run),
                     best.map_or("none yet".into(), |b| b.to_string()),
                 );
             }
-            ("best", n, drawn)
+            (KeptPolicy::Best, n, Some(drawn))
         }
     };
-    let out = out.unwrap_or(default_out);
+    let out = out
+        .or(default_out)
+        .unwrap_or_else(|| run.join(RunDir::policy_video(weights)));
     let report = evaluate_anew(run, &config, weights, version, &out)?;
     Ok(Shown {
         gif: out,
@@ -136,7 +140,7 @@ pub fn video(run: &Path, final_: bool, out: Option<PathBuf>) -> Result<EvalRepor
 
 /// The run folder's configuration, RUN/config.toml.
 pub(crate) fn run_config(run: &Path) -> Result<RunConfig> {
-    let config_path = run.join("config.toml");
+    let config_path = run.join(RunDir::CONFIG);
     RunConfig::load(&config_path.display().to_string())
         .with_context(|| format!("{} is not a run folder", run.display()))
 }
@@ -150,33 +154,16 @@ fn state(run: &Path) -> Option<LearnerState> {
         .ok()
 }
 
-/// The versions of `plots/eval-v<N>.gif` in the run folder, in order.
-fn drawn_versions(run: &Path) -> Vec<u64> {
-    let mut versions: Vec<u64> = std::fs::read_dir(run.join("plots"))
-        .into_iter()
-        .flatten()
-        .filter_map(|entry| {
-            let name = entry.ok()?.file_name().into_string().ok()?;
-            name.strip_prefix("eval-v")?
-                .strip_suffix(".gif")?
-                .parse()
-                .ok()
-        })
-        .collect();
-    versions.sort_unstable();
-    versions
-}
-
 /// Evaluates `RUN/<weights>-policy.safetensors` anew as the evaluator would version `version` (on the CPU), and
 /// writes its video with the car's poses and, in a camera run, its view under the evaluation's sun.
 fn evaluate_anew(
     run: &Path,
     config: &RunConfig,
-    weights: &str,
+    weights: KeptPolicy,
     version: u64,
     out: &Path,
 ) -> Result<EvalReport> {
-    let policy = load_policy(&run.join(format!("{weights}-policy.safetensors")))?;
+    let policy = load_policy(&run.join(RunDir::policy_file(weights)))?;
     let mut poses = Vec::new();
     let mut sun = None;
     let report = cabc_actor::evaluate::evaluate_watched(
@@ -205,13 +192,6 @@ fn evaluate_anew(
         out.display()
     );
     Ok(report)
-}
-
-/// A policy's weights from a safetensors file, on the CPU.
-pub(crate) fn load_policy(path: &Path) -> Result<cabc_models::Policy> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    cabc_models::Policy::from_bytes(&bytes, tch::Device::Cpu)
-        .with_context(|| format!("{}", path.display()))
 }
 
 #[cfg(test)]
@@ -261,7 +241,7 @@ mod tests {
         let arch = cabc_models::PolicyArch::from_config(&config);
         let policy = cabc_models::Policy::new(arch, tch::Device::Cpu, 5);
         use cabc_models::Network;
-        run.write_file("final-policy.safetensors", &policy.to_bytes())
+        run.write_policy(KeptPolicy::Final, &policy.to_bytes())
             .unwrap();
         let shown = gif(run.path(), Which::Final, None).unwrap();
         assert_eq!(shown.gif, run.path().join("final-policy.gif"));

@@ -78,7 +78,7 @@ pub fn run(args: &Args) -> Result<i32> {
                 "[run-local] learner finished (exit {code}) after {} min {} s; summary: {}",
                 s / 60,
                 s % 60,
-                args.run_dir.join("summary.json").display()
+                args.run_dir.join(cabc_outputs::RunDir::SUMMARY).display()
             );
             Ok(code)
         }

@@ -29,6 +29,7 @@ mod table;
 
 use cabc_learning::checkpoint::{Checkpoint, CheckpointError};
 use cabc_learning::replay::{ReplayError, ReplaySnapshot};
+use cabc_outputs::RunDir;
 use cabc_proto::config::{ObservationKind, RunConfig};
 use lineage::{EpochSizes, Versions};
 use meta::Info;
@@ -98,7 +99,7 @@ const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
 /// The run's configuration (for its name and images).
 fn read_config(run: &Path) -> Result<RunConfig, ExportError> {
-    let path = run.join("config.toml");
+    let path = run.join(RunDir::CONFIG);
     let not_run = |reason: String| ExportError::NotARun {
         path: run.to_path_buf(),
         reason,
@@ -152,7 +153,7 @@ pub fn export(run: &Path, out: &Path) -> Result<ExportReport, ExportError> {
         }
     };
 
-    let metrics = run.join("metrics.csv");
+    let metrics = run.join(RunDir::METRICS);
     let sizes = EpochSizes::read(&metrics).unwrap_or_else(|e| {
         tracing::warn!("policy versions unknown: {e}");
         None

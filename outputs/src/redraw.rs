@@ -8,7 +8,7 @@
 //! (`runs/<run>/`): [`LEFT_OUT`].
 
 use crate::plots::{self, ExpertLaps, TABLE_PLOTS};
-use crate::rundir::parse_evals;
+use crate::rundir::{parse_evals, RunDir};
 use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::{parse_table, Record, TableError};
 use std::path::{Path, PathBuf};
@@ -101,19 +101,19 @@ impl Kept {
             }
         };
         let needed = |name: &str| text(name)?.ok_or_else(|| not_a_run(format!("no {name}")));
-        let (metrics, evals) = (needed("metrics.csv")?, needed("evals.csv")?);
+        let (metrics, evals) = (needed(RunDir::METRICS)?, needed(RunDir::EVALS)?);
         let table = |name: &'static str| {
             move |source| RedrawError::Table {
                 path: run.join(name),
                 source,
             }
         };
-        let rows = parse_table(&metrics).map_err(table("metrics.csv"))?;
-        let evals = parse_evals(&evals).map_err(table("evals.csv"))?;
+        let rows = parse_table(&metrics).map_err(table(RunDir::METRICS))?;
+        let evals = parse_evals(&evals).map_err(table(RunDir::EVALS))?;
         let default_laps = cabc_proto::config::CollectionSection::default().eval_laps;
-        let eval_laps = match text("config.toml")? {
+        let eval_laps = match text(RunDir::CONFIG)? {
             Some(config) => eval_laps(&config).map_err(|message| RedrawError::Format {
-                path: run.join("config.toml"),
+                path: run.join(RunDir::CONFIG),
                 message,
             })?,
             None => None,
@@ -125,10 +125,10 @@ impl Kept {
             ));
             default_laps
         });
-        let expert = match text("summary.json")? {
+        let expert = match text(RunDir::SUMMARY)? {
             Some(summary) => {
                 let expert = expert_lap_time(&summary).map_err(|message| RedrawError::Format {
-                    path: run.join("summary.json"),
+                    path: run.join(RunDir::SUMMARY),
                     message,
                 })?;
                 if expert.is_none() {
@@ -206,7 +206,7 @@ pub struct Redrawn {
 /// `run/plots/`, created), overwriting what is there; the rest of the live run's plots are [`LEFT_OUT`].
 pub fn redraw(run: &Path, out: Option<&Path>) -> Result<Redrawn, RedrawError> {
     let kept = Kept::read(run)?;
-    let dir = out.map_or_else(|| run.join("plots"), Path::to_path_buf);
+    let dir = out.map_or_else(|| run.join(RunDir::PLOTS), Path::to_path_buf);
     std::fs::create_dir_all(&dir).map_err(|source| RedrawError::Io {
         path: dir.clone(),
         source,

@@ -1,4 +1,9 @@
-//! The run folder `runs/<run>/`: configuration, checkpoints, `metrics.csv`, `evals.csv`, plots, `summary.json`.
+//! The run folder `runs/<run>/`: configuration, checkpoints, `metrics.csv`, `evals.csv`, plots, `summary.json`, the
+//! policies it keeps and their videos.
+//!
+//! The names of its files are [`RunDir`]'s ([`RunDir::CONFIG`], [`RunDir::policy_file`], ...): the learner writes them
+//! through a `RunDir`, and every reader of a run folder (a finished run, or one that another process holds) joins
+//! them to the folder's path.
 //!
 //! The checkpoint (`checkpoint/`) is the learner's ([`cabc_learning::state::LearnerState::save`]), written by the one writer,
 //! [`cabc_learning::checkpoint`], which also says how a crash mid-write leaves the previous checkpoint intact.
@@ -15,6 +20,7 @@ use cabc_learning::evaluations::EvalSummary;
 use cabc_learning::record::{Record, TableError};
 use cabc_learning::state::CHECKPOINT;
 use cabc_learning::summary::Summary;
+use cabc_models::Policy;
 use cabc_proto::config::RunConfig;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, Write};
@@ -33,6 +39,11 @@ pub enum RunDirError {
     Format { path: PathBuf, message: String },
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    #[error("{path}: {source}")]
+    Policy {
+        path: PathBuf,
+        source: cabc_models::ModelError,
+    },
     #[error(
         "{path} is in use by another run (process {holder} holds {path}/lock): one run at a time in a run folder"
     )]
@@ -46,6 +57,36 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> RunDirError + '_ {
     }
 }
 
+/// The two policies a run keeps: the best evaluated version's (most laps, then the lowest mean lap time) and the
+/// last one's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeptPolicy {
+    Best,
+    Final,
+}
+
+impl KeptPolicy {
+    /// `best` or `final`: how the command line names it, and the start of its files' names.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            KeptPolicy::Best => "best",
+            KeptPolicy::Final => "final",
+        }
+    }
+}
+
+impl std::str::FromStr for KeptPolicy {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "best" => Ok(KeptPolicy::Best),
+            "final" => Ok(KeptPolicy::Final),
+            other => Err(format!("{other:?}: a kept policy is `best` or `final`")),
+        }
+    }
+}
+
 /// A run folder, locked for this process while the value (or a clone of it) lives.
 #[derive(Clone, Debug)]
 pub struct RunDir {
@@ -54,12 +95,57 @@ pub struct RunDir {
     _lock: Arc<File>,
 }
 
+/// The run folder's files, by name (relative to the folder).
 impl RunDir {
+    /// The run's configuration, written when it starts ([`RunDir::prepare`]).
+    pub const CONFIG: &'static str = "config.toml";
+    /// A row per epoch ([`RunDir::write_tables`]).
+    pub const METRICS: &'static str = "metrics.csv";
+    /// A row per evaluation ([`EVALS_HEADER`], [`parse_evals`]).
+    pub const EVALS: &'static str = "evals.csv";
+    /// The run's [`Summary`], written when it ends (or is interrupted).
+    pub const SUMMARY: &'static str = "summary.json";
+    /// The plots and the evaluations' videos.
+    pub const PLOTS: &'static str = "plots";
+
+    /// `best-policy.safetensors` or `final-policy.safetensors`: the kept policy's weights.
+    pub fn policy_file(which: KeptPolicy) -> String {
+        format!("{}-policy.safetensors", which.as_str())
+    }
+
+    /// `best-policy.gif` or `final-policy.gif`: the kept policy's video (the learner draws the best one's, `cabc
+    /// video` either).
+    pub fn policy_video(which: KeptPolicy) -> String {
+        format!("{}-policy.gif", which.as_str())
+    }
+
+    /// `plots/eval-v<version>.gif`: the video of an evaluation that completed its laps.
+    pub fn eval_video(version: u64) -> PathBuf {
+        Path::new(Self::PLOTS).join(format!("eval-v{version}.gif"))
+    }
+
+    /// The versions of the evaluations' videos in run folder `run` ([`RunDir::eval_video`]), in order.
+    pub fn eval_videos(run: &Path) -> Vec<u64> {
+        let mut versions: Vec<u64> = std::fs::read_dir(run.join(Self::PLOTS))
+            .into_iter()
+            .flatten()
+            .filter_map(|entry| {
+                let name = entry.ok()?.file_name().into_string().ok()?;
+                name.strip_prefix("eval-v")?
+                    .strip_suffix(".gif")?
+                    .parse()
+                    .ok()
+            })
+            .collect();
+        versions.sort_unstable();
+        versions
+    }
+
     /// `runs_dir/<name>`, created with `logs/` and `plots/`, and locked: [`RunDirError::InUse`] when another
     /// [`RunDir`] of the same folder lives, in this process or another.
     pub fn create(root: impl Into<PathBuf>) -> Result<Self, RunDirError> {
         let root = root.into();
-        for sub in ["logs", "plots"] {
+        for sub in ["logs", Self::PLOTS] {
             let p = root.join(sub);
             std::fs::create_dir_all(&p).map_err(io(&p))?;
         }
@@ -91,7 +177,7 @@ impl RunDir {
     }
 
     pub fn config_path(&self) -> PathBuf {
-        self.root.join("config.toml")
+        self.root.join(Self::CONFIG)
     }
 
     pub fn checkpoint(&self) -> PathBuf {
@@ -99,7 +185,12 @@ impl RunDir {
     }
 
     pub fn plots(&self) -> PathBuf {
-        self.root.join("plots")
+        self.root.join(Self::PLOTS)
+    }
+
+    /// `<run>/best-policy.safetensors` or `<run>/final-policy.safetensors`.
+    pub fn policy_path(&self, which: KeptPolicy) -> PathBuf {
+        self.root.join(Self::policy_file(which))
     }
 
     pub fn write_config(&self, config: &RunConfig) -> Result<(), RunDirError> {
@@ -120,9 +211,9 @@ impl RunDir {
     /// Rewrites `metrics.csv` and `evals.csv` from every record and evaluation (so a resumed run's files stay
     /// consistent).
     pub fn write_tables(&self, rows: &[Record], evals: &[EvalSummary]) -> Result<(), RunDirError> {
-        let path = self.root.join("metrics.csv");
+        let path = self.root.join(Self::METRICS);
         write_atomic(&path, cabc_learning::record::table(rows).as_bytes())?;
-        let path = self.root.join("evals.csv");
+        let path = self.root.join(Self::EVALS);
         // The early stop's episodes from random spawns get their columns once an evaluation drove some: a run
         // without `collection.early_stop_spawns` writes the table it always wrote.
         let spawns = evals.iter().any(|e| e.spawn_episodes > 0);
@@ -152,7 +243,7 @@ impl RunDir {
     }
 
     pub fn write_summary(&self, summary: &Summary) -> Result<(), RunDirError> {
-        let path = self.root.join("summary.json");
+        let path = self.root.join(Self::SUMMARY);
         let text = serde_json::to_string_pretty(summary).map_err(|e| RunDirError::Format {
             path: path.clone(),
             message: e.to_string(),
@@ -160,10 +251,20 @@ impl RunDir {
         write_atomic(&path, text.as_bytes())
     }
 
-    /// Writes policy weights beside the checkpoint (`best-policy.safetensors` on early stop).
-    pub fn write_file(&self, name: &str, bytes: &[u8]) -> Result<(), RunDirError> {
-        write_atomic(&self.root.join(name), bytes)
+    /// Writes a kept policy's weights ([`RunDir::policy_file`]) beside the checkpoint.
+    pub fn write_policy(&self, which: KeptPolicy, bytes: &[u8]) -> Result<(), RunDirError> {
+        write_atomic(&self.policy_path(which), bytes)
     }
+}
+
+/// A policy's weights from a safetensors file (a run's [`RunDir::policy_file`], or any of the run's architecture), on
+/// the CPU.
+pub fn load_policy(path: &Path) -> Result<Policy, RunDirError> {
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    Policy::from_bytes(&bytes, tch::Device::Cpu).map_err(|source| RunDirError::Policy {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// `evals.csv`'s header: a row per evaluation ([`RunDir::write_tables`]), the fixed spawn's laps, lap times (3

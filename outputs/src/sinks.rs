@@ -4,7 +4,7 @@
 //! and [`learner`], the learner of a run folder with the three ([`learner_on_bus`]: and the bus's).
 
 use crate::plots;
-use crate::rundir::RunDir;
+use crate::rundir::{KeptPolicy, RunDir};
 use crate::tensorboard::EventWriter;
 use crate::video::{eval_gif, CameraView};
 use cabc_learning::evaluations::{EvalSummary, Taken};
@@ -101,7 +101,11 @@ impl RunFolder {
     /// it is the best so far; a failure is logged.
     fn video(&mut self, report: &EvalReport, best: bool) {
         let plots = self.run_dir.plots();
-        let path = plots.join(format!("eval-v{}.gif", report.version));
+        let path = self.run_dir.path().join(RunDir::eval_video(report.version));
+        let best_video = self
+            .run_dir
+            .path()
+            .join(RunDir::policy_video(KeptPolicy::Best));
         let written = std::fs::create_dir_all(&plots)
             .map_err(|e| e.to_string())
             .and_then(|_| {
@@ -109,7 +113,7 @@ impl RunFolder {
                     .map_err(|e| e.to_string())
             })
             .and_then(|_| match best {
-                true => std::fs::copy(&path, self.run_dir.path().join("best-policy.gif"))
+                true => std::fs::copy(&path, &best_video)
                     .map(|_| ())
                     .map_err(|e| e.to_string()),
                 false => Ok(()),
@@ -140,7 +144,7 @@ impl Sink for RunFolder {
             self.video(taken.report, taken.best);
         }
         if let Some(weights) = taken.weights {
-            if let Err(e) = self.run_dir.write_file("best-policy.safetensors", weights) {
+            if let Err(e) = self.run_dir.write_policy(KeptPolicy::Best, weights) {
                 tracing::warn!("saving the best policy: {e}");
             }
         }
@@ -150,7 +154,7 @@ impl Sink for RunFolder {
         if let Some(weights) = final_policy {
             self.tables_and_plots()?;
             self.run_dir
-                .write_file("final-policy.safetensors", weights)
+                .write_policy(KeptPolicy::Final, weights)
                 .map_err(|e| failed("the final policy", e))?;
         }
         self.run_dir
