@@ -66,7 +66,7 @@ fn run(name: &str, config: &RunConfig, epochs: u64, per_epoch: usize, camera: bo
                 .add_segment(&segment(outcome, steps(per_epoch, &mut rng, x0, camera)))
                 .unwrap();
         }
-        if epoch % config.algorithm.autolabel_every == 0 && replay.len_uncertain() > 0 {
+        if trainer.schedule().autolabel_due(epoch) && replay.len_uncertain() > 0 {
             let report = autolabel_replay(&replay, &options);
             println!(
                 "{name} epoch {epoch} labelled: removed {}",

@@ -3,7 +3,8 @@
 //! The actors are a port ([`Rollouts`]): over zenoh in a distributed run (`cabc_bus::rollouts`), in-process in a
 //! test (`cabc_actor::local`). Everything the learner holds (D+, D?, D-, the three networks, the evaluations, the
 //! checkpoint, the epoch's record and its sinks) is in [`Learner`]; the schedule (k_f, k_p, the auto-labelling
-//! period, the passes) in its trainer's [`Schedule`], built once from the run's configuration and read here. Each
+//! period, the passes) in its trainer's [`Schedule`], built once from the run's configuration: read here (the
+//! overlap, the auto-labelling) and in the trainer's epoch (k_f, k_p, the passes: `Trainer::train_epoch`). Each
 //! epoch's metrics are one record ([`crate::record::Record`]), each put where it is computed. Under
 //! `training.schedule = "every-epoch"` (the reference's full-state trainer) f_hat, p_hat and pi all train every
 //! epoch.
@@ -41,7 +42,7 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         actors.publish(&update)?;
         // Under `collection.overlap` the learner trains while D_new is collected, on what it held before.
         if schedule.overlapped(j) {
-            learner.train(schedule.due(j))?;
+            learner.train()?;
         }
         let Some(collected) = actors.gather(&update, &mut |segment| learner.store(segment))? else {
             return Ok(Ending::Interrupted);
@@ -52,9 +53,10 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         // hull of its D+ neighbours within rho; what D? then holds is D-, until the next labelling.
         learner.autolabel(schedule.autolabel_due(j));
         // ComputeGradient; if j mod k_f = 0, update phi_f (eq. (15)); if j mod k_p = 0, update phi_p (eq. (16), D+
-        // against D-); update theta (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat).
+        // against D-); update theta (eq. (14): L_clone + L_safety through the frozen f_hat and p_hat). The schedule's
+        // k_f and k_p, read in the trainer's epoch.
         if !schedule.overlapped(j) {
-            learner.train(schedule.due(j))?;
+            learner.train()?;
         }
         // Evaluate: pi_j alone from the fixed spawn; the second evaluation with `eval_laps` laps keeps that version.
         for report in actors.evaluations() {

@@ -13,7 +13,7 @@ use crate::ledger::Ledger;
 use crate::provenance::Provenance;
 use crate::record::Record;
 use crate::replay::{Checked, Frames, Replay};
-use crate::schedule::{Due, Schedule};
+use crate::schedule::Schedule;
 use crate::sink::{Sink, SinkError};
 use crate::state::{LearnerState, StateError};
 use crate::summary::{LapTime, Restarts, Summary, RESTARTED_ROLES};
@@ -416,22 +416,13 @@ impl Learner {
         Some((removed, report.rho))
     }
 
-    /// ComputeGradient and Update: the trainer's epoch on the replay ([`Trainer::train`]), f_hat and p_hat as `due`
-    /// says; its losses go into the epoch's record.
-    pub(crate) fn train(&mut self, due: Due) -> Result<(), LearnerError> {
+    /// ComputeGradient and Update: the trainer's epoch on the replay ([`Trainer::train_epoch`]: p_hat's held-out
+    /// measure, then f_hat and p_hat as the schedule says, and pi); its losses go into the epoch's record.
+    pub(crate) fn train(&mut self) -> Result<(), LearnerError> {
         let epoch = self.epoch.record.epoch();
         self.progress(epoch, "training");
-        self.measure_critic();
         let record = &mut self.epoch.record;
-        Ok(self.trainer.train(epoch, due, &self.replay, record)?)
-    }
-
-    /// p_hat before this epoch's fits, on the epoch's new rows ([`Trainer::measure_critic`]): the record's
-    /// `critic_heldout_*` (issue 45), and what `training.safety_gate` reads in this epoch's policy fit.
-    fn measure_critic(&mut self) {
-        if let Some(heldout) = self.trainer.measure_critic(&self.replay) {
-            heldout.put(&mut self.epoch.record);
-        }
+        Ok(self.trainer.train_epoch(epoch, &self.replay, record)?)
     }
 
     /// An evaluation report ([`crate::evaluations::Evaluations::take`]).

@@ -8,7 +8,7 @@
 use cabc_proto::config::{RunConfig, ScheduleKind};
 
 /// What trains in an epoch besides the policy: Algorithm 1's `j mod k_f = 0` (f_hat) and `j mod k_p = 0` (p_hat),
-/// read by the loop ([`crate::algorithm`]) and handed to the trainer ([`crate::Trainer::train`]).
+/// read by the trainer's epoch ([`crate::Trainer::train_epoch`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Due {
     /// f_hat trains (eq. (15)).

@@ -1,6 +1,6 @@
 //! Constraint-aware training: the training part of Algorithm 1 and Fig. 4 of the paper.
 //!
-//! Per epoch j, in the order of Algorithm 1 ([`Trainer::train`], when due by the [`Schedule`]): the dynamics
+//! Per epoch j, in the order of Algorithm 1 ([`Trainer::train_epoch`], when due by the [`Schedule`]): the dynamics
 //! model f_hat (eq. (15), on every stored (x, u, x'), [`Trainer::fit_dynamics`]), the critic p_hat (eq. (16), D+
 //! against D-, [`Trainer::fit_critic`]), then the policy on D+ ([`Trainer::fit_policy`]) with
 //!
@@ -40,7 +40,7 @@ pub use standardise::{Standardiser, MIN_STD};
 use crate::checkpoint::CheckpointError;
 use crate::record::Record;
 use crate::replay::Replay;
-use crate::schedule::{Due, Schedule};
+use crate::schedule::Schedule;
 use cabc_models::{parse_device, Critic, Dynamics, ModelError, Network, Policy, PolicyArch};
 use cabc_proto::config::{ClipScope, Precision, RunConfig, VisionTrunk};
 use cabc_proto::messages::STATE_DIM;
@@ -320,21 +320,6 @@ impl Trainer {
         }
     }
 
-    /// An epoch of a test or a benchmark as Algorithm 1's loop trains it: the critic's held-out measure into
-    /// `record` ([`Trainer::measure_critic`], as the learner puts it), then [`Trainer::train`] with what the run's
-    /// [`Schedule`] says is due in `epoch` ([`Schedule::due`]).
-    pub fn train_epoch(
-        &mut self,
-        epoch: u64,
-        replay: &Replay,
-        record: &mut Record,
-    ) -> Result<(), TrainError> {
-        if let Some(h) = self.measure_critic(replay) {
-            h.put(record);
-        }
-        self.train(epoch, self.schedule.due(epoch), replay, record)
-    }
-
     /// Takes the state's standardisation from D+, once (`training.standardise`): before anything trains on, or is
     /// measured on, standardised states.
     fn standardise_from(&mut self, replay: &Replay) {
@@ -346,20 +331,24 @@ impl Trainer {
         }
     }
 
-    /// One epoch of Algorithm 1's training part: f_hat when `due.dynamics` (eq. (15), j mod k_f = 0), p_hat when
-    /// `due.critic` (eq. (16), D+ against its negatives, j mod k_p = 0), then pi_theta (eq. (14), at the trainer's
-    /// lambda_j, [`Trainer::lambda`]: `epoch` names the record's and the schedule's epoch). Whether each is
-    /// due is the caller's ([`crate::algorithm`] reads it from [`Trainer::schedule`]); how many passes each makes is
-    /// the schedule's. Auto-labelling is the caller's too ([`Replay::apply_labels`]), before this call, and so is the
-    /// critic's held-out measure ([`Trainer::measure_critic`]). The losses, and the samples each network saw, go
-    /// into the epoch's `record`, the one place they are kept.
-    pub fn train(
+    /// One epoch of Algorithm 1's training part, the one place an epoch trains (the learner's, a test's, a
+    /// benchmark's): p_hat's held-out measure before this epoch's fits ([`Trainer::measure_critic`]: the record's
+    /// `critic_heldout_*`, and what `training.safety_gate` reads in this epoch's policy fit), then, as the run's
+    /// [`Schedule`] says for `epoch` (the record's epoch), f_hat when due (eq. (15), j mod k_f = 0), p_hat when due
+    /// (eq. (16), D+ against its negatives, j mod k_p = 0) and pi_theta (eq. (14), at the trainer's lambda_j,
+    /// [`Trainer::lambda`]), each for the schedule's passes. Auto-labelling is the caller's
+    /// ([`Replay::apply_labels`]), before this call. The losses, and the samples each network saw, go into the epoch's
+    /// `record`, the one place they are kept.
+    pub fn train_epoch(
         &mut self,
         epoch: u64,
-        due: Due,
         replay: &Replay,
         record: &mut Record,
     ) -> Result<(), TrainError> {
+        if let Some(heldout) = self.measure_critic(replay) {
+            heldout.put(record);
+        }
+        let due = self.schedule.due(epoch);
         let start = Instant::now();
         limit_cpu_threads(self.device);
         self.standardise_from(replay);

@@ -183,7 +183,7 @@ impl<'a> Inputs<'a> {
 impl Trainer {
     /// lambda_j, L_safety's weight in the epoch the trainer trains next ([`RunConfig::lambda`]: `algorithm.lambda`,
     /// or its warm-up from `lambda_start`). The one derivation: j is the trainer's own count of the epochs it has
-    /// trained, which its checkpoint keeps, so Algorithm 1's epoch ([`Trainer::train`]), a bare policy fit
+    /// trained, which its checkpoint keeps, so Algorithm 1's epoch ([`Trainer::train_epoch`]), a bare policy fit
     /// ([`Trainer::fit_policy`]: benchmarks, tests) and a resumed trainer read the same lambda_j.
     pub fn lambda(&self) -> f64 {
         self.config.lambda(self.epochs_trained)
