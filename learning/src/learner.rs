@@ -134,7 +134,7 @@ impl Learner {
             restarts: None,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
-            half_width: Track::from_kind(config.sim.track).half_width(),
+            half_width: Track::half_width_of(config.sim.track),
             config,
         })
     }

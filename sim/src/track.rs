@@ -151,11 +151,22 @@ fn sign(v: f64) -> f64 {
     }
 }
 
+/// `L_track_barc`'s half-width (m): the constraint |x_tran| <= 0.55 m.
+const L_TRACK_BARC_HALF_WIDTH: f64 = 0.55;
+
 impl Track {
     /// The track a run's configuration names (`sim.track`); [`TrackKind::default`] is [`Track::l_track_barc`].
     pub fn from_kind(kind: TrackKind) -> Track {
         match kind {
             TrackKind::LTrackBarc => Track::l_track_barc(),
+        }
+    }
+
+    /// The half-width (m) of the track `kind` names, without building it: [`Track::half_width`] of
+    /// [`Track::from_kind`].
+    pub fn half_width_of(kind: TrackKind) -> f64 {
+        match kind {
+            TrackKind::LTrackBarc => L_TRACK_BARC_HALF_WIDTH,
         }
     }
 
@@ -202,7 +213,8 @@ impl Track {
                 radius: 0.0,
             },
         ];
-        Track::new(pieces, 0.55, 0.3).expect("L_track_barc is a valid closed track")
+        Track::new(pieces, L_TRACK_BARC_HALF_WIDTH, 0.3)
+            .expect("L_track_barc is a valid closed track")
     }
 
     /// Build a track from pieces starting at pose (0, 0, 0). Fails if a piece is degenerate, an arc is
@@ -523,6 +535,15 @@ fn segments_intersect(p1: (f64, f64), q1: (f64, f64), p2: (f64, f64), q2: (f64, 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_half_width_of_a_kind_is_its_tracks() {
+        let kind = TrackKind::LTrackBarc;
+        assert_eq!(
+            Track::half_width_of(kind),
+            Track::from_kind(kind).half_width()
+        );
+    }
 
     #[test]
     fn wrap_and_unwrap() {
