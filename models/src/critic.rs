@@ -2,7 +2,7 @@
 //! binary cross-entropy, eq. (16). The input dimension is free (6 for the state, 2 in the Fig. 3 example).
 
 use crate::init::{kaiming_normal, Fan};
-use crate::weights::Network;
+use crate::weights::network;
 use crate::Mlp;
 use cabc_proto::config::MlpSize;
 use tch::{nn, nn::Module, Device, Tensor};
@@ -43,20 +43,8 @@ impl Critic {
     }
 }
 
-impl Network for Critic {
-    fn var_store(&self) -> &nn::VarStore {
-        &self.vs
-    }
-
-    fn var_store_mut(&mut self) -> &mut nn::VarStore {
-        &mut self.vs
-    }
-
-    /// e.g. `critic-6-mlp-4x256`.
-    fn architecture(&self) -> String {
-        format!(
-            "critic-{}-mlp-{}x{}",
-            self.in_dim, self.size.layers, self.size.width
-        )
-    }
-}
+// e.g. `critic-6-mlp-4x256`.
+network!(Critic, |self| format!(
+    "critic-{}-mlp-{}x{}",
+    self.in_dim, self.size.layers, self.size.width
+));

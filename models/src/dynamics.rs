@@ -1,7 +1,7 @@
 //! The learned one-step dynamics f_hat(x, u) = x + MLP([x, u]) (algorithm.md 1, residual), trained by eq. (15).
 
 use crate::init::{kaiming_normal, Fan};
-use crate::weights::Network;
+use crate::weights::network;
 use crate::Mlp;
 use cabc_proto::config::MlpSize;
 use cabc_proto::messages::{ACTION_DIM, STATE_DIM};
@@ -33,20 +33,8 @@ impl Dynamics {
     }
 }
 
-impl Network for Dynamics {
-    fn var_store(&self) -> &nn::VarStore {
-        &self.vs
-    }
-
-    fn var_store_mut(&mut self) -> &mut nn::VarStore {
-        &mut self.vs
-    }
-
-    /// e.g. `dynamics-residual-mlp-3x64`.
-    fn architecture(&self) -> String {
-        format!(
-            "dynamics-residual-mlp-{}x{}",
-            self.size.layers, self.size.width
-        )
-    }
-}
+// e.g. `dynamics-residual-mlp-3x64`.
+network!(Dynamics, |self| format!(
+    "dynamics-residual-mlp-{}x{}",
+    self.size.layers, self.size.width
+));

@@ -8,7 +8,7 @@
 
 use crate::init::{kaiming_normal, Fan};
 use crate::vision::Trunk;
-use crate::weights::Network;
+use crate::weights::{network, Network};
 use crate::{mlp, weights, Mlp, ModelError};
 use cabc_proto::config::{MlpSize, ObservationKind, RunConfig, Velocity, VisionTrunk};
 use cabc_proto::messages::{image_bytes, velocity_of, Image, ACTION_DIM, STATE_DIM};
@@ -440,20 +440,8 @@ impl Policy {
     }
 }
 
-impl Network for Policy {
-    fn var_store(&self) -> &nn::VarStore {
-        &self.vs
-    }
-
-    fn var_store_mut(&mut self) -> &mut nn::VarStore {
-        &mut self.vs
-    }
-
-    /// The architecture's name (`PolicyUpdate.architecture`).
-    fn architecture(&self) -> String {
-        self.arch.to_string()
-    }
-}
+// The architecture's name (`PolicyUpdate.architecture`).
+network!(Policy, |self| self.arch.to_string());
 
 /// The run's policy architecture with its tensors' shapes: weights received from the bus are checked against it
 /// (the update's architecture name, the name in the weights' metadata, every tensor's shape) before anything is

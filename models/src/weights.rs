@@ -36,6 +36,27 @@ pub trait Network {
     }
 }
 
+/// [`Network`] for a network whose weights are its field `vs`, the architecture's name an expression over `self`:
+/// `network!(Critic, |self| format!(...))`. The policy, the dynamics model and the critic differ in their names only.
+macro_rules! network {
+    ($network:ty, |$self:ident| $architecture:expr) => {
+        impl $crate::weights::Network for $network {
+            fn var_store(&self) -> &tch::nn::VarStore {
+                &self.vs
+            }
+
+            fn var_store_mut(&mut self) -> &mut tch::nn::VarStore {
+                &mut self.vs
+            }
+
+            fn architecture(&$self) -> String {
+                $architecture
+            }
+        }
+    };
+}
+pub(crate) use network;
+
 /// Serialises every variable of `vs` (trainable or not, e.g. batch-norm statistics) as f32.
 pub fn to_bytes(vs: &nn::VarStore, architecture: &str) -> Vec<u8> {
     let named: BTreeMap<String, Tensor> = vs.variables().into_iter().collect();
