@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The main job under a seeded schedule of faults (issue 64): deploy/run-local.sh under `cabc chaos` instead of
 # `cabc supervise`. Every MIN-MAX seconds (default 10-30) one of the run's processes (learner, expert server, actor,
-# evaluator) is killed with SIGKILL; the supervisor restarts it; when the run ends, runs/<run>/chaos.json says the
+# evaluator) is killed with SIGKILL (the supervisor restarts it) or paused for 5-30 s with SIGSTOP (its links go
+# silent; past zenoh's 10 s lease its peers drop them, as a cut link looks from their side; a paused learner is the
+# run's router, so every link goes), drawn from the seed; when the run ends, runs/<run>/chaos.json says the
 # faults, the restarts, the time each fault cost, the stalls, the steps published and stored, the duplicates and the
 # early stop (also printed).
 #

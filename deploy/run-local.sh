@@ -20,7 +20,7 @@
 # on a terminal (a pipe, CI): the full lines, as the log.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
-# --chaos SEED runs it under `cabc chaos`: a process killed every 10-30 s (--chaos-every), drawn from SEED, and the
+# --chaos SEED runs it under `cabc chaos`: a process killed or paused every 10-30 s (--chaos-every), drawn from SEED, and the
 # report in runs/<run>/chaos.json (deploy/chaos.sh).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

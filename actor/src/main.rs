@@ -110,7 +110,7 @@ fn main() -> Result<()> {
             )?),
             ExpertPlacement::InActor => Box::new(cabc_actor::expert::in_actor(&config)?),
         };
-        let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone());
+        let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone())?;
         let mut source = source.echoing(sink.echo());
         let index = cli
             .index

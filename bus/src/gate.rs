@@ -315,6 +315,23 @@ mod tests {
         assert_eq!(g.lost().count(), 0, "it came back and answered");
     }
 
+    /// A router restarted right after a publication: both actors it was dealt to left (the learner learns it when
+    /// it opens the gate) and came back; the first one's marker does not close the epoch without the other's.
+    #[test]
+    fn the_actors_a_publication_was_dealt_to_are_waited_for_when_they_all_left_and_came_back() {
+        let t0 = Instant::now();
+        let mut g = EpochGate::open(3, Duration::from_secs(120), ["a".into(), "b".into()], t0);
+        g.gone("a", t0);
+        g.gone("b", t0);
+        g.alive("b");
+        g.alive("a");
+        g.done(marker("b", 3));
+        assert_eq!(g.closed(t0), None, "a was dealt its share and is back");
+        g.done(marker("a", 3));
+        assert_eq!(g.closed(t0), Some(Closed::AllDone));
+        assert_eq!(g.lost().count(), 0);
+    }
+
     #[test]
     fn an_actor_silent_without_its_marker_is_noticed() {
         let t0 = Instant::now();

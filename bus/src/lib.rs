@@ -15,7 +15,9 @@
 pub mod expert;
 pub mod gate;
 pub mod interrupt;
+pub mod outbox;
 pub mod ports;
+pub mod receipts;
 pub mod rollouts;
 pub mod security;
 pub mod senders;
@@ -216,7 +218,6 @@ impl Rejects {
     }
 }
 
-/// Decodes a payload received on `key`; a refused one is counted and logged (warn), never fatal.
 /// Now, in milliseconds since the Unix epoch (a publication's time).
 pub(crate) fn unix_ms() -> u64 {
     std::time::SystemTime::now()
@@ -224,6 +225,7 @@ pub(crate) fn unix_ms() -> u64 {
         .map_or(0, |d| d.as_millis() as u64)
 }
 
+/// Decodes a payload received on `key`; a refused one is counted and logged (warn), never fatal.
 pub fn decode_sample<M: Message>(key: &str, bytes: &[u8], rejects: &Rejects) -> Option<M> {
     match codec::decode::<M>(bytes) {
         Ok(m) => Some(m),

@@ -5,16 +5,18 @@
 //!   takes every version of its shard in order;
 //! * `ZenohExpert` (in `crate::expert`, which uses the statistics here): batch queries on `expert/<kind>`, two in flight (the actor's halves),
 //!   waiting and retrying while no server answers;
-//! * [`ZenohSegments`], [`ZenohEvals`]: reliable puts on `traj/<id>` and `eval/<id>`.
+//! * [`ZenohSegments`] (in `crate::outbox`: each segment held until the learner acknowledges it), [`ZenohEvals`]:
+//!   reliable puts on `traj/<id>` and `eval/<id>`.
 //!
 //! [`WireStats`] adds up the time spent waiting on the expert and the time on the wire, for the actor's metrics.
 
 use crate::interrupt::Interrupt;
+pub use crate::outbox::ZenohSegments;
 pub use crate::vouch::{vouch, Vouch};
 use crate::{decode_sample, Bus};
 use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Stop, TrajMessage};
 use cabc_proto::ports::FAR_AHEAD;
-use cabc_proto::ports::{EvalSink, Next, PolicySource, PortError, SegmentSink};
+use cabc_proto::ports::{EvalSink, Next, PolicySource, PortError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use zenoh::handlers::FifoChannelHandler;
@@ -39,8 +41,11 @@ pub struct WireStats {
     pub transport: Duration,
     /// Broadcast latencies of the policy updates received by subscription (ms).
     pub policy_latency_ms: Vec<f64>,
-    /// Segments and markers not sent because the actor was interrupted while no router was up.
+    /// Segments and markers not sent because the actor was interrupted while no router was up, and segments its
+    /// outbox dropped unacknowledged when full (`crate::outbox`).
     pub segments_lost: u64,
+    /// Segments published again because the learner had not acknowledged them (`crate::outbox`).
+    pub segments_resent: u64,
     /// Versions an evaluator dropped unevaluated because it fell too far behind ([`MAX_PENDING_BYTES`]).
     pub versions_skipped: u64,
     /// Policy updates refused because the learner did not vouch for them ([`Vouch::No`]: a version it never
@@ -67,6 +72,7 @@ impl WireStats {
             "policy_latency_ms_last": latency.last(),
             "policy_latency_ms_mean": cabc_proto::stats::mean(latency),
             "segments_lost": self.segments_lost,
+            "segments_resent": self.segments_resent,
             "versions_skipped": self.versions_skipped,
             "versions_not_vouched": self.versions_not_vouched,
         });
@@ -192,6 +198,13 @@ pub struct ZenohPolicySource<'a> {
 pub struct MarkerEcho {
     key: String,
     last: Arc<Mutex<Option<EpochDone>>>,
+}
+
+impl MarkerEcho {
+    /// The marker last put on `key`, as the segment sink keeps it in `last`.
+    pub(crate) fn new(key: String, last: Arc<Mutex<Option<EpochDone>>>) -> MarkerEcho {
+        MarkerEcho { key, last }
+    }
 }
 
 impl<'a> ZenohPolicySource<'a> {
@@ -504,79 +517,6 @@ impl PolicySource for ZenohPolicySource<'_> {
             return None;
         }
         Some(self.hand_out(newest))
-    }
-}
-
-/// How often an actor without a router looks again.
-const RECONNECT_POLL: Duration = Duration::from_millis(200);
-
-/// An actor's segments and markers on `traj/<id>`. While the session has no router (a learner restarting), a put
-/// waits for it to be back: zenoh would drop a put without a router silently, and an actor has nothing else to do
-/// then (its expert is out of reach too). Interrupted while waiting, the message is counted as lost, never as sent.
-pub struct ZenohSegments<'a> {
-    bus: &'a Bus,
-    key: String,
-    interrupt: Interrupt,
-    stats: SharedStats,
-    /// The last marker sent ([`MarkerEcho`]).
-    last_marker: Arc<Mutex<Option<EpochDone>>>,
-}
-
-impl<'a> ZenohSegments<'a> {
-    pub fn new(bus: &'a Bus, actor: &str, interrupt: &Interrupt, stats: SharedStats) -> Self {
-        ZenohSegments {
-            bus,
-            key: bus.keys.traj(actor),
-            interrupt: interrupt.clone(),
-            stats,
-            last_marker: Arc::default(),
-        }
-    }
-
-    /// The handle through which this actor's policy source sends its last marker again ([`MarkerEcho`]).
-    pub fn echo(&self) -> MarkerEcho {
-        MarkerEcho {
-            key: self.key.clone(),
-            last: self.last_marker.clone(),
-        }
-    }
-
-    fn connected(&self) -> bool {
-        self.bus
-            .session
-            .info()
-            .routers_zid()
-            .wait()
-            .next()
-            .is_some()
-    }
-}
-
-impl SegmentSink for ZenohSegments<'_> {
-    fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
-        let started = Instant::now();
-        let mut warned = false;
-        while !self.connected() {
-            if self.interrupt.is_set() {
-                with_stats(&self.stats, |s| s.segments_lost += 1);
-                return Err(PortError::Stopped(
-                    "interrupted while no router was up".into(),
-                ));
-            }
-            if !warned {
-                warned = true;
-                tracing::warn!("no router: holding the segment until the learner is back");
-            }
-            std::thread::sleep(RECONNECT_POLL);
-        }
-        self.bus
-            .put_blocking(&self.key, &message)
-            .map_err(transport)?;
-        if let TrajMessage::EpochDone(marker) = &message {
-            *self.last_marker.lock().unwrap_or_else(|e| e.into_inner()) = Some(marker.clone());
-        }
-        with_stats(&self.stats, |s| s.transport += started.elapsed());
-        Ok(())
     }
 }
 

@@ -15,12 +15,17 @@
 //! is not the `<actor>` of its `traj/<actor>` key, or an evaluation report not from `eval/<id>` with `actor == id`,
 //! is refused and counted with the codec's refusals ([`crate::Rejects`]).
 //!
+//! Each segment is acknowledged to its actor as it arrives ([`crate::receipts`]), so that the actor's outbox forgets
+//! it; what is not acknowledged the actor publishes again, and the learner's ledger drops the copies.
+//!
 //! The queues are bounded in messages: [`TRAJ_QUEUE`] segments and markers (a full epoch of every actor waits there
 //! while the learner trains; when full, zenoh's reliable delivery holds the publishers back rather than dropping),
 //! [`EVAL_QUEUE`] reports. Each message is at most [`crate::MAX_MESSAGE`] bytes (zenoh reassembles nothing larger).
 
 use crate::gate::{share, undone, Closed, EpochGate};
 use crate::interrupt::Interrupt;
+pub use crate::receipts::TRAJ_QUEUE;
+use crate::receipts::{Arrival, Receipts};
 pub use crate::senders::{
     actor_of_token, check_eval, check_traj, eval_sender, evaluator_of_token, traj_sender,
 };
@@ -30,6 +35,7 @@ use cabc_proto::codec;
 use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, TrajMessage};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::mpsc::RecvTimeoutError;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use zenoh::handlers::{FifoChannel, FifoChannelHandler};
@@ -38,8 +44,6 @@ use zenoh::query::Queryable;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::Wait;
 
-/// Segments (and markers) that may wait while the learner trains.
-pub const TRAJ_QUEUE: usize = 1 << 16;
 /// Evaluation reports that may wait (one per version per evaluator; the learner takes them every epoch).
 pub const EVAL_QUEUE: usize = 256;
 /// How long one wait for a segment lasts before the gate and the interrupt are looked at again.
@@ -66,7 +70,8 @@ fn transport(e: impl std::fmt::Display) -> PortError {
 /// The actors of a run, as the learner sees them over zenoh.
 pub struct ZenohActors {
     bus: Bus,
-    traj: Subscriber<FifoChannelHandler<Sample>>,
+    /// Every actor's segments and markers, decoded and acknowledged as they arrived.
+    traj: Receipts,
     eval: Subscriber<FifoChannelHandler<Sample>>,
     alive: Subscriber<FifoChannelHandler<Sample>>,
     evaluators_alive: Subscriber<FifoChannelHandler<Sample>>,
@@ -109,6 +114,9 @@ struct Publication {
     published_unix_ms: u64,
     /// Each actor's steps (`steps_per_actor`).
     share: u64,
+    /// The actors alive when it was published, whom it was dealt to: the round waits for each of them, also when it
+    /// left before the round's gathering began and came back (a router restarting right after the publication).
+    members: BTreeSet<String>,
 }
 
 /// The timing of the learner's waits, from the run configuration's `bus` section.
@@ -143,12 +151,7 @@ impl ZenohActors {
         let budget_of = config.clone();
         let budget = Box::new(move |epoch| budget_of.epoch_steps(epoch));
         let keys = bus.keys.clone();
-        let traj = bus
-            .session
-            .declare_subscriber(keys.traj_all())
-            .with(FifoChannel::new(TRAJ_QUEUE))
-            .wait()
-            .map_err(transport)?;
+        let traj = Receipts::subscribe(&bus)?;
         let eval = bus
             .session
             .declare_subscriber(keys.eval_all())
@@ -227,31 +230,18 @@ impl ZenohActors {
         self.bus
     }
 
-    /// One message of `traj/*`: checked against its key, a segment to `store`, a marker to the gate.
+    /// One message of `traj/*` (checked against its key as it arrived): a segment to `store`, a marker to the gate.
     fn take_in(
-        &self,
-        sample: &Sample,
+        arrival: Arrival,
         version: u64,
         gate: &mut EpochGate,
         heard: &mut BTreeMap<String, u64>,
         store: &mut dyn FnMut(Segment),
     ) {
-        let bytes = sample.payload().to_bytes();
-        let key = sample.key_expr().as_str();
-        if let Some(sender) = traj_sender(key) {
+        if let Some(sender) = &arrival.sender {
             gate.heard_from(sender, Instant::now());
         }
-        let message =
-            decode_sample::<TrajMessage>(key, &bytes, &self.bus.rejects).filter(
-                |m| match check_traj(key, m) {
-                    Ok(()) => true,
-                    Err(why) => {
-                        self.bus.rejects.refuse(key, &why);
-                        false
-                    }
-                },
-            );
-        match message {
+        match arrival.message {
             Some(TrajMessage::Segment(segment)) => {
                 if segment.policy_version == version {
                     *heard.entry(segment.actor.clone()).or_default() += segment.steps.len() as u64;
@@ -367,6 +357,7 @@ impl ZenohActors {
             at: Instant::now(),
             published_unix_ms,
             share,
+            members: self.live.clone(),
         });
         Ok(())
     }
@@ -380,31 +371,36 @@ impl ZenohActors {
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<RoundClosed>, PortError> {
         let version = round.version;
-        self.follow_liveliness(None);
         let mut gate = EpochGate::open(
             version,
             self.epoch_timeout,
-            self.live.iter().cloned(),
+            round.members.iter().cloned(),
             round.at,
         )
         .expecting(expecting, JOIN_GRACE.min(self.epoch_timeout))
         .answering(round.published_unix_ms);
+        // Who left or joined since the publication (the learner trained meanwhile under `collection.overlap`).
+        self.follow_liveliness(Some(&mut gate));
         let mut last_wait_log = Instant::now();
         let mut last_publish = round.at;
         let mut republish_after = REPUBLISH;
         let mut warned_nobody = false;
         let mut heard: BTreeMap<String, u64> = BTreeMap::new();
         // What arrived while the learner trained (`collection.overlap`), before anything is published again.
-        while let Ok(Some(sample)) = self.traj.try_recv() {
-            self.take_in(&sample, version, &mut gate, &mut heard, store);
+        while let Ok(arrival) = self.traj.arrivals.try_recv() {
+            Self::take_in(arrival, version, &mut gate, &mut heard, store);
         }
         let closed = loop {
             if self.interrupt.is_set() {
                 return Ok(None);
             }
             self.follow_liveliness(Some(&mut gate));
-            if let Some(sample) = self.traj.recv_timeout(POLL).map_err(transport)? {
-                self.take_in(&sample, version, &mut gate, &mut heard, store);
+            match self.traj.arrivals.recv_timeout(POLL) {
+                Ok(arrival) => Self::take_in(arrival, version, &mut gate, &mut heard, store),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(transport("the subscription to traj/* closed"))
+                }
             }
             if last_publish.elapsed() >= republish_after
                 && self.live.iter().any(|a| {
@@ -454,8 +450,8 @@ impl ZenohActors {
         };
         // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
         // its liveliness went.
-        while let Ok(Some(sample)) = self.traj.try_recv() {
-            self.take_in(&sample, version, &mut gate, &mut heard, store);
+        while let Ok(arrival) = self.traj.arrivals.try_recv() {
+            Self::take_in(arrival, version, &mut gate, &mut heard, store);
         }
         let (missing, timed_out) = match closed {
             Closed::AllDone => (Vec::new(), false),
@@ -535,12 +531,19 @@ impl Rollouts for ZenohActors {
             markers.extend(closed.markers);
             missing = closed.missing;
             timed_out |= closed.timed_out;
-            if closed.undone == 0 || self.live.is_empty() {
+            if closed.undone == 0 {
                 break;
             }
             // The share the lost actors did not deliver, dealt to the live ones: the same version published again
-            // (a new publication time, which their markers answer).
-            let again = share(closed.undone, self.live.len());
+            // (a new publication time, which their markers answer). With none alive (a router restarting, a cut:
+            // they all left at once, one after its marker), to as many as were alive last, whom the round waits for
+            // as they come back (or, with none back for `bus.no_actor_timeout_s`, the run ends).
+            let members = if self.live.is_empty() {
+                self.members()
+            } else {
+                self.live.len()
+            };
+            let again = share(closed.undone, members);
             tracing::warn!(
                 epoch = update.version,
                 lost = ?closed.lost,
@@ -559,7 +562,7 @@ impl Rollouts for ZenohActors {
             round = self.published_last.take().ok_or_else(|| {
                 PortError::Transport("a round published and not held".to_string())
             })?;
-            expecting = self.live.len();
+            expecting = members;
         }
         Ok(Some(Collected {
             steps_published: markers.iter().map(|m| m.steps).sum(),

@@ -49,7 +49,8 @@ fn rule(id: &str, messages: &[&str], flow: &str, key_exprs: &[String]) -> Value 
 
 /// zenoh's `access_control` object for the learner's router: default deny; actors, evaluators (and a learner that
 /// is a client) may follow the learner (subscribe to / query `policy`), they and the expert servers hear the stop
-/// (`control`); only the learner reads `traj/*` and `eval/*`; actors ask `expert/*` and alone hear its replies, expert
+/// (`control`); only the learner reads `traj/*` and `eval/*`, and puts the receipts `ack/<id>` that actor `<id>` alone
+/// hears; actors ask `expert/*` and alone hear its replies, expert
 /// servers answer it; each process puts only its own keys (`traj/<id>` or `eval/<id>`, `metrics/<component>`)
 /// and declares only its own `alive/<component>`; the observer reads metrics and liveliness; the `learner` rules
 /// serve a learner that is itself a client of a standalone zenohd carrying this object.
@@ -104,6 +105,17 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
             &k(keys.alive(c)),
         ));
     }
+    // Each actor hears the learner's receipts of its own segments, and no other actor's (`crate::outbox`).
+    for id in &who.actors {
+        let (c, ack) = (component("actor", id), k(keys.ack(id)));
+        rules.push(rule(
+            &format!("sub-ack-{c}"),
+            &["declare_subscriber"],
+            "ingress",
+            &ack,
+        ));
+        rules.push(rule(&format!("recv-ack-{c}"), &["put"], "egress", &ack));
+    }
     let (metrics, alive) = (k(keys.metrics("**")), k(keys.alive_all()));
     let liveliness = ["liveliness_query", "declare_liveliness_subscriber"];
     if who.observer {
@@ -125,7 +137,12 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
             "learner-put",
             &["put"],
             "ingress",
-            &[policy.clone(), control, keys.metrics("learner")],
+            &[
+                policy.clone(),
+                control,
+                keys.metrics("learner"),
+                keys.ack_all(),
+            ],
         ),
         rule(
             "learner-alive",
@@ -208,8 +225,11 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
         "rules": ["sub-control", "recv-control"]}));
     for (c, _) in &processes {
         subjects.push(subject(c, vec![c.clone()]));
-        policies
-            .push(json!({"subjects": [c], "rules": [format!("put-{c}"), format!("alive-{c}")]}));
+        let mut own = vec![format!("put-{c}"), format!("alive-{c}")];
+        if c.starts_with("actor/") {
+            own.extend([format!("sub-ack-{c}"), format!("recv-ack-{c}")]);
+        }
+        policies.push(json!({"subjects": [c], "rules": own}));
     }
     if who.observer {
         subjects.push(subject("observer", vec!["observer".into()]));

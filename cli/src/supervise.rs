@@ -4,7 +4,7 @@
 
 use anyhow::{Context, Result};
 use cabc_proto::config::RunConfig;
-use cabc_supervise::chaos::Chaos;
+use cabc_supervise::chaos::{Chaos, FaultKind};
 use cabc_supervise::roster::{Role, Roster};
 use cabc_supervise::{Ended, Supervisor};
 use std::io::IsTerminal;
@@ -102,21 +102,31 @@ pub struct ChaosArgs {
     /// Seconds between two faults, drawn uniformly in MIN-MAX.
     #[arg(long, default_value = "10-30")]
     every: String,
-    /// The roles whose processes may be killed, comma-separated (default: learner, expert, actor, evaluator).
+    /// The roles whose processes may be struck, comma-separated (default: learner, expert, actor, evaluator).
     #[arg(long, value_delimiter = ',')]
     kill: Vec<Role>,
+    /// The kinds of fault drawn from, comma-separated: kill (SIGKILL; the supervisor restarts the process), pause
+    /// (SIGSTOP for --pause seconds, then SIGCONT: its links go silent, and past zenoh's lease its peers drop them).
+    #[arg(long, value_delimiter = ',', default_value = "kill,pause")]
+    faults: Vec<FaultKind>,
+    /// A pause's seconds, drawn uniformly in MIN-MAX.
+    #[arg(long, default_value = "5-30")]
+    pause: String,
     #[command(flatten)]
     run: Args,
 }
 
 /// The supervised run under the schedule; prints the report (also in <run>/chaos.json). Returns the exit status.
 pub fn chaos(args: &ChaosArgs) -> Result<i32> {
-    let (lo, hi) = args
-        .every
-        .split_once('-')
-        .and_then(|(a, b)| Some((a.parse::<f64>().ok()?, b.parse::<f64>().ok()?)))
-        .filter(|(a, b)| *a > 0.0 && a <= b)
-        .with_context(|| format!("--every {}: MIN-MAX seconds, 0 < MIN <= MAX", args.every))?;
+    let seconds = |flag: &str, range: &str| {
+        range
+            .split_once('-')
+            .and_then(|(a, b)| Some((a.parse::<f64>().ok()?, b.parse::<f64>().ok()?)))
+            .filter(|(a, b)| *a > 0.0 && a <= b)
+            .with_context(|| format!("--{flag} {range}: MIN-MAX seconds, 0 < MIN <= MAX"))
+    };
+    let (lo, hi) = seconds("every", &args.every)?;
+    let pause_s = seconds("pause", &args.pause)?;
     let config = RunConfig::load(&args.run.config.display().to_string())
         .with_context(|| format!("loading {}", args.run.config.display()))?;
     let run = &args.run;
@@ -146,6 +156,8 @@ pub fn chaos(args: &ChaosArgs) -> Result<i32> {
         } else {
             args.kill.clone()
         },
+        kinds: args.faults.clone(),
+        pause_s,
         supervise,
         run_dir: run.run_dir.clone(),
         epoch_timeout_s: config.bus.epoch_timeout_s,

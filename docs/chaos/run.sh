@@ -1,17 +1,23 @@
 #!/usr/bin/env bash
 # Issue 64's chaos measure: the main job (the default preset) under deploy/chaos.sh, seeds 1-3 (run.seed 42-44),
-# one SIGKILL every 10-30 s drawn from the chaos seed; each run's report and results copied to docs/chaos/<run>/.
+# one fault every 10-30 s drawn from the chaos seed (a SIGKILL, or since the actors' outbox a SIGKILL or a 5-30 s
+# SIGSTOP: `cabc chaos --faults`); each run's report and results copied to docs/chaos/<run>/.
 # Beside them, the undisturbed main job on the same seeds: docs/reproduction/v-b-robust-judged-s1..3 (recorded with
 # deploy/run-local.sh; early stops at 57, 34, 43), or `--calm` to run them again here as calm-v-b-s<k>.
 #
-#   docs/chaos/run.sh [--calm] [SEED ...]      (CABC_BIN=DIR: prebuilt binaries)
+#   docs/chaos/run.sh [--calm] [--prefix P] [SEED ...]      (CABC_BIN=DIR: prebuilt binaries)
+#
+# --prefix names the runs P-v-b-s<k> (default chaos; the measure of kills alone, before the outbox and the pauses,
+# is chaos-v-b-s1..3; the one of kills and pauses with the outbox, chaos-pause-v-b-s<k>).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$root"
 calm=0
+prefix=chaos
 seeds=()
-for a in "$@"; do
-  case "$a" in --calm) calm=1 ;; *) seeds+=("$a") ;; esac
+while [ $# -gt 0 ]; do
+  case "$1" in --calm) calm=1 ;; --prefix) prefix=$2; shift ;; *) seeds+=("$1") ;; esac
+  shift
 done
 [ ${#seeds[@]} -gt 0 ] || seeds=(1 2 3)
 for k in "${seeds[@]}"; do
@@ -22,7 +28,7 @@ for k in "${seeds[@]}"; do
     name=calm-v-b-s$k
     deploy/run-local.sh --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
   else
-    name=chaos-v-b-s$k
+    name=$prefix-v-b-s$k
     deploy/chaos.sh --seed "$k" --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
   fi
   mkdir -p "docs/chaos/$name"

@@ -9,6 +9,7 @@
 //! | `metrics/<component>` | JSON |
 //! | `alive/<component>` | liveliness token |
 //! | `control` | [`Stop`](crate::messages::Stop) |
+//! | `ack/<actor>` | [`Ack`](crate::messages::Ack) (the learner's receipts of an actor's segments) |
 
 /// Root of every key.
 pub const ROOT: &str = "cabc";
@@ -87,6 +88,14 @@ impl Keys {
     pub fn control(&self) -> String {
         self.key("control")
     }
+    /// The learner's receipts of `actor`'s segments.
+    pub fn ack(&self, actor: &str) -> String {
+        self.key(&format!("ack/{actor}"))
+    }
+    /// Every actor's receipts (what the learner puts).
+    pub fn ack_all(&self) -> String {
+        self.key("ack/*")
+    }
     /// The last chunk of a key, i.e. the actor of `traj/<actor>`.
     pub fn last_chunk(key: &str) -> &str {
         key.rsplit('/').next().unwrap_or(key)
@@ -108,6 +117,7 @@ mod tests {
             "cabc/vb-1/metrics/expert-server/0"
         );
         assert_eq!(k.alive_all(), "cabc/vb-1/alive/**");
+        assert_eq!(k.ack("actor-0"), "cabc/vb-1/ack/actor-0");
         assert_eq!(Keys::last_chunk("cabc/vb-1/traj/actor-0"), "actor-0");
     }
 

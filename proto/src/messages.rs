@@ -263,6 +263,16 @@ pub struct EvalReport {
     pub spawn_crashes: u32,
 }
 
+/// The learner's receipt of an actor's segments, on `ack/<actor>` (issue 64): it holds the segments `seqs` of the
+/// actor's incarnation `incarnation`. An actor keeps each segment it published in its outbox until this comes (at
+/// least once on the wire; the learner's ledger makes it exactly once in the replay), and publishes again what stays
+/// unacknowledged (`cabc_bus::outbox`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ack {
+    pub incarnation: u64,
+    pub seqs: Vec<u64>,
+}
+
 /// The learner ends the run.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Stop {

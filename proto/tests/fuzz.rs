@@ -209,6 +209,13 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 reason: "early stop".into(),
             }),
         ),
+        (
+            "Ack",
+            codec::encode(&Ack {
+                incarnation: 7,
+                seqs: vec![0, 1, 5],
+            }),
+        ),
     ]
 }
 
@@ -230,6 +237,7 @@ fn decode_all(bytes: &[u8]) -> bool {
         && one::<ExpertReply>(bytes)
         && one::<EvalReport>(bytes)
         && one::<Stop>(bytes)
+        && one::<Ack>(bytes)
         && request
 }
 
@@ -250,6 +258,7 @@ fn own_depth(name: &str, bytes: &[u8]) -> usize {
         "ExpertRequest" => depth::<ExpertRequest>(bytes),
         "ExpertReply" => depth::<ExpertReply>(bytes),
         "EvalReport" => depth::<EvalReport>(bytes),
+        "Ack" => depth::<Ack>(bytes),
         _ => depth::<Stop>(bytes),
     }
 }

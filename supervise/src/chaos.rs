@@ -1,13 +1,17 @@
 //! Chaos (issue 64): a supervised run under a seeded schedule of faults, and what they cost. [`Chaos::run`] starts
-//! the run's supervisor (`cabc supervise`) as a child, then, every `gap` seconds (drawn from the seed), kills one of
-//! its live processes with SIGKILL (drawn too, among the roles asked for), watches `metrics.csv` for the epochs'
-//! ends, and when the run is over writes `<run>/chaos.json`: the faults by kind and target, the restarts, the time
-//! each fault cost (the interval between the epochs around it less the median interval of the epochs without one),
-//! the stalls (an epoch that took longer than `bus.epoch_timeout_s`), the steps published, stored and short, the
-//! duplicates, and whether and where the run stopped early.
+//! the run's supervisor (`cabc supervise`) as a child, then, every `gap` seconds (drawn from the seed), strikes one
+//! of its live processes (drawn too, among the roles asked for) with a fault of a kind drawn among those asked for
+//! ([`FaultKind`]): a kill (SIGKILL; the supervisor restarts it) or a pause (SIGSTOP for a drawn 5-30 s, then SIGCONT:
+//! the process and its links go silent, and past zenoh's 10 s lease its peers drop them, as a cut link looks from
+//! the other side; a paused learner is the router of the run, so every link goes). It watches `metrics.csv` for the
+//! epochs' ends, and when the run is over writes `<run>/chaos.json`: the faults by kind and target, the restarts,
+//! the time each fault cost (the interval between the epochs around it less the median interval of the epochs
+//! without one), the stalls (an epoch that took longer than `bus.epoch_timeout_s`), the steps published, stored and
+//! short, the duplicates, and whether and where the run stopped early.
 //!
-//! Faults are only kills here: a cut link and a restarted router need network namespaces and a router of their own
-//! (the end-to-end tests make those); the report says which kinds ran.
+//! A pause is not a cut from the paused process's side (it runs nothing meanwhile): a real cut, where both sides
+//! go on, and a restarted standalone router need network namespaces and a router of their own, which the end-to-end
+//! tests make (tests/tests/survive.rs); the report says which kinds ran.
 
 use crate::roster::Role;
 use crate::status::Status;
@@ -46,6 +50,36 @@ impl Draws {
     }
 }
 
+/// What a fault does to its process.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultKind {
+    /// SIGKILL: the supervisor restarts the process.
+    Kill,
+    /// SIGSTOP for a drawn while, then SIGCONT: its links go silent (past the lease its peers drop them).
+    Pause,
+}
+
+impl FaultKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FaultKind::Kill => "kill",
+            FaultKind::Pause => "pause",
+        }
+    }
+}
+
+impl std::str::FromStr for FaultKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "kill" => Ok(FaultKind::Kill),
+            "pause" => Ok(FaultKind::Pause),
+            _ => Err(format!("a fault is kill or pause, not `{s}`")),
+        }
+    }
+}
+
 /// One fault injected.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Fault {
@@ -57,6 +91,8 @@ pub struct Fault {
     pub role: String,
     /// The epoch in progress (the rows of `metrics.csv` when it struck).
     pub epoch: usize,
+    /// How long a pause held the process stopped.
+    pub paused_s: Option<f64>,
     /// The interval between the epochs around it less the median interval without faults, once the run went on.
     pub lost_s: Option<f64>,
 }
@@ -97,8 +133,12 @@ pub struct Report {
 pub struct Chaos {
     pub seed: u64,
     pub gap_s: (f64, f64),
-    /// The roles whose processes may be killed.
+    /// The roles whose processes may be struck.
     pub roles: Vec<Role>,
+    /// The kinds of fault drawn from.
+    pub kinds: Vec<FaultKind>,
+    /// The range of a pause's seconds.
+    pub pause_s: (f64, f64),
     /// The supervisor's command (`cabc supervise ...`).
     pub supervise: Vec<String>,
     pub run_dir: PathBuf,
@@ -119,7 +159,16 @@ impl Chaos {
         let mut faults = Vec::new();
         let mut epoch_ends: Vec<f64> = Vec::new();
         let metrics = self.run_dir.join("metrics.csv");
+        // The process paused, and when it goes on.
+        let mut paused: Option<(libc::pid_t, Instant)> = None;
         let exit = loop {
+            if let Some((pid, until)) = paused {
+                if Instant::now() >= until {
+                    signal(pid, libc::SIGCONT);
+                    paused = None;
+                    next_fault = Instant::now() + self.gap(&mut draws);
+                }
+            }
             if let Some(status) = child.try_wait()? {
                 break status.code();
             }
@@ -127,18 +176,31 @@ impl Chaos {
             while epoch_ends.len() < rows {
                 epoch_ends.push(started.elapsed().as_secs_f64());
             }
-            if Instant::now() >= next_fault {
-                if let Some(fault) = self.strike(&mut draws, started, rows) {
+            if paused.is_none() && Instant::now() >= next_fault {
+                if let Some((fault, pid)) = self.strike(&mut draws, started, rows) {
                     eprintln!(
-                        "[chaos] {:.0} s: {} of {} ({}) in epoch {}",
-                        fault.at_s, fault.kind, fault.target, fault.role, fault.epoch
+                        "[chaos] {:.0} s: {} of {} ({}) in epoch {}{}",
+                        fault.at_s,
+                        fault.kind,
+                        fault.target,
+                        fault.role,
+                        fault.epoch,
+                        fault
+                            .paused_s
+                            .map_or(String::new(), |s| format!(" for {s:.0} s"))
                     );
+                    if let Some(s) = fault.paused_s {
+                        paused = Some((pid, Instant::now() + Duration::from_secs_f64(s)));
+                    }
                     faults.push(fault);
                 }
                 next_fault = Instant::now() + self.gap(&mut draws);
             }
             std::thread::sleep(Duration::from_millis(200));
         };
+        if let Some((pid, _)) = paused {
+            signal(pid, libc::SIGCONT);
+        }
         let report = self.report(faults, &epoch_ends, started.elapsed().as_secs_f64(), exit);
         let text = serde_json::to_string_pretty(&report).map_err(std::io::Error::other)?;
         std::fs::write(self.run_dir.join("chaos.json"), text + "\n")?;
@@ -149,8 +211,14 @@ impl Chaos {
         Duration::from_secs_f64(draws.uniform(self.gap_s.0, self.gap_s.1).max(0.0))
     }
 
-    /// Kills one live process of the roles asked for (SIGKILL), if any runs.
-    fn strike(&self, draws: &mut Draws, started: Instant, epoch: usize) -> Option<Fault> {
+    /// Strikes one live process of the roles asked for with a fault of a kind drawn, if any runs: the fault and the
+    /// process's pid.
+    fn strike(
+        &self,
+        draws: &mut Draws,
+        started: Instant,
+        epoch: usize,
+    ) -> Option<(Fault, libc::pid_t)> {
         let status = Status::read(&self.run_dir)?;
         let live: Vec<(&String, &crate::status::ProcessStatus)> = status
             .processes
@@ -161,19 +229,27 @@ impl Chaos {
             return None;
         }
         let (name, process) = live[draws.index(live.len())];
+        let kind = *self.kinds.get(draws.index(self.kinds.len()))?;
+        let paused_s =
+            (kind == FaultKind::Pause).then(|| draws.uniform(self.pause_s.0, self.pause_s.1));
         let pid = process.pid? as libc::pid_t;
-        // SAFETY: kill(2) on a pid the supervisor just reported as running.
-        if unsafe { libc::kill(pid, libc::SIGKILL) } != 0 {
+        let sig = match kind {
+            FaultKind::Kill => libc::SIGKILL,
+            FaultKind::Pause => libc::SIGSTOP,
+        };
+        if !signal(pid, sig) {
             return None;
         }
-        Some(Fault {
+        let fault = Fault {
             at_s: started.elapsed().as_secs_f64(),
-            kind: "kill".into(),
+            kind: kind.as_str().into(),
             target: name.clone(),
             role: process.role.clone(),
             epoch,
+            paused_s,
             lost_s: None,
-        })
+        };
+        Some((fault, pid))
     }
 
     /// The report from the faults, the epochs' end times and the run folder's files.
@@ -226,7 +302,7 @@ impl Chaos {
         Report {
             seed: self.seed,
             gap_s: self.gap_s,
-            kinds: vec!["kill".into()],
+            kinds: self.kinds.iter().map(|k| k.as_str().to_string()).collect(),
             faults_by_target_role: by_role,
             restarts: Status::read(&self.run_dir)
                 .map(|s| s.restarts)
@@ -252,6 +328,12 @@ impl Chaos {
             faults,
         }
     }
+}
+
+/// Sends `sig` to `pid`; whether it went.
+fn signal(pid: libc::pid_t, sig: libc::c_int) -> bool {
+    // SAFETY: kill(2) on a pid the supervisor reported as running (or that this chaos paused).
+    unsafe { libc::kill(pid, sig) == 0 }
 }
 
 /// The data rows of a CSV file (0 when it is missing).
@@ -300,6 +382,64 @@ mod tests {
             .all(|&(g, i)| (10.0..30.0).contains(&g) && i < 5));
     }
 
+    /// The state letter of /proc/<pid>/stat ('T' stopped, 'S' sleeping, ...).
+    fn state(pid: u32) -> char {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+        let after = &stat[stat.rfind(')').unwrap() + 2..];
+        after.chars().next().unwrap()
+    }
+
+    #[test]
+    fn a_pause_stops_the_drawn_process_for_a_drawn_while_and_a_kill_ends_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut sleeper = Command::new("sleep").arg("60").spawn().unwrap();
+        let mut status = Status::new();
+        status.processes.insert(
+            "actor-0".into(),
+            crate::status::ProcessStatus {
+                role: "actor".into(),
+                pid: Some(sleeper.id()),
+                ..Default::default()
+            },
+        );
+        status.write(dir.path()).unwrap();
+        let mut chaos = Chaos {
+            seed: 5,
+            gap_s: (1.0, 2.0),
+            roles: vec![Role::Actor],
+            kinds: vec![FaultKind::Pause],
+            pause_s: (5.0, 30.0),
+            supervise: Vec::new(),
+            run_dir: dir.path().to_path_buf(),
+            epoch_timeout_s: 6.0,
+        };
+        let (fault, pid) = chaos.strike(&mut Draws::new(5), Instant::now(), 3).unwrap();
+        assert_eq!(
+            (fault.kind.as_str(), fault.target.as_str(), fault.epoch),
+            ("pause", "actor-0", 3)
+        );
+        assert!((5.0..30.0).contains(&fault.paused_s.unwrap()));
+        assert_eq!(pid as u32, sleeper.id());
+        // Stopped (the state may take a moment to show).
+        let began = Instant::now();
+        while state(sleeper.id()) != 'T' && began.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(state(sleeper.id()), 'T');
+        assert!(signal(pid, libc::SIGCONT));
+        // A role not asked for is never struck; a kill ends the process.
+        chaos.roles = vec![Role::Learner];
+        assert!(chaos
+            .strike(&mut Draws::new(5), Instant::now(), 3)
+            .is_none());
+        chaos.roles = vec![Role::Actor];
+        chaos.kinds = vec![FaultKind::Kill];
+        let (fault, _) = chaos.strike(&mut Draws::new(5), Instant::now(), 3).unwrap();
+        assert_eq!((fault.kind.as_str(), fault.paused_s), ("kill", None));
+        use std::os::unix::process::ExitStatusExt;
+        assert_eq!(sleeper.wait().unwrap().signal(), Some(libc::SIGKILL));
+    }
+
     #[test]
     fn a_fault_costs_its_epochs_interval_less_the_calm_median() {
         let dir = tempfile::tempdir().unwrap();
@@ -317,6 +457,8 @@ mod tests {
             seed: 1,
             gap_s: (1.0, 2.0),
             roles: vec![Role::Actor],
+            kinds: vec![FaultKind::Kill],
+            pause_s: (5.0, 30.0),
             supervise: Vec::new(),
             run_dir: dir.path().to_path_buf(),
             epoch_timeout_s: 6.0,
@@ -327,6 +469,7 @@ mod tests {
             target: "actor-0".into(),
             role: "actor".into(),
             epoch: 2,
+            paused_s: None,
             lost_s: None,
         };
         // Epoch ends at 2, 4, 11, 13 s: intervals 2, 2, 7, 2; the fault struck epoch 2.

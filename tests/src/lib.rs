@@ -367,6 +367,21 @@ impl Cluster {
         (stored, published)
     }
 
+    /// Over a run whose learner never died, every step the actors published was stored once: none lost on the wire
+    /// (an actor's outbox publishes again what the learner did not acknowledge), none twice (the ledger drops the
+    /// copies). (A learner killed takes with it what it received since its checkpoint, and the actors publish again
+    /// what it had not acknowledged, so there the epochs after it may store more than their markers say.)
+    pub fn assert_each_step_stored_once(&self) {
+        let metrics = self.dir.join("metrics.csv");
+        let stored = csv_column(&metrics, "steps_collected");
+        let published = csv_column(&metrics, "steps_published");
+        assert_eq!(
+            stored.iter().sum::<u64>(),
+            published.iter().sum::<u64>(),
+            "{stored:?} vs {published:?}"
+        );
+    }
+
     /// The last lines of a child's log (for failure messages).
     pub fn log_tail(&self, label: &str) -> String {
         let text =

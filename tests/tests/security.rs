@@ -635,7 +635,20 @@ fn a_standalone_zenohd_routes_a_secured_run_across_namespaces() {
         .filter(|k| !(k.starts_with("actor/actor-0: ") && k.contains("actor-1")))
         .collect();
     assert!(honest.is_empty(), "honest messages dropped: {honest:?}");
-    let errors = error_lines(&cluster, "zenohd", &[]);
+    // The rogue, under actor-0's certificate, did not get to hear actor-1's receipts (`ack/actor-1`).
+    assert!(
+        denied
+            .keys()
+            .any(|k| k.starts_with("actor/actor-0: ") && k.ends_with("/ack/actor-1")),
+        "zenohd let the rogue subscribe to actor-1's receipts: {denied:?}"
+    );
+    // When the rogue leaves, zenoh withdraws that refused subscription, and a standalone zenohd's routing, which never
+    // took it, logs `ERROR ... pubsub: Unknown subscriber` and ignores it (deploy/SCALE-OUT.md, "A refused
+    // declaration ..."; cabc's own processes keep the line out of their logs): that line alone is expected.
+    let errors: Vec<String> = error_lines(&cluster, "zenohd", &[])
+        .into_iter()
+        .filter(|l| !(l.contains("hat::broker::pubsub") && l.contains("Unknown subscriber")))
+        .collect();
     assert!(errors.is_empty(), "zenohd's log: {errors:#?}");
     drop(cluster);
     drop(pair);

@@ -299,6 +299,7 @@ fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
     assert_eq!(summary["epochs"], 10, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     let (stored, published) = cluster.assert_nothing_lost(256);
+    cluster.assert_each_step_stored_once();
     println!("survive: a {secs} s cut; the run ended {healed:?} after it began; stored {stored:?}, published {published:?}");
     drop(cluster);
     drop(pair);
@@ -338,5 +339,6 @@ fn a_restarted_router_costs_its_time_and_no_step() {
     assert_eq!(summary["epochs"], 10, "{summary:#}");
     assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
     let (stored, published) = cluster.assert_nothing_lost(256);
+    cluster.assert_each_step_stored_once();
     println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}");
 }

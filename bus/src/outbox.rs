@@ -1,0 +1,374 @@
+//! An actor's segments on `traj/<id>`, at least once (issue 64).
+//!
+//! Every segment an actor publishes stays in its [`Outbox`] until the learner acknowledges it on `ack/<id>`
+//! ([`Ack`], put by [`crate::receipts`] as each segment arrives); what stays unacknowledged is published again: at
+//! once when the session finds its router again (a link cut past zenoh's lease, a restarted router: what was in
+//! flight then is gone), else after [`RESEND_AFTER`]. So a segment reaches the learner at least once on the wire, and
+//! the learner's ledger, keyed by (actor, incarnation, seq), stores it exactly once: a copy is dropped there and
+//! counted (`duplicate_segments`). The outbox holds at most [`MAX_OUTBOX_BYTES`]; past it the oldest segments are
+//! dropped, logged and counted in `segments_lost`.
+//!
+//! On a plain bus anybody may put on `ack/<id>`: a forged receipt only makes the actor forget a segment it would
+//! otherwise have sent again (as a forged stop ends it); under mutual TLS only the learner may (`security.rs`).
+
+use crate::interrupt::Interrupt;
+use crate::ports::{with_stats, SharedStats};
+use crate::{decode_sample, encoding_of, Bus};
+use bytes::Bytes;
+use cabc_proto::codec;
+use cabc_proto::messages::{Ack, EpochDone, TrajMessage};
+use cabc_proto::ports::{PortError, SegmentSink};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use zenoh::pubsub::Subscriber;
+use zenoh::qos::CongestionControl;
+use zenoh::{Session, Wait};
+
+/// A segment not acknowledged this long after it was (last) published is published again: far past the learner's
+/// receipt of a segment that arrived (it acknowledges on arrival, training or not), short beside an epoch.
+pub const RESEND_AFTER: Duration = Duration::from_secs(10);
+
+/// The outbox's bound: past it the oldest segments are dropped (and counted lost). Acknowledged within
+/// milliseconds, it holds a few segments; it fills only while the learner is away and the router is not.
+pub const MAX_OUTBOX_BYTES: usize = 256 << 20;
+
+/// How often the outbox looks for what to publish again.
+const TICK: Duration = Duration::from_millis(250);
+
+/// After the router is back, how long the outbox waits before publishing again (the learner's subscription has to
+/// reach the router first, or zenoh drops the put for want of a subscriber).
+const SETTLE: Duration = Duration::from_secs(1);
+
+fn transport(e: impl std::fmt::Display) -> PortError {
+    PortError::Transport(e.to_string())
+}
+
+fn has_router(session: &Session) -> bool {
+    session.info().routers_zid().wait().next().is_some()
+}
+
+/// The segments of one incarnation not acknowledged yet, by seq.
+#[derive(Default)]
+struct Held {
+    incarnation: Option<u64>,
+    segments: BTreeMap<u64, Unacked>,
+    bytes: usize,
+}
+
+struct Unacked {
+    encoded: Bytes,
+    sent: Instant,
+}
+
+impl Held {
+    fn hold(&mut self, incarnation: u64, seq: u64, encoded: Bytes) -> u64 {
+        self.incarnation = Some(incarnation);
+        self.bytes += encoded.len();
+        let sent = Instant::now();
+        if let Some(old) = self.segments.insert(seq, Unacked { encoded, sent }) {
+            self.bytes -= old.encoded.len();
+        }
+        let mut dropped = 0;
+        while self.bytes > MAX_OUTBOX_BYTES && self.segments.len() > 1 {
+            let Some((seq, oldest)) = self.segments.pop_first() else {
+                break;
+            };
+            self.bytes -= oldest.encoded.len();
+            dropped += 1;
+            tracing::warn!(
+                seq,
+                "outbox full (the learner acknowledges nothing): the oldest segment dropped unacknowledged"
+            );
+        }
+        dropped
+    }
+
+    fn acknowledged(&mut self, ack: &Ack) {
+        if self.incarnation != Some(ack.incarnation) {
+            return;
+        }
+        for seq in &ack.seqs {
+            if let Some(gone) = self.segments.remove(seq) {
+                self.bytes -= gone.encoded.len();
+            }
+        }
+    }
+
+    /// The segments to publish again now: all of them (`all`), or those unacknowledged for `after`.
+    fn due(&mut self, all: bool, after: Duration) -> Vec<Bytes> {
+        let now = Instant::now();
+        self.segments
+            .values_mut()
+            .filter(|u| all || now.duration_since(u.sent) >= after)
+            .map(|u| {
+                u.sent = now;
+                u.encoded.clone()
+            })
+            .collect()
+    }
+}
+
+/// An actor's segments until the learner has them (the module's doc).
+pub struct Outbox {
+    held: Arc<Mutex<Held>>,
+    stats: SharedStats,
+    _acks: Subscriber<()>,
+    stop: Arc<AtomicBool>,
+    resender: Option<JoinHandle<()>>,
+}
+
+fn lock(held: &Mutex<Held>) -> std::sync::MutexGuard<'_, Held> {
+    held.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Outbox {
+    /// `actor`'s outbox on `bus`: it hears the learner's receipts on `ack/<actor>` and publishes again on
+    /// `traj/<actor>` what stays unacknowledged for `resend_after` ([`RESEND_AFTER`] in a run).
+    pub fn open(
+        bus: &Bus,
+        actor: &str,
+        stats: SharedStats,
+        resend_after: Duration,
+    ) -> Result<Outbox, PortError> {
+        let held: Arc<Mutex<Held>> = Arc::default();
+        let (on_ack, rejects) = (held.clone(), bus.rejects.clone());
+        let acks = bus
+            .session
+            .declare_subscriber(bus.keys.ack(actor))
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                if let Some(ack) =
+                    decode_sample::<Ack>(sample.key_expr().as_str(), &bytes, &rejects)
+                {
+                    lock(&on_ack).acknowledged(&ack);
+                }
+            })
+            .wait()
+            .map_err(transport)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let resender = {
+            let (session, key) = (bus.session.clone(), bus.keys.traj(actor));
+            let (held, stats, stop) = (held.clone(), stats.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("outbox".into())
+                .spawn(move || resend(&session, &key, &held, &stats, &stop, resend_after))
+                .map_err(transport)?
+        };
+        Ok(Outbox {
+            held,
+            stats,
+            _acks: acks,
+            stop,
+            resender: Some(resender),
+        })
+    }
+
+    /// Holds segment `seq` of `incarnation` (as published: `encoded`) until the learner acknowledges it.
+    pub fn hold(&self, incarnation: u64, seq: u64, encoded: Bytes) {
+        let dropped = lock(&self.held).hold(incarnation, seq, encoded);
+        if dropped > 0 {
+            with_stats(&self.stats, |s| s.segments_lost += dropped);
+        }
+    }
+
+    /// Segments published and not acknowledged yet.
+    pub fn unacknowledged(&self) -> usize {
+        lock(&self.held).segments.len()
+    }
+}
+
+impl Drop for Outbox {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(resender) = self.resender.take() {
+            let _ = resender.join();
+        }
+    }
+}
+
+/// The outbox's thread: publishes again what is due (everything once the router is back after [`SETTLE`]).
+fn resend(
+    session: &Session,
+    key: &str,
+    held: &Mutex<Held>,
+    stats: &SharedStats,
+    stop: &AtomicBool,
+    after: Duration,
+) {
+    let mut lost_router: Option<Instant> = None;
+    let mut back: Option<Instant> = None;
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(TICK);
+        if !has_router(session) {
+            lost_router.get_or_insert_with(Instant::now);
+            back = None;
+            continue;
+        }
+        if lost_router.is_some() {
+            let since = *back.get_or_insert_with(Instant::now);
+            if since.elapsed() < SETTLE {
+                continue;
+            }
+        }
+        let all = lost_router.take().is_some();
+        let due = lock(held).due(all, after);
+        if due.is_empty() {
+            continue;
+        }
+        tracing::info!(
+            segments = due.len(),
+            after_reconnect = all,
+            "publishing again the segments the learner has not acknowledged"
+        );
+        for encoded in due {
+            let put = session
+                .put(key, encoded)
+                .encoding(encoding_of::<TrajMessage>())
+                .congestion_control(CongestionControl::Block)
+                .wait();
+            match put {
+                Ok(()) => with_stats(stats, |s| s.segments_resent += 1),
+                Err(e) => tracing::warn!("publishing a segment again: {e}"),
+            }
+        }
+    }
+}
+
+/// How often an actor without a router looks again.
+const RECONNECT_POLL: Duration = Duration::from_millis(200);
+
+/// An actor's segments and markers on `traj/<id>`. While the session has no router (a learner restarting), a put
+/// waits for it to be back: zenoh would drop a put without a router silently, and an actor has nothing else to do
+/// then (its expert is out of reach too). Interrupted while waiting, the message is counted as lost, never as sent.
+/// Each segment stays in the [`Outbox`] until the learner has it.
+pub struct ZenohSegments<'a> {
+    bus: &'a Bus,
+    key: String,
+    interrupt: Interrupt,
+    stats: SharedStats,
+    outbox: Outbox,
+    /// The last marker sent ([`crate::ports::MarkerEcho`]).
+    last_marker: Arc<Mutex<Option<EpochDone>>>,
+}
+
+impl<'a> ZenohSegments<'a> {
+    pub fn new(
+        bus: &'a Bus,
+        actor: &str,
+        interrupt: &Interrupt,
+        stats: SharedStats,
+    ) -> Result<Self, PortError> {
+        Self::resending_after(bus, actor, interrupt, stats, RESEND_AFTER)
+    }
+
+    /// As [`ZenohSegments::new`], publishing again what stays unacknowledged for `after` (a test's short wait).
+    pub fn resending_after(
+        bus: &'a Bus,
+        actor: &str,
+        interrupt: &Interrupt,
+        stats: SharedStats,
+        after: Duration,
+    ) -> Result<Self, PortError> {
+        Ok(ZenohSegments {
+            bus,
+            key: bus.keys.traj(actor),
+            interrupt: interrupt.clone(),
+            outbox: Outbox::open(bus, actor, stats.clone(), after)?,
+            stats,
+            last_marker: Arc::default(),
+        })
+    }
+
+    /// The handle through which this actor's policy source sends its last marker again.
+    pub fn echo(&self) -> crate::ports::MarkerEcho {
+        crate::ports::MarkerEcho::new(self.key.clone(), self.last_marker.clone())
+    }
+
+    /// Segments published and not acknowledged by the learner yet.
+    pub fn unacknowledged(&self) -> usize {
+        self.outbox.unacknowledged()
+    }
+}
+
+impl SegmentSink for ZenohSegments<'_> {
+    fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
+        let started = Instant::now();
+        let mut warned = false;
+        while !has_router(&self.bus.session) {
+            if self.interrupt.is_set() {
+                with_stats(&self.stats, |s| s.segments_lost += 1);
+                return Err(PortError::Stopped(
+                    "interrupted while no router was up".into(),
+                ));
+            }
+            if !warned {
+                warned = true;
+                tracing::warn!("no router: holding the segment until the learner is back");
+            }
+            std::thread::sleep(RECONNECT_POLL);
+        }
+        let encoded = Bytes::from(codec::encode(&message));
+        if let TrajMessage::Segment(segment) = &message {
+            self.outbox
+                .hold(segment.incarnation, segment.seq, encoded.clone());
+        }
+        self.bus
+            .put_encoded_blocking::<TrajMessage>(&self.key, encoded)
+            .map_err(transport)?;
+        if let TrajMessage::EpochDone(marker) = message {
+            *self.last_marker.lock().unwrap_or_else(|e| e.into_inner()) = Some(marker);
+        }
+        with_stats(&self.stats, |s| s.transport += started.elapsed());
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ack(incarnation: u64, seqs: &[u64]) -> Ack {
+        Ack {
+            incarnation,
+            seqs: seqs.to_vec(),
+        }
+    }
+
+    #[test]
+    fn an_acknowledged_segment_leaves_the_outbox_and_no_other_does() {
+        let mut held = Held::default();
+        for seq in 0..4 {
+            held.hold(9, seq, Bytes::from(vec![0u8; 10]));
+        }
+        held.acknowledged(&ack(9, &[1, 3, 7]));
+        assert_eq!(held.segments.keys().copied().collect::<Vec<_>>(), [0, 2]);
+        assert_eq!(held.bytes, 20);
+        // Another incarnation's receipts (a restarted actor's predecessor) change nothing.
+        held.acknowledged(&ack(8, &[0, 2]));
+        assert_eq!(held.segments.len(), 2);
+    }
+
+    #[test]
+    fn what_stays_unacknowledged_is_due_again_after_the_wait_or_at_once_after_a_reconnection() {
+        let mut held = Held::default();
+        held.hold(1, 0, Bytes::from_static(b"a"));
+        assert!(held.due(false, Duration::from_secs(60)).is_empty());
+        assert_eq!(held.due(false, Duration::ZERO).len(), 1);
+        assert_eq!(held.due(true, Duration::from_secs(60)).len(), 1);
+        held.acknowledged(&ack(1, &[0]));
+        assert!(held.due(true, Duration::ZERO).is_empty());
+    }
+
+    #[test]
+    fn a_full_outbox_drops_its_oldest_segments_and_counts_them() {
+        let mut held = Held::default();
+        let big = MAX_OUTBOX_BYTES / 2;
+        assert_eq!(held.hold(1, 0, Bytes::from(vec![0u8; big])), 0);
+        assert_eq!(held.hold(1, 1, Bytes::from(vec![0u8; big])), 0);
+        assert_eq!(held.hold(1, 2, Bytes::from(vec![0u8; big])), 1);
+        assert_eq!(held.segments.keys().copied().collect::<Vec<_>>(), [1, 2]);
+    }
+}

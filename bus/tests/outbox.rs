@@ -1,0 +1,161 @@
+//! An actor's segments reach the learner at least once (issue 64): over two zenoh sessions on loopback, a learner
+//! that loses segments on their first delivery gets them again from the actor's outbox, and the learner's own
+//! receipts (`cabc_bus::receipts`) empty the outbox with nothing published twice.
+
+use cabc_bus::interrupt::Interrupt;
+use cabc_bus::ports::{SharedStats, ZenohSegments};
+use cabc_bus::receipts::{acknowledge, Receipts};
+use cabc_bus::{decode_sample, Bus, Role};
+use cabc_proto::config::BusSection;
+use cabc_proto::keys::Keys;
+use cabc_proto::messages::{Outcome, Segment, TrajMessage};
+use cabc_proto::ports::SegmentSink;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+const RESEND: Duration = Duration::from_secs(1);
+
+/// A learner and an actor (`actor-0`) of run `run` on a free loopback port, the actor connected.
+fn pair(run: &str) -> (Bus, Bus) {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let section = BusSection {
+        listen: vec![endpoint.clone()],
+        connect: vec![endpoint],
+        ..BusSection::default()
+    };
+    let keys = Keys::new(run).unwrap();
+    let learner = Bus::join(&section, Role::Listen, keys.clone(), "learner").unwrap();
+    let actor = Bus::join(&section, Role::Connect, keys, "actor/actor-0").unwrap();
+    wait_until("the actor reaches the learner", || {
+        actor.session.info().routers_zid().wait().next().is_some()
+    });
+    // The learner's subscription has to reach the actor's side before a put is routed to it.
+    std::thread::sleep(Duration::from_millis(500));
+    (learner, actor)
+}
+
+fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let began = Instant::now();
+    while !done() {
+        assert!(
+            began.elapsed() < Duration::from_secs(20),
+            "{what}: timed out"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn segment(seq: u64) -> TrajMessage {
+    TrajMessage::Segment(Segment {
+        incarnation: 7,
+        seq,
+        ..Segment::of("actor-0", Outcome::Lap, Vec::new())
+    })
+}
+
+#[test]
+fn segments_lost_on_their_first_delivery_are_published_again_until_acknowledged() {
+    let (learner, actor) = pair("outbox-loss");
+    // The learner loses the first delivery of every even segment: no receipt, as if it never arrived.
+    let deliveries: Arc<Mutex<BTreeMap<u64, u32>>> = Arc::default();
+    let (seen, session, keys, rejects) = (
+        deliveries.clone(),
+        learner.session.clone(),
+        learner.keys.clone(),
+        learner.rejects.clone(),
+    );
+    let _lossy = learner
+        .session
+        .declare_subscriber(learner.keys.traj_all())
+        .callback(move |sample| {
+            let bytes = sample.payload().to_bytes();
+            let key = sample.key_expr().as_str();
+            if let Some(TrajMessage::Segment(s)) =
+                decode_sample::<TrajMessage>(key, &bytes, &rejects)
+            {
+                let mut seen = seen.lock().unwrap();
+                let n = seen.entry(s.seq).or_default();
+                *n += 1;
+                if s.seq % 2 == 1 || *n > 1 {
+                    acknowledge(&session, &keys, "actor-0", s.incarnation, s.seq);
+                }
+            }
+        })
+        .wait()
+        .unwrap();
+    let stats = SharedStats::default();
+    let mut sink = ZenohSegments::resending_after(
+        &actor,
+        "actor-0",
+        &Interrupt::default(),
+        stats.clone(),
+        RESEND,
+    )
+    .unwrap();
+    for seq in 0..6 {
+        sink.put(segment(seq)).unwrap();
+    }
+    wait_until("every segment acknowledged", || sink.unacknowledged() == 0);
+    let deliveries = deliveries.lock().unwrap().clone();
+    assert_eq!(
+        deliveries.keys().copied().collect::<Vec<_>>(),
+        [0, 1, 2, 3, 4, 5]
+    );
+    for (seq, n) in &deliveries {
+        if seq % 2 == 1 {
+            assert_eq!(
+                *n, 1,
+                "segment {seq}, acknowledged at once, went out once: {deliveries:?}"
+            );
+        } else {
+            assert!(
+                *n >= 2,
+                "segment {seq}, lost once, went out again: {deliveries:?}"
+            );
+        }
+    }
+    assert!(stats.lock().unwrap().segments_resent >= 3);
+}
+
+#[test]
+fn the_learners_receipts_empty_the_outbox_and_nothing_goes_out_twice() {
+    let (learner, actor) = pair("outbox-receipts");
+    let receipts = Receipts::subscribe(&learner).unwrap();
+    let stats = SharedStats::default();
+    let mut sink = ZenohSegments::resending_after(
+        &actor,
+        "actor-0",
+        &Interrupt::default(),
+        stats.clone(),
+        RESEND,
+    )
+    .unwrap();
+    for seq in 0..5 {
+        sink.put(segment(seq)).unwrap();
+    }
+    let mut arrived = Vec::new();
+    while arrived.len() < 5 {
+        let arrival = receipts
+            .arrivals
+            .recv_timeout(Duration::from_secs(10))
+            .expect("a segment arrives");
+        assert_eq!(arrival.sender.as_deref(), Some("actor-0"));
+        match arrival.message {
+            Some(TrajMessage::Segment(s)) => arrived.push(s.seq),
+            other => panic!("{other:?}"),
+        }
+    }
+    assert_eq!(arrived, [0, 1, 2, 3, 4]);
+    wait_until("every segment acknowledged", || sink.unacknowledged() == 0);
+    // Past the resend wait: nothing was published again.
+    std::thread::sleep(RESEND + Duration::from_millis(500));
+    assert!(receipts.arrivals.try_recv().is_err());
+    assert_eq!(stats.lock().unwrap().segments_resent, 0);
+}
