@@ -7,7 +7,6 @@
 //! the rest in [`tools`].
 
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
 
 mod campaign;
 mod export;
@@ -38,43 +37,14 @@ enum Command {
     Compare(cabc_analysis::compare::CompareOptions),
     /// Print one value of a configuration (dotted key, e.g. actors.count); or, with --gif, write a video of a run's
     /// policy: `cabc show RUN --gif [VERSION]`.
-    Show {
-        /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
-        #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
-        config: String,
-        /// The configuration's key; with --gif, the run folder.
-        key: String,
-        /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
-        /// evaluated anew) or a version number (its evaluation's plots/eval-v<N>.gif, or the best version's weights
-        /// evaluated anew; no other version's weights are kept).
-        #[arg(long, value_name = "VERSION", num_args = 0..=1, default_missing_value = "best")]
-        gif: Option<show::Which>,
-        /// Where to write the GIF (default: in the run folder).
-        #[arg(long, requires = "gif")]
-        out: Option<PathBuf>,
-    },
+    Show(show::ShowArgs),
     /// Redraws a run's plots (laps per version, losses, lap times against the expert's) from its config.toml,
     /// metrics.csv, evals.csv and summary.json alone: a run folder, or its kept copy in docs/reproduction/<run>/.
     /// Prints the files written; the plots those files cannot give (the evaluated line, the videos) are named on
     /// stderr with the command that makes them from a full run folder.
-    Plots {
-        /// The run folder.
-        run: PathBuf,
-        /// Where to write the PNG files (default: RUN/plots/).
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
+    Plots(tools::PlotsArgs),
     /// A video (GIF) of a run's best (or final) policy driving from the fixed spawn, evaluated anew.
-    Video {
-        /// The run folder.
-        run: PathBuf,
-        /// The final policy instead of the best.
-        #[arg(long = "final")]
-        final_: bool,
-        /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
+    Video(show::VideoArgs),
     /// A run's data (its checkpoint's replay) as a LeRobot v3 dataset: parquet rows of every step with the expert's
     /// label, the applied action, the next state, episode, store and policy version; prints what it wrote as JSON.
     Export(export::Args),
@@ -128,18 +98,9 @@ fn main() -> anyhow::Result<()> {
     cabc_models::flush_denormals();
     match Cli::parse().command {
         Command::Compare(options) => tools::compare(&options),
-        Command::Show {
-            config,
-            key,
-            gif,
-            out,
-        } => show::run(&config, &key, gif, out),
-        Command::Plots { run, out } => tools::plots(&run, out.as_deref()),
-        Command::Video { run, final_, out } => {
-            let report = show::video(&run, final_, out)?;
-            println!("{} laps, ended by {}", report.laps, report.end_reason);
-            Ok(())
-        }
+        Command::Show(args) => show::run(&args),
+        Command::Plots(args) => tools::plots(&args),
+        Command::Video(args) => show::video(&args),
         Command::Export(args) => export::run(&args),
         Command::Robust(args) => robust::run(&args),
         Command::Probe(args) => probe::run(&args),

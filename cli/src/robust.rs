@@ -27,9 +27,9 @@ pub struct Args {
 
 /// The policy file `which` names for `run`.
 fn policy_path(run: &Path, which: &str) -> PathBuf {
-    match which.parse::<KeptPolicy>() {
-        Ok(kept) => run.join(RunDir::policy_file(kept)),
-        Err(_) => PathBuf::from(which),
+    match KeptPolicy::named(which) {
+        Some(kept) => run.join(RunDir::policy_file(kept)),
+        None => PathBuf::from(which),
     }
 }
 

@@ -16,17 +16,44 @@ use anyhow::{bail, Context, Result};
 use cabc_learning::checkpoint::Checkpoint;
 use cabc_learning::state::{LearnerState, CHECKPOINT};
 use cabc_outputs::rundir::{load_policy, KeptPolicy, RunDir};
-use cabc_outputs::video::{self, CameraView};
+use cabc_outputs::video::Watched;
 use cabc_proto::config::RunConfig;
 use cabc_proto::messages::EvalReport;
-use cabc_sim::track::{Pose, Track};
 use std::path::{Path, PathBuf};
 
-/// Which policy of a run a video shows.
+#[derive(clap::Args)]
+pub struct ShowArgs {
+    /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
+    #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
+    config: String,
+    /// The configuration's key; with --gif, the run folder.
+    key: String,
+    /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
+    /// evaluated anew) or a version number (its evaluation's plots/eval-v<N>.gif, or the best version's weights
+    /// evaluated anew; no other version's weights are kept).
+    #[arg(long, value_name = "VERSION", num_args = 0..=1, default_missing_value = "best")]
+    gif: Option<Which>,
+    /// Where to write the GIF (default: in the run folder).
+    #[arg(long, requires = "gif")]
+    out: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct VideoArgs {
+    /// The run folder.
+    run: PathBuf,
+    /// The final policy instead of the best.
+    #[arg(long = "final")]
+    final_: bool,
+    /// Where to write the GIF (default: RUN/best-policy.gif or RUN/final-policy.gif).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// Which policy of a run a video shows: a kept one's weights, or a version's video.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Which {
-    Best,
-    Final,
+    Kept(KeptPolicy),
     Version(u64),
 }
 
@@ -34,11 +61,10 @@ impl std::str::FromStr for Which {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "best" => Ok(Which::Best),
-            "final" => Ok(Which::Final),
-            n => n.parse().map(Which::Version).map_err(|_| {
-                format!("{n:?}: a policy version is `best`, `final` or a version number")
+        match KeptPolicy::named(s) {
+            Some(kept) => Ok(Which::Kept(kept)),
+            None => s.parse().map(Which::Version).map_err(|_| {
+                format!("{s:?}: a policy version is `best`, `final` or a version number")
             }),
         }
     }
@@ -52,19 +78,19 @@ pub struct Shown {
     pub evaluated: Option<EvalReport>,
 }
 
-/// `cabc show RUN --gif [VERSION]`: the GIF of `which` (see the module doc), written to `out` (default
-/// `cabc show`: with `gif`, a video of run folder `key`'s policy (its path printed, and the evaluation's laps when one
-/// was driven anew); else the value of configuration `config`'s dotted `key`.
-pub fn run(config: &str, key: &str, gif: Option<Which>, out: Option<PathBuf>) -> Result<()> {
-    if let Some(which) = gif {
-        let shown = self::gif(Path::new(key), which, out)?;
+/// `cabc show`: with `--gif`, a video of run folder `key`'s policy (its path printed, and the evaluation's laps when
+/// one was driven anew); else the value of configuration `config`'s dotted `key`.
+pub fn run(args: &ShowArgs) -> Result<()> {
+    let key = &args.key;
+    if let Some(which) = args.gif {
+        let shown = gif(Path::new(key), which, args.out.clone())?;
         if let Some(report) = shown.evaluated {
             println!("{} laps, ended by {}", report.laps, report.end_reason);
         }
         println!("{}", shown.gif.display());
         return Ok(());
     }
-    let value = crate::load(config)?.show(key);
+    let value = crate::load(&args.config)?.show(key);
     println!(
         "{}",
         value.with_context(|| format!("no key {key} in the configuration"))?
@@ -72,6 +98,7 @@ pub fn run(config: &str, key: &str, gif: Option<Which>, out: Option<PathBuf>) ->
     Ok(())
 }
 
+/// `cabc show RUN --gif [VERSION]`: the GIF of `which` (see the module doc), written to `out` (default
 /// `RUN/best-policy.gif`, `RUN/final-policy.gif`, `RUN/plots/eval-v<N>.gif`).
 pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
     let config = run_config(run)?;
@@ -82,9 +109,9 @@ pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
         .map(|e| e.version);
     // The video's file unless `out` names one (None: the kept policy's, RunDir::policy_video).
     let (weights, version, default_out) = match which {
-        Which::Best => (KeptPolicy::Best, best.unwrap_or(0), None),
+        Which::Kept(KeptPolicy::Best) => (KeptPolicy::Best, best.unwrap_or(0), None),
         // The version the final policy would have been published as.
-        Which::Final => (
+        Which::Kept(KeptPolicy::Final) => (
             KeptPolicy::Final,
             state.as_ref().map_or(0, |s| s.next_epoch),
             None,
@@ -130,12 +157,17 @@ pub fn gif(run: &Path, which: Which, out: Option<PathBuf>) -> Result<Shown> {
     })
 }
 
-/// `cabc video RUN`: the best policy (or the final one with `final_`) evaluated anew; its video written to `out`
-/// (default `RUN/<which>-policy.gif`). Returns the evaluation.
-pub fn video(run: &Path, final_: bool, out: Option<PathBuf>) -> Result<EvalReport> {
-    let which = if final_ { Which::Final } else { Which::Best };
-    let shown = gif(run, which, out)?;
-    shown.evaluated.context("no evaluation was run")
+/// `cabc video RUN`: the best policy (or the final one with `--final`) evaluated anew; its video written to `--out`
+/// (default `RUN/<which>-policy.gif`) and its laps printed.
+pub fn video(args: &VideoArgs) -> Result<()> {
+    let kept = match args.final_ {
+        true => KeptPolicy::Final,
+        false => KeptPolicy::Best,
+    };
+    let shown = gif(&args.run, Which::Kept(kept), args.out.clone())?;
+    let report = shown.evaluated.context("no evaluation was run")?;
+    println!("{} laps, ended by {}", report.laps, report.end_reason);
+    Ok(())
 }
 
 /// The run folder's configuration, RUN/config.toml.
@@ -164,25 +196,16 @@ fn evaluate_anew(
     out: &Path,
 ) -> Result<EvalReport> {
     let policy = load_policy(&run.join(RunDir::policy_file(weights)))?;
-    let mut poses = Vec::new();
-    let mut sun = None;
+    let mut watched = Watched::default();
     let report = cabc_actor::evaluate::evaluate_watched(
         "video",
         version,
         config,
         |input| Ok(cabc_actor::run::act(&policy, input)?),
-        |env| {
-            let [x, y, psi] = env.observation().pose;
-            poses.push(Pose { x, y, psi });
-            sun.get_or_insert(env.sun());
-        },
+        |env| watched.watch(env),
     )?;
-    let track = Track::from_kind(config.sim.track);
-    let mut view = CameraView::of(&config.observation, &track).map(|v| match sun {
-        Some(sun) => v.under(sun),
-        None => v,
-    });
-    video::gif(out, &track, &report, &poses, view.as_mut())
+    watched
+        .gif(out, config, &report)
         .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     tracing::info!(
         version,
@@ -200,8 +223,8 @@ mod tests {
 
     #[test]
     fn versions_are_best_final_or_numbers() {
-        assert_eq!("best".parse(), Ok(Which::Best));
-        assert_eq!("final".parse(), Ok(Which::Final));
+        assert_eq!("best".parse(), Ok(Which::Kept(KeptPolicy::Best)));
+        assert_eq!("final".parse(), Ok(Which::Kept(KeptPolicy::Final)));
         assert_eq!("57".parse(), Ok(Which::Version(57)));
         assert!("v57".parse::<Which>().is_err());
     }
@@ -224,7 +247,7 @@ mod tests {
         let shown = gif(run.path(), Which::Version(3), Some(out.clone())).unwrap();
         assert_eq!((shown.gif, shown.evaluated.is_none()), (out.clone(), true));
         assert_eq!(std::fs::read(out).unwrap(), b"GIF89a");
-        let err = gif(run.path(), Which::Best, None).unwrap_err();
+        let err = gif(run.path(), Which::Kept(KeptPolicy::Best), None).unwrap_err();
         assert!(
             format!("{err:#}").contains("best-policy.safetensors"),
             "{err:#}"
@@ -243,7 +266,7 @@ mod tests {
         use cabc_models::Network;
         run.write_policy(KeptPolicy::Final, &policy.to_bytes())
             .unwrap();
-        let shown = gif(run.path(), Which::Final, None).unwrap();
+        let shown = gif(run.path(), Which::Kept(KeptPolicy::Final), None).unwrap();
         assert_eq!(shown.gif, run.path().join("final-policy.gif"));
         assert!(shown.evaluated.unwrap().steps > 0);
         let bytes = std::fs::read(&shown.gif).unwrap();
@@ -256,6 +279,6 @@ mod tests {
         while decoder.read_next_frame().unwrap().is_some() {
             frames += 1;
         }
-        assert_eq!(frames, video::FRAMES);
+        assert_eq!(frames, cabc_outputs::video::FRAMES);
     }
 }

@@ -12,10 +12,20 @@ pub fn compare(options: &cabc_analysis::compare::CompareOptions) -> anyhow::Resu
     Ok(())
 }
 
+#[derive(clap::Args)]
+pub struct PlotsArgs {
+    /// The run folder.
+    run: PathBuf,
+    /// Where to write the PNG files (default: RUN/plots/).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
 /// `cabc plots RUN [--out DIR]`: the run's plots redrawn from its small files; the files written on stdout, what was
 /// missing and what is left out on stderr.
-pub fn plots(run: &std::path::Path, out: Option<&std::path::Path>) -> anyhow::Result<()> {
-    let redrawn = cabc_outputs::redraw::redraw(run, out)
+pub fn plots(args: &PlotsArgs) -> anyhow::Result<()> {
+    let run = &args.run;
+    let redrawn = cabc_outputs::redraw::redraw(run, args.out.as_deref())
         .with_context(|| format!("redrawing the plots of {}", run.display()))?;
     for note in &redrawn.notes {
         eprintln!("note: {note}");

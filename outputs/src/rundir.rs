@@ -66,6 +66,8 @@ pub enum KeptPolicy {
 }
 
 impl KeptPolicy {
+    pub const ALL: [KeptPolicy; 2] = [KeptPolicy::Best, KeptPolicy::Final];
+
     /// `best` or `final`: how the command line names it, and the start of its files' names.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -73,17 +75,10 @@ impl KeptPolicy {
             KeptPolicy::Final => "final",
         }
     }
-}
 
-impl std::str::FromStr for KeptPolicy {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "best" => Ok(KeptPolicy::Best),
-            "final" => Ok(KeptPolicy::Final),
-            other => Err(format!("{other:?}: a kept policy is `best` or `final`")),
-        }
+    /// The kept policy named `name` ([`KeptPolicy::as_str`]), if any.
+    pub fn named(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|kept| kept.as_str() == name)
     }
 }
 

@@ -6,11 +6,12 @@
 //! report alone: its line is the car's positions, the car's heading is the line's direction there
 //! ([`poses_of_line`]), and the camera's view is lit by the default sun (a report does not carry the evaluation's).
 //! `cabc video` and `cabc show RUN --gif` evaluate a policy anew and draw the car's own poses under the
-//! evaluation's sun ([`gif`]). Either way the view is rendered without the sensor's pixel noise.
+//! evaluation's sun ([`Watched`], [`gif`]). Either way the view is rendered without the sensor's pixel noise.
 
-use cabc_proto::config::{ObservationKind, ObservationSection};
+use cabc_proto::config::{ObservationKind, ObservationSection, RunConfig};
 use cabc_proto::messages::EvalReport;
 use cabc_sim::camera::{Camera, Sun, TrackLookup};
+use cabc_sim::env::Env;
 use cabc_sim::track::{Pose, Track};
 use plotters::prelude::*;
 use std::path::Path;
@@ -28,6 +29,35 @@ const DELAY: u16 = 8;
 const LOOKUP_RESOLUTION: f64 = 0.01;
 
 type Drawn = Result<(), Box<dyn std::error::Error>>;
+
+/// An episode driven anew, as its video needs it: the car's pose before every step and the sun of the episode's
+/// camera. [`Watched::watch`] is the `watch` of the evaluator's `evaluate_watched`; [`Watched::gif`] draws the
+/// video once the episode is over.
+#[derive(Debug, Default)]
+pub struct Watched {
+    poses: Vec<Pose>,
+    sun: Option<Sun>,
+}
+
+impl Watched {
+    /// Records the environment before a step.
+    pub fn watch(&mut self, env: &Env) {
+        let [x, y, psi] = env.observation().pose;
+        self.poses.push(Pose { x, y, psi });
+        self.sun.get_or_insert(env.sun());
+    }
+
+    /// The episode's video at `path` (`report` its evaluation, `config` its run's): the car's recorded poses on the
+    /// run's track and, in a camera run, the camera's view under the episode's sun.
+    pub fn gif(&self, path: &Path, config: &RunConfig, report: &EvalReport) -> Drawn {
+        let track = Track::from_kind(config.sim.track);
+        let mut view = CameraView::of(&config.observation, &track).map(|v| match self.sun {
+            Some(sun) => v.under(sun),
+            None => v,
+        });
+        gif(path, &track, report, &self.poses, view.as_mut())
+    }
+}
 
 /// A camera run's camera, to draw its view beside the track: the run's image size and field of view, the track's
 /// distance grid and a sun.
