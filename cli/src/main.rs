@@ -88,8 +88,9 @@ enum Command {
     /// process and its log. deploy/run-local.sh runs it.
     Supervise(supervise::Args),
     /// A supervised run under a seeded schedule of faults (issue 64): every 10-30 s (--every) one of its processes is
-    /// killed with SIGKILL; <run>/chaos.json reports the faults, the restarts, the time each cost, the stalls, the
-    /// steps published and stored, the duplicates and the early stop. deploy/chaos.sh runs it on the main job.
+    /// killed (SIGKILL) or paused for 5-30 s (SIGSTOP; --faults, --pause); <run>/chaos.json reports the faults, the
+    /// restarts, the time each cost, the stalls, the steps published and stored, the duplicates and the early stop.
+    /// deploy/chaos.sh runs it on the main job.
     Chaos(supervise::ChaosArgs),
 }
 
