@@ -10,7 +10,7 @@
 # one at a time), `cost` (the recipe's wall clock, run alone on one lane), `issue-18` (the reference's protocol
 # against ours; ended), or a TOML file's path.
 # --pin builds the release binaries of REV (default: HEAD; another commit is built in a git worktree beside the
-# repo, sharing target/), copies them (learner, actor, expert-server, cabc) to .deps/campaign-bin/<commit>/, and
+# repo, into the worktree's own target/), copies them (learner, actor, expert-server, cabc) to .deps/campaign-bin/<commit>/, and
 # exits (it starts no lane); every later run of a lane uses them, so that the campaign's runs come from one code
 # whatever is built meanwhile: a later session on a fresh machine re-pins the campaign's commit with --pin f1047ba
 # (the folder used is printed, and named in docs/REPRODUCTION.md by the report). The options below map to the typed command, this checkout's
@@ -99,21 +99,17 @@ if [ "$pin" = 1 ]; then
     [ -d "$src" ] || git worktree add --detach "$src" "$commit" >&2
     ln -sfn "$root/.deps" "$src/.deps"
   fi
-  # target/ is shared, and cargo names a workspace crate's artifacts by its path relative to the workspace, so the
-  # worktree's crates and this checkout's land on the same files, judged fresh by time alone: whichever sources
-  # are older than the other's build would be taken as built (the pinned binaries HEAD's code, or HEAD's build the
-  # pinned commit's). Touching the sources of the side about to build, and afterwards this checkout's, makes each
-  # build compile its own crates (the dependencies stay shared).
-  touch_sources() { git -C "$1" ls-files -z -- '*.rs' '*.toml' | (cd "$1" && xargs -0 touch); }
-  [ "$src" = "$root" ] || touch_sources "$src"
-  (cd "$src" && CARGO_TARGET_DIR="$root/target" cargo build --release --quiet --bins)
-  [ "$src" = "$root" ] || touch_sources "$root"
+  # Another commit builds into its own target/ (inside its worktree): cargo names a workspace crate's artifacts by
+  # its path relative to the workspace, so two checkouts sharing one target/ land on the same files, judged fresh by
+  # time alone, and one checkout's binaries could be the other's code (issue 67's build hazard).
+  target="$src/target"
+  [ "$src" = "$root" ] && target="$root/target"
+  (cd "$src" && CARGO_TARGET_DIR="$target" cargo build --release --quiet --bins)
   dest="$root/.deps/campaign-bin/$commit"
   mkdir -p "$dest"
-  cp "$root/target/release/learner" "$root/target/release/actor" "$root/target/release/expert-server" "$dest/"
-  # cabc (the tools on finished runs) where the commit has it: target/ is shared, so an older commit's build leaves
-  # a later one's there.
-  if git cat-file -e "$commit:cli/Cargo.toml" 2>/dev/null; then cp "$root/target/release/cabc" "$dest/"; fi
+  cp "$target/release/learner" "$target/release/actor" "$target/release/expert-server" "$dest/"
+  # cabc (the tools on finished runs) where the commit has it.
+  if git cat-file -e "$commit:cli/Cargo.toml" 2>/dev/null; then cp "$target/release/cabc" "$dest/"; fi
   echo "$commit" > "$dest/COMMIT"
   ln -sfn "$dest" "$pinned"
   echo "[campaign] pinned the binaries of $commit in $dest" >&2

@@ -5,13 +5,12 @@
 //!   takes every version of its shard in order;
 //! * `ZenohExpert` (in `crate::expert`, which uses the statistics here): batch queries on `expert/<kind>`, two in flight (the actor's halves),
 //!   waiting and retrying while no server answers;
-//! * [`ZenohSegments`] (in `crate::outbox`: each segment held until the learner acknowledges it), [`ZenohEvals`]:
+//! * `ZenohSegments` (in the `outbox` module: each segment held until the learner acknowledges it), [`ZenohEvals`]:
 //!   reliable puts on `traj/<id>` and `eval/<id>`.
 //!
 //! [`WireStats`] adds up the time spent waiting on the expert and the time on the wire, for the actor's metrics.
 
 use crate::interrupt::Interrupt;
-pub use crate::outbox::ZenohSegments;
 pub use crate::vouch::{vouch, Vouch};
 use crate::{decode_sample, Bus};
 use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Stop, TrajMessage};
@@ -191,7 +190,7 @@ pub struct ZenohPolicySource<'a> {
     echo: Option<MarkerEcho>,
 }
 
-/// A collector's last "done with j" marker ([`ZenohSegments::echo`]): when the learner publishes a version again that
+/// A collector's last "done with j" marker ([`crate::outbox::ZenohSegments::echo`]): when the learner publishes a version again that
 /// the actor has already answered, its marker may have been lost (a link cut longer than zenoh's lease drops what
 /// was in flight), so the source sends it again (issue 64); the learner's gate takes a marker twice as once.
 #[derive(Clone)]

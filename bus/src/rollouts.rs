@@ -60,6 +60,14 @@ const QUIET: Duration = Duration::from_secs(10);
 /// are starting) before the live set alone counts; at most the epoch's timeout.
 const JOIN_GRACE: Duration = Duration::from_secs(60);
 
+/// How long a learner that stops the run says so again while actors or evaluators are still alive: one that joined
+/// late may have declared its `control` subscription after the first Stop went out, and would wait for a learner that
+/// is gone (seen: an evaluator over TLS from another network namespace, issue 64).
+const STOP_LINGER: Duration = Duration::from_secs(10);
+
+/// How long an actor or evaluator's own stopping may take before the learner says Stop again.
+const STOP_AGAIN: Duration = Duration::from_millis(500);
+
 /// The publications the policy queryable holds, at most this many bytes (always the latest).
 const HELD_BYTES: usize = 256 << 20;
 
@@ -91,6 +99,9 @@ pub struct ZenohActors {
     evaluators_expected: usize,
     /// The actors an epoch's steps were last dealt over while some were alive.
     last_members: usize,
+    /// The actors alive last while some were: a publication made while none is (a router restarting, a cut) is dealt
+    /// to them, and its round waits for them as they come back.
+    last_live: BTreeSet<String>,
     /// The share of the last publication (a change is logged).
     last_share: Option<u64>,
     /// Whether the learner has said that no evaluator is alive (said once until one is back).
@@ -114,8 +125,9 @@ struct Publication {
     published_unix_ms: u64,
     /// Each actor's steps (`steps_per_actor`).
     share: u64,
-    /// The actors alive when it was published, whom it was dealt to: the round waits for each of them, also when it
-    /// left before the round's gathering began and came back (a router restarting right after the publication).
+    /// The actors alive when it was published (with none alive, those alive last), whom it was dealt to: the round
+    /// waits for each of them, also when it left before the round's gathering began and came back (a router
+    /// restarting right before or after the publication).
     members: BTreeSet<String>,
 }
 
@@ -217,6 +229,7 @@ impl ZenohActors {
             warned_no_evaluator: false,
             last_share: None,
             last_members: 0,
+            last_live: BTreeSet::new(),
             budget,
             epoch_timeout: waits.epoch_timeout,
             no_actor_timeout: waits.no_actor_timeout,
@@ -280,6 +293,10 @@ impl ZenohActors {
                     self.left.insert(actor);
                 }
             }
+        }
+        // Actors that left at once (their tokens' deletions arrive together) stay the last live set.
+        if !self.live.is_empty() {
+            self.last_live = self.live.clone();
         }
     }
 
@@ -357,7 +374,11 @@ impl ZenohActors {
             at: Instant::now(),
             published_unix_ms,
             share,
-            members: self.live.clone(),
+            members: if self.live.is_empty() {
+                self.last_live.clone()
+            } else {
+                self.live.clone()
+            },
         });
         Ok(())
     }
@@ -379,6 +400,10 @@ impl ZenohActors {
         )
         .expecting(expecting, JOIN_GRACE.min(self.epoch_timeout))
         .answering(round.published_unix_ms);
+        // Members not alive now (they left before the publication, or since it) are lost until they come back.
+        for member in round.members.iter().filter(|m| !self.live.contains(*m)) {
+            gate.gone(member, Instant::now());
+        }
         // Who left or joined since the publication (the learner trained meanwhile under `collection.overlap`).
         self.follow_liveliness(Some(&mut gate));
         let mut last_wait_log = Instant::now();
@@ -609,9 +634,27 @@ impl Rollouts for ZenohActors {
         let stop = cabc_proto::messages::Stop {
             reason: reason.to_string(),
         };
-        self.bus
-            .put_blocking(&self.bus.keys.control(), &stop)
-            .map_err(transport)
+        let until = Instant::now() + STOP_LINGER;
+        loop {
+            self.bus
+                .put_blocking(&self.bus.keys.control(), &stop)
+                .map_err(transport)?;
+            std::thread::sleep(STOP_AGAIN);
+            self.follow_liveliness(None);
+            // Epoch 0: the evaluators are followed, not warned about.
+            self.follow_evaluators(0);
+            let heard = self.live.is_empty() && self.evaluators.is_empty();
+            if heard || self.interrupt.is_set() || Instant::now() >= until {
+                if !heard {
+                    tracing::warn!(
+                        actors = ?self.live,
+                        evaluators = ?self.evaluators,
+                        "stopped the run; these were still alive when the learner stopped saying so"
+                    );
+                }
+                return Ok(());
+            }
+        }
     }
 
     fn rejected(&self) -> u64 {

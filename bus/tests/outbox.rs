@@ -3,7 +3,8 @@
 //! receipts (`cabc_bus::receipts`) empty the outbox with nothing published twice.
 
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::ports::{SharedStats, ZenohSegments};
+use cabc_bus::outbox::ZenohSegments;
+use cabc_bus::ports::SharedStats;
 use cabc_bus::receipts::{acknowledge, Receipts};
 use cabc_bus::{decode_sample, Bus, Role};
 use cabc_proto::config::BusSection;

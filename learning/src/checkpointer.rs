@@ -1,10 +1,11 @@
 //! The port the learner keeps its checkpoint through ([`Checkpointer`]), as it writes its outputs through a
 //! [`crate::sink::Sink`] (Acme injects both): save a checkpoint's parts, load the latest. The run folder's is
-//! [`crate::checkpoint::InFolder`] (`checkpoint/`, written atomically, and D+'s image log beside it); [`InMemory`]
+//! [`InFolder`] (`checkpoint/`, written atomically, and D+'s image log beside it); [`InMemory`]
 //! keeps them in memory, for tests.
 
-use crate::checkpoint::{CheckpointError, Parts};
-use crate::replay::Replay;
+use crate::checkpoint::{Checkpoint, CheckpointError, CheckpointWriter, Parts};
+use crate::replay::{ImageLog, Replay};
+use crate::state::CHECKPOINT;
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -87,6 +88,75 @@ impl Checkpointer for InMemory {
             })?;
         let files = files.into_iter().collect();
         *self.0.borrow_mut() = Some(Kept { files, replay });
+        Ok(())
+    }
+}
+
+/// The replay's part of a checkpoint.
+const REPLAY: &str = "replay.bin";
+
+/// The learner's checkpoint in a run folder: `folder/checkpoint` (written atomically, [`CheckpointWriter`]; read
+/// back from `checkpoint.old/` after a crash between its renames, [`Checkpoint::open`]) with the replay as
+/// `replay.bin`, and D+'s images in `folder/replay-images-<generation>.log` ([`ImageLog`]), appended to at each
+/// checkpoint.
+pub struct InFolder {
+    folder: PathBuf,
+    /// The image log open for appending: the one the loaded checkpoint names, or the one the first images made.
+    image_log: Option<ImageLog>,
+}
+
+impl InFolder {
+    /// The checkpoint of the run folder `folder`.
+    pub fn new(folder: PathBuf) -> Self {
+        InFolder {
+            folder,
+            image_log: None,
+        }
+    }
+}
+
+impl std::fmt::Display for InFolder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.folder.display())
+    }
+}
+
+impl Checkpointer for InFolder {
+    fn exists(&self) -> bool {
+        Checkpoint::exists(&self.folder.join(CHECKPOINT))
+    }
+
+    fn load(&mut self) -> Result<(Box<dyn Parts>, Replay), CheckpointError> {
+        let checkpoint = Checkpoint::open(&self.folder.join(CHECKPOINT))?;
+        let bytes = checkpoint.read(REPLAY)?;
+        let (replay, log) = Replay::from_checkpoint(&bytes, &self.folder).map_err(|source| {
+            CheckpointError::Replay {
+                doing: "loading",
+                source,
+            }
+        })?;
+        self.image_log = log;
+        Ok((Box::new(checkpoint), replay))
+    }
+
+    /// D+'s images go to the image log first (only those new since the last checkpoint); a generation the
+    /// committed checkpoint no longer names is removed after the commit.
+    fn save(&mut self, files: Files, replay: &mut Replay) -> Result<(), CheckpointError> {
+        let bytes = replay
+            .checkpoint_bytes(&self.folder, &mut self.image_log)
+            .map_err(|source| CheckpointError::Replay {
+                doing: "saving",
+                source,
+            })?;
+        CheckpointWriter::new(self.folder.join(CHECKPOINT))
+            .files(files)
+            .file(REPLAY, bytes)
+            .commit()?;
+        if let Some(log) = &self.image_log {
+            if let Err(e) = log.prune() {
+                tracing::warn!("removing an old image log: {e}");
+            }
+        }
         Ok(())
     }
 }

@@ -6,8 +6,8 @@
 //! the actors' port, the access control's refusals, is given to it too ([`AclDenials`]).
 
 use crate::autolabel::{autolabel_replay, AutolabelOptions};
-use crate::checkpoint::{CheckpointError, InFolder};
-use crate::checkpointer::Checkpointer;
+use crate::checkpoint::CheckpointError;
+use crate::checkpointer::{Checkpointer, InFolder};
 use crate::evaluations::Evaluations;
 use crate::ledger::Ledger;
 use crate::provenance::Provenance;

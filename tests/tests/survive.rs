@@ -297,10 +297,11 @@ fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
     let summary = cluster.summary("learner");
     let healed = cut.elapsed();
     assert_eq!(summary["epochs"], 10, "{summary:#}");
-    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    // A receipt lost with the link may bring a segment twice (at least once on the wire); the ledger stores it once.
+    let duplicates = &summary["duplicate_segments"];
     let (stored, published) = cluster.assert_nothing_lost(256);
     cluster.assert_each_step_stored_once();
-    println!("survive: a {secs} s cut; the run ended {healed:?} after it began; stored {stored:?}, published {published:?}");
+    println!("survive: a {secs} s cut; the run ended {healed:?} after it began; stored {stored:?}, published {published:?}, {duplicates} segments came twice");
     drop(cluster);
     drop(pair);
 }
@@ -337,8 +338,9 @@ fn a_restarted_router_costs_its_time_and_no_step() {
         .unwrap();
     let summary = cluster.summary("learner");
     assert_eq!(summary["epochs"], 10, "{summary:#}");
-    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    // A receipt lost with the link may bring a segment twice (at least once on the wire); the ledger stores it once.
+    let duplicates = &summary["duplicate_segments"];
     let (stored, published) = cluster.assert_nothing_lost(256);
     cluster.assert_each_step_stored_once();
-    println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}");
+    println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}, {duplicates} segments came twice");
 }
