@@ -2,7 +2,7 @@
 # README command 1: a local multi-process training run on loopback.
 #
 #   deploy/run-local.sh [--baseline] [--resume|--fresh] [--verbose] [--set KEY=VALUE ...] [PRESET|CONFIG.toml]
-#                       [--chaos SEED [--chaos-every MIN-MAX]] [-- extra learner args]
+#                       [--router] [--chaos SEED [--chaos-every MIN-MAX]] [-- extra learner args]
 #
 # Set-up if needed, release build, then the learner (the embedded zenoh endpoint), one expert server (none under
 # expert.placement = "in-actor"), N actors and an eval actor as separate processes, under the run's supervisor
@@ -20,8 +20,10 @@
 # on a terminal (a pipe, CI): the full lines, as the log.
 # A run folder that holds a checkpoint is continued with --resume or started over with --fresh.
 # --set changes one configuration value (e.g. --set run.seed=3 --set run.name=v-b-s3); repeatable.
-# --chaos SEED runs it under `cabc chaos`: a process killed or paused every 10-30 s (--chaos-every), drawn from SEED, and the
-# report in runs/<run>/chaos.json (deploy/chaos.sh).
+# --router puts a standalone router (zenohd, deploy/SCALE-OUT.md §2) under the supervisor too, on bus.connect: every
+# process dials it, the learner too (bus.listen = []), and it is restarted when it dies like the others.
+# --chaos SEED runs it under `cabc chaos`: a process killed or paused every 10-30 s (--chaos-every), drawn from SEED,
+# and the report in runs/<run>/chaos.json (deploy/chaos.sh); with --router the router is struck too.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -30,6 +32,7 @@ config=""
 chaos=()
 chaos_every=()
 baseline=0
+router=0
 verbose=0
 learner_args=()
 sets=()
@@ -42,7 +45,8 @@ while [ $# -gt 0 ]; do
     --chaos) [ $# -ge 2 ] || { echo "--chaos needs a seed" >&2; exit 2; }; chaos=(--seed "$2"); shift ;;
     --chaos-every) [ $# -ge 2 ] || { echo "--chaos-every needs MIN-MAX" >&2; exit 2; }; chaos_every=(--every "$2"); shift ;;
     --set) [ $# -ge 2 ] || { echo "--set needs KEY=VALUE" >&2; exit 2; }; sets+=(--set "$2"); shift ;;
-    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
+    --router) router=1 ;;
+    -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
     --) shift; learner_args+=("$@"); break ;;
     -*) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
     *) config=$1 ;;
@@ -59,12 +63,16 @@ else
   cargo build --release --quiet --bins
   bin="$root/target/release"
 fi
-for b in learner actor expert-server cabc; do
+programs=(learner actor expert-server cabc)
+[ "$router" = 1 ] && programs+=(zenohd)
+for b in "${programs[@]}"; do
   [ -x "$bin/$b" ] || { echo "[run-local] error: $bin/$b was not built" >&2; exit 1; }
 done
 
 extra=()
 [ "$baseline" = 1 ] && extra+=(--baseline)
+# Under a supervised router the learner dials it as the others do.
+[ "$router" = 1 ] && sets+=(--set 'bus.listen=[]')
 # The learner resolves the configuration (preset or file), writes it into the run folder and prints the folder.
 run_dir=$("$bin/learner" prepare ${config:+--config "$config"} "${extra[@]}" "${sets[@]}")
 cfg="$run_dir/config.toml"
@@ -83,6 +91,7 @@ echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s)
 # its log. One Ctrl-C stops them all; the run ends when the learner does, with its exit status.
 supervise=()
 [ "$verbose" = 1 ] && supervise+=(--verbose)
+[ "$router" = 1 ] && supervise+=(--roles router,learner,expert,actor,evaluator)
 if [ ${#chaos[@]} -gt 0 ]; then
   # deploy/chaos.sh: the same run under a seeded schedule of faults, reported in $run_dir/chaos.json.
   exec "$bin/cabc" chaos "${chaos[@]}" "${chaos_every[@]}" --config "$cfg" --run-dir "$run_dir" --bin "$bin" \

@@ -21,7 +21,9 @@ pub struct Args {
     /// The folder of the binaries (learner, actor, expert-server).
     #[arg(long)]
     bin: PathBuf,
-    /// The roles run here, comma-separated: learner, expert, actor, evaluator (default: all four).
+    /// The roles run here, comma-separated: learner, expert, actor, evaluator (default: all four), and router: a
+    /// standalone zenohd on bus.connect that every process dials, the learner too (bus.listen = []), restarted when
+    /// it dies like the others (deploy/run-local.sh --router).
     #[arg(long, value_delimiter = ',')]
     roles: Vec<Role>,
     /// Collecting actors started here (default: actors.count).
@@ -102,7 +104,7 @@ pub struct ChaosArgs {
     /// Seconds between two faults, drawn uniformly in MIN-MAX.
     #[arg(long, default_value = "10-30")]
     every: String,
-    /// The roles whose processes may be struck, comma-separated (default: learner, expert, actor, evaluator).
+    /// The roles whose processes may be struck, comma-separated (default: those run, --roles).
     #[arg(long, value_delimiter = ',')]
     kill: Vec<Role>,
     /// The kinds of fault drawn from, comma-separated: kill (SIGKILL; the supervisor restarts the process), pause
@@ -151,10 +153,12 @@ pub fn chaos(args: &ChaosArgs) -> Result<i32> {
     let chaos = Chaos {
         seed: args.seed,
         gap_s: (lo, hi),
-        roles: if args.kill.is_empty() {
-            Role::ALL.to_vec()
-        } else {
+        roles: if !args.kill.is_empty() {
             args.kill.clone()
+        } else if !run.roles.is_empty() {
+            run.roles.clone()
+        } else {
+            Role::ALL.to_vec()
         },
         kinds: args.faults.clone(),
         pause_s,

@@ -5,18 +5,20 @@
 # Beside them, the undisturbed main job on the same seeds: docs/reproduction/v-b-robust-judged-s1..3 (recorded with
 # deploy/run-local.sh; early stops at 57, 34, 43), or `--calm` to run them again here as calm-v-b-s<k>.
 #
-#   docs/chaos/run.sh [--calm] [--prefix P] [SEED ...]      (CABC_BIN=DIR: prebuilt binaries)
+#   docs/chaos/run.sh [--calm] [--router] [--prefix P] [SEED ...]      (CABC_BIN=DIR: prebuilt binaries)
 #
+# --router runs the job with its standalone router under the supervisor (deploy/run-local.sh --router), struck too.
 # --prefix names the runs P-v-b-s<k> (default chaos; the measure of kills alone, before the outbox and the pauses,
 # is chaos-v-b-s1..3; the one of kills and pauses with the outbox, chaos-pause-v-b-s<k>).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$root"
 calm=0
+router=()
 prefix=chaos
 seeds=()
 while [ $# -gt 0 ]; do
-  case "$1" in --calm) calm=1 ;; --prefix) prefix=$2; shift ;; *) seeds+=("$1") ;; esac
+  case "$1" in --calm) calm=1 ;; --router) router=(--router) ;; --prefix) prefix=$2; shift ;; *) seeds+=("$1") ;; esac
   shift
 done
 [ ${#seeds[@]} -gt 0 ] || seeds=(1 2 3)
@@ -26,10 +28,10 @@ for k in "${seeds[@]}"; do
   common=(--set "run.seed=$((41 + k))" --set "bus.listen=$endpoint" --set "bus.connect=$endpoint")
   if [ "$calm" = 1 ]; then
     name=calm-v-b-s$k
-    deploy/run-local.sh --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
+    deploy/run-local.sh "${router[@]}" --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
   else
     name=$prefix-v-b-s$k
-    deploy/chaos.sh --seed "$k" --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
+    deploy/chaos.sh --seed "$k" "${router[@]}" --fresh "${common[@]}" --set "run.name=$name" > "runs/$name.out" 2>&1 || true
   fi
   mkdir -p "docs/chaos/$name"
   for f in chaos.json summary.json supervision.json metrics.csv evals.csv config.toml; do

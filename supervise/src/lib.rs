@@ -50,8 +50,10 @@ pub enum SuperviseError {
          'bus.listen=[\"tcp/127.0.0.1:PORT\"]' --set 'bus.connect=[\"tcp/127.0.0.1:PORT\"]'"
     )]
     PortInUse { endpoint: String },
-    #[error("the learner ended ({how}) before its bus opened; see {log}", log = .log.display())]
-    LearnerDidNotStart {
+    #[error("{name} ended ({how}) before its bus opened; see {log}", log = .log.display())]
+    DidNotStart {
+        /// The learner, or the supervised router.
+        name: String,
         how: String,
         code: Option<i32>,
         log: PathBuf,
@@ -78,6 +80,8 @@ pub enum SuperviseError {
         program: PathBuf,
         source: std::io::Error,
     },
+    #[error("the run's router: {0}")]
+    Router(String),
     #[error("{what}: {source}")]
     Io {
         what: String,
@@ -89,7 +93,7 @@ impl SuperviseError {
     /// The exit status a command should end with: the learner's own where it ended the run, else 1.
     pub fn exit_code(&self) -> i32 {
         match self {
-            SuperviseError::LearnerDidNotStart { code: Some(c), .. } if *c != 0 => *c,
+            SuperviseError::DidNotStart { code: Some(c), .. } if *c != 0 => *c,
             SuperviseError::NoActors { .. } => EXIT_NO_ACTORS,
             _ => 1,
         }
@@ -156,6 +160,8 @@ pub struct Supervisor {
     policy: SupervisionSection,
     /// Where the learner's bus accepts connections (empty: no TCP endpoint, or no learner here).
     listen: Vec<(String, u16)>,
+    /// The supervised router's endpoints, when it runs here (or why it cannot).
+    router: Option<Result<Vec<String>, String>>,
     /// The learner draws its progress bar on this terminal (and writes its own log file).
     brief: bool,
     procs: Vec<Managed>,
@@ -172,6 +178,10 @@ impl Supervisor {
         } else {
             Vec::new()
         };
+        let router = roster
+            .roles
+            .contains(&Role::Router)
+            .then(|| roster::router_endpoints(config, &roster.connect));
         let procs = specs
             .into_iter()
             .map(|spec| Managed {
@@ -187,6 +197,7 @@ impl Supervisor {
             roster,
             policy: config.supervision.clone(),
             listen,
+            router,
             brief,
             procs,
             status: Status::new(),
@@ -201,8 +212,13 @@ impl Supervisor {
     /// Starts the run's processes and supervises them until the run ends.
     pub fn run(&mut self) -> Result<Ended, SuperviseError> {
         catch_signals();
+        let router = match &self.router {
+            Some(Ok(endpoints)) => roster::listen_addresses(endpoints),
+            Some(Err(why)) => return Err(SuperviseError::Router(why.clone())),
+            None => Vec::new(),
+        };
         // A bus endpoint another run holds: refused before anything starts (this run's actors would join that bus).
-        if let Some((host, port)) = self.listen.iter().find(|a| accepting(a)) {
+        if let Some((host, port)) = self.listen.iter().chain(&router).find(|a| accepting(a)) {
             return Err(SuperviseError::PortInUse {
                 endpoint: format!("{host}:{port}"),
             });
@@ -224,9 +240,18 @@ impl Supervisor {
                 },
             );
         }
+        if let Some(Ok(endpoints)) = &self.router {
+            let file = self.roster.run_dir.join(roster::ROUTER_CONFIG);
+            std::fs::write(&file, roster::router_config(endpoints)).map_err(|source| {
+                SuperviseError::Io {
+                    what: format!("writing {}", file.display()),
+                    source,
+                }
+            })?;
+        }
         self.write_status()?;
         let started = Instant::now();
-        let result = self.start_and_watch(started);
+        let result = self.start_and_watch(started, &router);
         self.stop_all(Duration::ZERO);
         for entry in self.status.processes.values_mut() {
             entry.pid = None;
@@ -238,16 +263,24 @@ impl Supervisor {
         result
     }
 
-    fn start_and_watch(&mut self, started: Instant) -> Result<Ended, SuperviseError> {
-        let learner = self.procs.iter().position(|p| p.spec.role == Role::Learner);
-        if let Some(i) = learner {
+    /// Starts the router (when it runs here) and waits for it to accept on `router`, then the learner and waits for
+    /// its bus, then the others; watches them until the run ends.
+    fn start_and_watch(
+        &mut self,
+        started: Instant,
+        router: &[(String, u16)],
+    ) -> Result<Ended, SuperviseError> {
+        let position = |role| self.procs.iter().position(|p| p.spec.role == role);
+        let (first, learner) = (position(Role::Router), position(Role::Learner));
+        for (i, addresses) in [(first, router.to_vec()), (learner, self.listen.clone())] {
+            let Some(i) = i else { continue };
             self.start(i, false)?;
-            if !self.wait_for_bus(i)? {
+            if !self.wait_for_bus(i, &addresses)? {
                 return Ok(Ended::Interrupted);
             }
         }
         for i in 0..self.procs.len() {
-            if Some(i) != learner {
+            if Some(i) != learner && Some(i) != first {
                 self.start(i, false)?;
             }
         }
@@ -389,10 +422,14 @@ impl Supervisor {
         self.write_status()
     }
 
-    /// Waits until the learner's bus accepts connections (up to [`BUS_WAIT`]; at once without a TCP endpoint). False
-    /// on an interrupt; an error when the learner ends first.
-    fn wait_for_bus(&mut self, learner: usize) -> Result<bool, SuperviseError> {
-        if self.listen.is_empty() {
+    /// Waits until process `i` (the router, the learner) accepts connections on `addresses` (up to [`BUS_WAIT`]; a
+    /// second without a TCP endpoint). False on an interrupt; an error when the process ends first.
+    fn wait_for_bus(
+        &mut self,
+        i: usize,
+        addresses: &[(String, u16)],
+    ) -> Result<bool, SuperviseError> {
+        if addresses.is_empty() {
             std::thread::sleep(Duration::from_secs(1));
             return Ok(true);
         }
@@ -401,16 +438,17 @@ impl Supervisor {
             if interrupted() {
                 return Ok(false);
             }
-            let p = &mut self.procs[learner];
+            let p = &mut self.procs[i];
             if let Some(Ok(Some(status))) = p.child.as_mut().map(Child::try_wait) {
                 p.child = None;
-                return Err(SuperviseError::LearnerDidNotStart {
+                return Err(SuperviseError::DidNotStart {
+                    name: p.spec.name.clone(),
                     how: describe(status),
                     code: status.code(),
                     log: p.spec.log.clone(),
                 });
             }
-            if self.listen.iter().all(accepting) {
+            if addresses.iter().all(accepting) {
                 return Ok(true);
             }
             std::thread::sleep(POLL);

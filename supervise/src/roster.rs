@@ -1,6 +1,7 @@
 //! Which processes a supervisor runs, from the run configuration and the command line: the learner (`learner run`),
 //! the expert server (`expert-server serve`, none under `expert.placement = "in-actor"`), the collecting actors and
-//! the evaluators (`actor`, `actor --eval`), each with its log under `<run>/logs/`.
+//! the evaluators (`actor`, `actor --eval`), each with its log under `<run>/logs/`; and, when asked for
+//! (`--roles router,...`), a standalone router (`zenohd`, deploy/SCALE-OUT.md §2) that every other process dials.
 
 use cabc_proto::config::{ExpertPlacement, RunConfig};
 use std::fmt;
@@ -9,6 +10,9 @@ use std::path::{Path, PathBuf};
 /// A process's role in the run: what its restarts are counted under.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Role {
+    /// A standalone zenoh router (`zenohd`) on the run's `bus.connect` endpoints: not one of [`Role::ALL`], it runs
+    /// where `--roles` names it.
+    Router,
     Learner,
     Expert,
     Actor,
@@ -16,11 +20,13 @@ pub enum Role {
 }
 
 impl Role {
+    /// The roles of every run (the default of `--roles`).
     pub const ALL: [Role; 4] = [Role::Learner, Role::Expert, Role::Actor, Role::Evaluator];
 
     /// The name in `supervision.json`, `metrics.csv` (`restarts_<role>`) and `--roles`.
     pub fn as_str(self) -> &'static str {
         match self {
+            Role::Router => "router",
             Role::Learner => "learner",
             Role::Expert => "expert",
             Role::Actor => "actor",
@@ -38,13 +44,15 @@ impl fmt::Display for Role {
 impl std::str::FromStr for Role {
     type Err = String;
 
-    /// `learner`, `expert`, `actor` or `evaluator` (plurals too: `actors`, `evaluators`).
+    /// `router`, `learner`, `expert`, `actor` or `evaluator` (plurals too: `actors`, `evaluators`).
     fn from_str(s: &str) -> Result<Self, String> {
         let singular = s.strip_suffix('s').unwrap_or(s);
-        Role::ALL
-            .into_iter()
+        std::iter::once(Role::Router)
+            .chain(Role::ALL)
             .find(|r| r.as_str() == singular)
-            .ok_or_else(|| format!("a role is learner, expert, actor or evaluator, not `{s}`"))
+            .ok_or_else(|| {
+                format!("a role is router, learner, expert, actor or evaluator, not `{s}`")
+            })
     }
 }
 
@@ -104,7 +112,7 @@ pub struct Roster {
 }
 
 impl Roster {
-    /// The processes, in the order they start: the learner, the expert server, the actors, the evaluators.
+    /// The processes, in the order they start: the router, the learner, the expert server, the actors, the evaluators.
     pub fn specs(&self, config: &RunConfig) -> Vec<Spec> {
         let logs = self.run_dir.join("logs");
         let config_file = self.config_file.display().to_string();
@@ -122,6 +130,15 @@ impl Roster {
         };
         let runs = |role| self.roles.contains(&role);
         let mut specs = Vec::new();
+        if runs(Role::Router) {
+            let file = self.run_dir.join(ROUTER_CONFIG).display().to_string();
+            specs.push(spec(
+                "router".into(),
+                Role::Router,
+                "zenohd",
+                vec!["-c".into(), file],
+            ));
+        }
         if runs(Role::Learner) {
             let mut args = vec![
                 "run".to_string(),
@@ -185,6 +202,49 @@ impl Roster {
         }
         specs
     }
+}
+
+/// The supervised router's configuration file, in the run folder ([`router_config`]).
+pub const ROUTER_CONFIG: &str = "router.json5";
+
+/// The endpoints a supervised router listens on: the run's `bus.connect`, which every other process dials; the
+/// learner then dials them too, so `bus.listen` must be empty, and the router has no access control, so the bus must
+/// be plain (a secured run's router is deploy/SCALE-OUT.md §2's, with its ACL).
+pub fn router_endpoints(config: &RunConfig, connect: &[String]) -> Result<Vec<String>, String> {
+    use cabc_proto::config::SecurityMode;
+    if !config.bus.listen.is_empty() {
+        return Err(format!(
+            "a supervised router listens for the run, so the learner must not: bus.listen is {:?} (--set \
+             'bus.listen=[]'; deploy/run-local.sh --router does)",
+            config.bus.listen
+        ));
+    }
+    if config.bus.security.mode != SecurityMode::None {
+        return Err(
+            "a supervised router has no access control: a secured run's router is deploy/SCALE-OUT.md §2's zenohd \
+             with its ACL"
+                .into(),
+        );
+    }
+    let endpoints = if connect.is_empty() {
+        config.bus.connect.clone()
+    } else {
+        connect.to_vec()
+    };
+    if endpoints.is_empty() {
+        return Err("a supervised router listens on bus.connect, which is empty".into());
+    }
+    Ok(endpoints)
+}
+
+/// A standalone router's configuration (zenohd's JSON5) listening on `endpoints`, without multicast scouting (the
+/// run's processes dial it).
+pub fn router_config(endpoints: &[String]) -> String {
+    let quoted: Vec<String> = endpoints.iter().map(|e| format!("{e:?}")).collect();
+    format!(
+        "{{ mode: \"router\", listen: {{ endpoints: [{}] }}, scouting: {{ multicast: {{ enabled: false }} }} }}\n",
+        quoted.join(", ")
+    )
 }
 
 /// The (host, port) of each TCP or TLS endpoint of `bus.listen` (`tcp/HOST:PORT`, `tls/[V6]:PORT#iface=..`), with
@@ -288,7 +348,40 @@ mod tests {
     fn roles_are_read_in_both_numbers() {
         assert_eq!("actors".parse::<Role>(), Ok(Role::Actor));
         assert_eq!("evaluator".parse::<Role>(), Ok(Role::Evaluator));
-        assert!("router".parse::<Role>().is_err());
+        assert_eq!("router".parse::<Role>(), Ok(Role::Router));
+        assert!("zenohd".parse::<Role>().is_err());
+    }
+
+    #[test]
+    fn a_supervised_router_starts_first_on_bus_connect_and_only_for_a_plain_bus() {
+        let mut config = RunConfig::default();
+        config.bus.connect = vec!["tcp/127.0.0.1:7500".into()];
+        let mut roles = vec![Role::Router];
+        roles.extend(Role::ALL);
+        let specs = roster(roles).specs(&config);
+        assert_eq!(specs[0].name, "router");
+        assert_eq!(specs[0].program, PathBuf::from("/b/zenohd"));
+        assert_eq!(specs[0].args, ["-c", "/r/router.json5"]);
+        assert_eq!(specs[1].name, "learner");
+        // The learner listens by default: it would hold the router's port.
+        assert!(router_endpoints(&config, &[])
+            .unwrap_err()
+            .contains("bus.listen"));
+        config.bus.listen.clear();
+        let endpoints = router_endpoints(&config, &[]).unwrap();
+        assert_eq!(endpoints, ["tcp/127.0.0.1:7500"]);
+        assert_eq!(
+            router_config(&endpoints),
+            "{ mode: \"router\", listen: { endpoints: [\"tcp/127.0.0.1:7500\"] }, scouting: { multicast: { \
+             enabled: false } } }\n"
+        );
+        // --connect wins over bus.connect, as for the other processes.
+        let other = ["tcp/10.0.0.1:7447".to_string()];
+        assert_eq!(router_endpoints(&config, &other).unwrap(), other);
+        config.bus.security.mode = cabc_proto::config::SecurityMode::Mtls;
+        assert!(router_endpoints(&config, &[])
+            .unwrap_err()
+            .contains("access control"));
     }
 
     #[test]

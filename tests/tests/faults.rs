@@ -54,14 +54,18 @@ fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
     let metrics = cluster.dir.join("metrics.csv");
     let stored = csv_column(&metrics, "steps_collected");
     let published = csv_column(&metrics, "steps_published");
-    // The epoch in flight at the kill may hold the killed actor's partial segments without its marker; every other
-    // epoch stores exactly what the actors published, the restarted actor's share included.
+    // The epoch in flight at the kill may hold the killed actor's partial segments without its marker, and the next
+    // one the restarted actor's first segments (it joined after that epoch was dealt, so the epoch did not wait for
+    // its marker); every other epoch stores exactly what the actors published, the restarted actor's share included.
     let unequal: Vec<usize> = (0..8).filter(|&e| stored[e] != published[e]).collect();
     assert!(
         stored.iter().zip(&published).all(|(s, p)| s >= p),
         "{stored:?} vs {published:?}"
     );
-    assert!(unequal.len() <= 1, "{stored:?} vs {published:?}");
+    assert!(
+        unequal.len() <= 1 || (unequal.len() == 2 && unequal[1] == unequal[0] + 1),
+        "{stored:?} vs {published:?}"
+    );
     assert_eq!(
         &csv_column(&metrics, "steps_taken")[6..],
         &[256, 256],

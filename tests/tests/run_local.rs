@@ -157,7 +157,7 @@ fn run_local_stops_when_the_learner_ends_before_its_bus_opens() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.contains("the learner ended (exit 2) before its bus opened"),
+        stderr.contains("learner ended (exit 2) before its bus opened"),
         "{stderr}"
     );
     let logs = tmp.path().join("refused").join("logs");

@@ -20,6 +20,11 @@ use std::time::{Duration, Instant};
 
 /// Starts `cabc supervise` for the cluster's run as the child `supervise` (its stderr in `<run>/supervise.log`).
 fn supervise(cluster: &mut Cluster, bin: &Path) {
+    supervise_roles(cluster, bin, &[]);
+}
+
+/// [`supervise`] with `--roles` (none: the default's four).
+fn supervise_roles(cluster: &mut Cluster, bin: &Path, roles: &[&str]) {
     let config = cluster.config.display().to_string();
     let run_dir = cluster.dir.display().to_string();
     let bin = bin.display().to_string();
@@ -32,6 +37,11 @@ fn supervise(cluster: &mut Cluster, bin: &Path) {
         "--bin",
         &bin,
     ];
+    let roles = roles.join(",");
+    let mut args = args.to_vec();
+    if !roles.is_empty() {
+        args.extend(["--roles", &roles]);
+    }
     cluster.start("supervise", "cabc", &args).unwrap();
 }
 
@@ -343,4 +353,40 @@ fn a_restarted_router_costs_its_time_and_no_step() {
     let (stored, published) = cluster.assert_nothing_lost(256);
     cluster.assert_each_step_stored_once();
     println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}, {duplicates} segments came twice");
+}
+
+/// `cabc supervise --roles router,...` (deploy/run-local.sh --router): the standalone router is the supervisor's too,
+/// started first; killed mid-run it is started again on the same endpoint, every process finds it again, and the run
+/// goes on with every epoch's whole budget and every step published stored once.
+#[test]
+fn a_supervised_router_killed_is_started_again_and_costs_no_step() {
+    let tmp = cabc_tests::test_dir();
+    let endpoint = format!("tcp/127.0.0.1:{}", cabc_tests::free_port());
+    let extra = "[supervision]\nbackoff_s = 0.2\n";
+    let mut cluster =
+        Cluster::on(tmp.path(), "supervised-router", 10, "", &endpoint, extra).unwrap();
+    let roles = ["router", "learner", "expert", "actor", "evaluator"];
+    supervise_roles(&mut cluster, &bin_dir(), &roles);
+    let run = cluster.dir.clone();
+    cluster.wait_for_epochs(3, "supervise");
+    kill_supervised(&run, "router");
+    let (status, _) = cluster
+        .wait("supervise", Duration::from_secs(300))
+        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail("supervise")));
+    assert!(status.success(), "{}", cluster.log_tail("supervise"));
+    let stderr = std::fs::read_to_string(run.join("supervise.log")).unwrap();
+    assert!(
+        stderr.contains("warning: router died (signal 9 (SIGKILL))"),
+        "{stderr}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    assert_eq!(summary["restarts"]["router"], 1, "{summary:#}");
+    for role in ["learner", "expert", "actor", "evaluator"] {
+        assert_eq!(summary["restarts"][role], 0, "{summary:#}");
+    }
+    let (stored, published) = cluster.assert_nothing_lost(256);
+    cluster.assert_each_step_stored_once();
+    println!("survive: the supervised router killed after epoch 3; stored {stored:?}, published {published:?}");
 }
