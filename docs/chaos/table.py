@@ -38,10 +38,20 @@ def fmt(costs):
     return f"{statistics.median(costs):.1f} [{min(costs):.1f}–{max(costs):.1f}] ({len(costs)})"
 
 
-print("| run | faults (learner / actor / evaluator) | wall clock | stalls | steps published / stored | epochs short "
-      "| duplicates | early stop (undisturbed) | cost of a learner kill, s | of an actor kill, s | of an evaluator kill, s |")
-print("|---|---|---|---|---|---|---|---|---|---|---|")
-for report_path in sorted(here.glob("chaos-v-b-s*/chaos.json")):
+ROLES = ["router", "learner", "expert", "actor", "evaluator"]
+
+
+def kinds(faults):
+    kills = sum(f.get("kind", "kill") == "kill" for f in faults)
+    return f"{kills} kills, {len(faults) - kills} pauses"
+
+
+reports = sorted(here.glob("*-v-b-s*/chaos.json"))
+print("| run | faults (router / learner / expert / actor / evaluator) | kinds | wall clock | stalls "
+      "| steps published / stored | epochs short | duplicates | early stop (undisturbed) "
+      + "".join(f"| cost of a fault: {role}, s " for role in ROLES) + "|")
+print("|---|---|---|---|---|---|---|---|---|" + "---|" * len(ROLES))
+for report_path in reports:
     r = json.loads(report_path.read_text())
     k = int(report_path.parent.name.rsplit("-s", 1)[1])
     undisturbed, where = calm(k)
@@ -50,12 +60,12 @@ for report_path in sorted(here.glob("chaos-v-b-s*/chaos.json")):
     base = undisturbed.get("early_stop_version") if undisturbed else None
     rel = f" ({base}: {100 * (stop - base) / base:+.0f} %)" if stop is not None and base else f" ({base})"
     print(
-        f"| {report_path.parent.name} | {len(r['faults'])} ({by.get('learner', 0)} / {by.get('actor', 0)} / "
-        f"{by.get('evaluator', 0)}) | {r['wall_s'] / 60:.1f} min | {r['stalls']} | "
+        f"| {report_path.parent.name} | {len(r['faults'])} ("
+        + " / ".join(str(by.get(role, 0)) for role in ROLES)
+        + f") | {kinds(r['faults'])} | {r['wall_s'] / 60:.1f} min | {r['stalls']} | "
         f"{r['steps_published']} / {r['steps_stored']} | {r['epochs_short']} | {r['duplicate_segments']} | "
-        f"{stop}{rel} | {fmt(cost(r['faults'], 'learner'))} | {fmt(cost(r['faults'], 'actor'))} | "
-        f"{fmt(cost(r['faults'], 'evaluator'))} |"
+        f"{stop}{rel} | " + " | ".join(fmt(cost(r["faults"], role)) for role in ROLES) + " |"
     )
 print()
 print("Median epoch interval without a fault (s): " + ", ".join(
-    f"{p.parent.name} {json.loads(p.read_text())['median_epoch_s']:.1f}" for p in sorted(here.glob("chaos-v-b-s*/chaos.json"))))
+    f"{p.parent.name} {json.loads(p.read_text())['median_epoch_s']:.1f}" for p in reports))

@@ -1,8 +1,8 @@
 //! `cabc robust`'s study on the PID lane follower as the driver (the same observations a policy gets): a seed gives
 //! one report, noise makes the PID crash more often, and bad options are refused with the flag named.
 
-use cabc_bench::robust::{study, RobustError, RobustOptions, RobustReport, SpawnRanges};
 use cabc_proto::config::RunConfig;
+use cabc_robust::{study, RobustError, RobustOptions, RobustReport, SpawnRanges};
 use cabc_sim::pid::PidLaneFollower;
 use clap::Parser;
 

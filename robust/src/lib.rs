@@ -1,4 +1,7 @@
-//! `cabc robust`: a policy's robustness, beyond the fixed spawn of its evaluation (issue 45 item 3).
+//! cabc-robust, `cabc robust`: a policy's robustness, beyond the fixed spawn of its evaluation (issue 45 item 3). Its
+//! own crate (issue 67): one job, the study and its report and figure ([`study_policy_file`] for a run folder's
+//! policy), over the evaluator's loop of `cabc-actor`; not in the actor, which every machine of a run starts, because
+//! of its figure (plotters) and intervals.
 //!
 //! A seeded draw of N spawns along the track ([`draw_spawns`], in `cabc-actor`, where the early stop's episodes
 //! draw theirs too): arc length s ~ U(0, L), lateral offset x_tran ~ U(-f H, f H) for a fraction f of the half width
@@ -25,6 +28,7 @@ use cabc_sim::env::Env;
 use cabc_sim::track::{Frenet, Track};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 /// Mixed into the seed for the noise's streams (stream i: spawn i).
 const NOISE_SEED: u64 = 0x4e_0153;
@@ -113,6 +117,18 @@ pub enum RobustError {
     },
     #[error("drawing {path}: {message}")]
     Figure { path: String, message: String },
+    #[error(
+        "no policy file {path} (--policy is best, final or a .safetensors file; a run writes best-policy.safetensors \
+         at its first evaluation and final-policy.safetensors at its end)", path = .path.display()
+    )]
+    NoPolicyFile { path: PathBuf },
+    #[error("the policy {path}: {message}", path = .path.display())]
+    Policy { path: PathBuf, message: String },
+    #[error("writing {path}: {source}", path = .path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 fn flag(flag: &'static str, message: impl Into<String>) -> RobustError {
@@ -444,4 +460,61 @@ fn level_report(
         steps_before_crash_mean: cabc_proto::stats::mean(&crash_steps),
         outcomes,
     }
+}
+
+/// The policy file `which` names for the run folder `run`: `best` (RUN/best-policy.safetensors), `final`
+/// (RUN/final-policy.safetensors), or a file's path.
+pub fn policy_path(run: &Path, which: &str) -> PathBuf {
+    use cabc_outputs::rundir::{KeptPolicy, RunDir};
+    match KeptPolicy::named(which) {
+        Some(kept) => run.join(RunDir::policy_file(kept)),
+        None => PathBuf::from(which),
+    }
+}
+
+/// What [`study_policy_file`] wrote: the report (every spawn and its outcome per level) and its figure.
+pub struct Written {
+    pub report: RobustReport,
+    pub json: PathBuf,
+    pub png: PathBuf,
+}
+
+/// The policy in the safetensors file `policy` (of `config`'s architecture) driven on the CPU as [`study`] says;
+/// the report written to `out/robust.json`, its figure to `out/robust.png`.
+pub fn study_policy_file(
+    config: &RunConfig,
+    settings: &Settings,
+    policy: &Path,
+    out: &Path,
+) -> Result<Written, RobustError> {
+    let refused = |message: String| RobustError::Policy {
+        path: policy.to_path_buf(),
+        message,
+    };
+    if !policy.is_file() {
+        return Err(RobustError::NoPolicyFile {
+            path: policy.to_path_buf(),
+        });
+    }
+    let net = cabc_outputs::rundir::load_policy(policy).map_err(|e| refused(e.to_string()))?;
+    let report = study(config, settings, &policy.display().to_string(), |input| {
+        Ok(cabc_actor::run::act(&net, input)?)
+    })?;
+    let write = |path: PathBuf, bytes: Vec<u8>| {
+        std::fs::write(&path, bytes)
+            .map(|()| path.clone())
+            .map_err(|source| RobustError::Write { path, source })
+    };
+    std::fs::create_dir_all(out).map_err(|source| RobustError::Write {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let text = serde_json::to_string_pretty(&report).map_err(|e| RobustError::Write {
+        path: out.join("robust.json"),
+        source: std::io::Error::other(e),
+    })?;
+    let json = write(out.join("robust.json"), (text + "\n").into_bytes())?;
+    let png = out.join("robust.png");
+    figure::draw(&png, &Track::from_kind(config.sim.track), &report)?;
+    Ok(Written { report, json, png })
 }

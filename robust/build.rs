@@ -1,0 +1,4 @@
+include!("../deploy/build/libtorch_link.rs");
+fn main() {
+    link_libtorch();
+}
