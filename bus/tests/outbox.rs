@@ -2,12 +2,13 @@
 //! that loses segments on their first delivery gets them again from the actor's outbox, and the learner's own
 //! receipts (`cabc_bus::receipts`) empty the outbox with nothing published twice.
 
+mod common;
+
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::outbox::ZenohSegments;
 use cabc_bus::ports::SharedStats;
 use cabc_bus::receipts::{acknowledge, Receipts};
 use cabc_bus::{decode_sample, Bus, Role};
-use cabc_proto::config::BusSection;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::{Outcome, Segment, TrajMessage};
 use cabc_proto::ports::SegmentSink;
@@ -20,17 +21,7 @@ const RESEND: Duration = Duration::from_secs(1);
 
 /// A learner and an actor (`actor-0`) of run `run` on a free loopback port, the actor connected.
 fn pair(run: &str) -> (Bus, Bus) {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let section = BusSection {
-        listen: vec![endpoint.clone()],
-        connect: vec![endpoint],
-        ..BusSection::default()
-    };
+    let section = common::loopback();
     let keys = Keys::new(run).unwrap();
     let learner = Bus::join(&section, Role::Listen, keys.clone(), "learner").unwrap();
     let actor = Bus::join(&section, Role::Connect, keys, "actor/actor-0").unwrap();

@@ -2,11 +2,13 @@
 //! an evaluator joining late over TLS from another namespace waited for a learner that was gone), and the learner stops
 //! saying so as soon as nobody is alive.
 
+mod common;
+
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::rollouts::{Waits, ZenohActors};
 use cabc_bus::{Bus, Role};
 use cabc_proto::codec;
-use cabc_proto::config::{BusSection, RunConfig};
+use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::Stop;
 use cabc_proto::ports::Rollouts;
@@ -15,17 +17,7 @@ use zenoh::Wait;
 
 #[test]
 fn a_late_evaluator_hears_the_stop_and_the_learner_ends_when_it_left() {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let section = BusSection {
-        listen: vec![endpoint.clone()],
-        connect: vec![endpoint],
-        ..BusSection::default()
-    };
+    let section = common::loopback();
     let keys = Keys::new("late").unwrap();
     let learner_bus = Bus::join(&section, Role::Listen, keys.clone(), "learner").unwrap();
     let waits = Waits {
