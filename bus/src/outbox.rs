@@ -61,6 +61,8 @@ struct Held {
 struct Unacked {
     encoded: Bytes,
     sent: Instant,
+    /// Published before the router was lost (in flight then, or dropped): it goes out again before the next marker.
+    stranded: bool,
 }
 
 impl Held {
@@ -68,7 +70,12 @@ impl Held {
         self.incarnation = Some(incarnation);
         self.bytes += encoded.len();
         let sent = Instant::now();
-        if let Some(old) = self.segments.insert(seq, Unacked { encoded, sent }) {
+        let unacked = Unacked {
+            encoded,
+            sent,
+            stranded: false,
+        };
+        if let Some(old) = self.segments.insert(seq, unacked) {
             self.bytes -= old.encoded.len();
         }
         let mut dropped = 0;
@@ -105,6 +112,29 @@ impl Held {
             .filter(|u| all || now.duration_since(u.sent) >= after)
             .map(|u| {
                 u.sent = now;
+                u.stranded = false;
+                u.encoded.clone()
+            })
+            .collect()
+    }
+
+    /// The router is lost: what is held now was published before, and may never have arrived.
+    fn strand(&mut self) {
+        for unacked in self.segments.values_mut() {
+            unacked.stranded = true;
+        }
+    }
+
+    /// The stranded segments, in order, to publish again before a marker: the marker must not reach the learner
+    /// before them, or the epoch closes without them (they would land in the next epoch's data).
+    fn stranded(&mut self) -> Vec<Bytes> {
+        let now = Instant::now();
+        self.segments
+            .values_mut()
+            .filter(|u| u.stranded)
+            .map(|u| {
+                u.sent = now;
+                u.stranded = false;
                 u.encoded.clone()
             })
             .collect()
@@ -178,6 +208,25 @@ impl Outbox {
     pub fn unacknowledged(&self) -> usize {
         lock(&self.held).segments.len()
     }
+
+    /// Publishes again, on `key`, the segments published before the router was last lost and not acknowledged
+    /// since: what a marker must not overtake. Returns how many.
+    fn publish_stranded(&self, bus: &Bus, key: &str) -> Result<u64, PortError> {
+        let stranded = lock(&self.held).stranded();
+        let count = stranded.len() as u64;
+        if count > 0 {
+            tracing::info!(
+                segments = count,
+                "publishing again, before the marker, the segments sent before the router was lost"
+            );
+        }
+        for encoded in stranded {
+            bus.put_encoded_blocking::<TrajMessage>(key, encoded)
+                .map_err(transport)?;
+            with_stats(&self.stats, |s| s.segments_resent += 1);
+        }
+        Ok(count)
+    }
 }
 
 impl Drop for Outbox {
@@ -203,6 +252,9 @@ fn resend(
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(TICK);
         if !has_router(session) {
+            if lost_router.is_none() {
+                lock(held).strand();
+            }
             lost_router.get_or_insert_with(Instant::now);
             back = None;
             continue;
@@ -311,9 +363,15 @@ impl SegmentSink for ZenohSegments<'_> {
             std::thread::sleep(RECONNECT_POLL);
         }
         let encoded = Bytes::from(codec::encode(&message));
-        if let TrajMessage::Segment(segment) = &message {
-            self.outbox
-                .hold(segment.incarnation, segment.seq, encoded.clone());
+        match &message {
+            TrajMessage::Segment(segment) => {
+                self.outbox
+                    .hold(segment.incarnation, segment.seq, encoded.clone());
+            }
+            // The marker says the segments before it were sent: those stranded by a lost router go again first.
+            TrajMessage::EpochDone(_) => {
+                self.outbox.publish_stranded(self.bus, &self.key)?;
+            }
         }
         self.bus
             .put_encoded_blocking::<TrajMessage>(&self.key, encoded)
@@ -360,6 +418,27 @@ mod tests {
         assert_eq!(held.due(true, Duration::from_secs(60)).len(), 1);
         held.acknowledged(&ack(1, &[0]));
         assert!(held.due(true, Duration::ZERO).is_empty());
+    }
+
+    #[test]
+    fn what_was_sent_before_the_router_was_lost_goes_again_before_the_next_marker_once() {
+        let mut held = Held::default();
+        held.hold(1, 0, Bytes::from_static(b"a"));
+        held.hold(1, 1, Bytes::from_static(b"b"));
+        held.acknowledged(&ack(1, &[0]));
+        assert!(
+            held.stranded().is_empty(),
+            "no router lost: nothing stranded"
+        );
+        held.strand();
+        // Published after the router was back: not stranded.
+        held.hold(1, 2, Bytes::from_static(b"c"));
+        assert_eq!(held.stranded(), [Bytes::from_static(b"b")]);
+        assert!(held.stranded().is_empty(), "published again once");
+        // Published again after the reconnection by the outbox's thread: no longer stranded either.
+        held.strand();
+        assert_eq!(held.due(true, Duration::from_secs(60)).len(), 2);
+        assert!(held.stranded().is_empty());
     }
 
     #[test]
