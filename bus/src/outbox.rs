@@ -336,7 +336,12 @@ impl<'a> ZenohSegments<'a> {
 
     /// The handle through which this actor's policy source sends its last marker again.
     pub fn echo(&self) -> crate::ports::MarkerEcho {
-        crate::ports::MarkerEcho::new(self.key.clone(), self.last_marker.clone())
+        let held = self.outbox.held.clone();
+        crate::ports::MarkerEcho::new(
+            self.key.clone(),
+            self.last_marker.clone(),
+            Arc::new(move || lock(&held).stranded()),
+        )
     }
 
     /// Segments published and not acknowledged by the learner yet.

@@ -13,6 +13,7 @@
 use crate::interrupt::Interrupt;
 pub use crate::vouch::{vouch, Vouch};
 use crate::{decode_sample, Bus};
+use bytes::Bytes;
 use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Stop, TrajMessage};
 use cabc_proto::ports::FAR_AHEAD;
 use cabc_proto::ports::{EvalSink, Next, PolicySource, PortError};
@@ -190,19 +191,30 @@ pub struct ZenohPolicySource<'a> {
     echo: Option<MarkerEcho>,
 }
 
-/// A collector's last "done with j" marker ([`crate::outbox::ZenohSegments::echo`]): when the learner publishes a version again that
-/// the actor has already answered, its marker may have been lost (a link cut longer than zenoh's lease drops what
-/// was in flight), so the source sends it again (issue 64); the learner's gate takes a marker twice as once.
+/// A collector's last "done with j" marker ([`crate::outbox::ZenohSegments::echo`]): when the learner publishes a
+/// version again that the actor has already answered, its marker may have been lost (a link cut longer than zenoh's
+/// lease drops what was in flight), so the source sends it again (issue 64), after the segments a lost router
+/// stranded (`stranded`, the outbox's: the marker must not overtake them); the learner's gate takes a marker twice
+/// as once.
 #[derive(Clone)]
 pub struct MarkerEcho {
     key: String,
     last: Arc<Mutex<Option<EpochDone>>>,
+    stranded: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
 }
 
 impl MarkerEcho {
-    /// The marker last put on `key`, as the segment sink keeps it in `last`.
-    pub(crate) fn new(key: String, last: Arc<Mutex<Option<EpochDone>>>) -> MarkerEcho {
-        MarkerEcho { key, last }
+    /// The marker last put on `key`, as the segment sink keeps it in `last`, sent after what `stranded` gives.
+    pub(crate) fn new(
+        key: String,
+        last: Arc<Mutex<Option<EpochDone>>>,
+        stranded: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
+    ) -> MarkerEcho {
+        MarkerEcho {
+            key,
+            last,
+            stranded,
+        }
     }
 }
 
@@ -250,6 +262,15 @@ impl<'a> ZenohPolicySource<'a> {
                 version = marker.version,
                 "the learner published the version again: sending its marker again"
             );
+            for encoded in (echo.stranded)() {
+                match self
+                    .bus
+                    .put_encoded_blocking::<TrajMessage>(&echo.key, encoded)
+                {
+                    Ok(()) => with_stats(&self.stats, |s| s.segments_resent += 1),
+                    Err(e) => tracing::warn!("publishing a stranded segment again: {e}"),
+                }
+            }
             if let Err(e) = self
                 .bus
                 .put_blocking(&echo.key, &TrajMessage::EpochDone(marker))
