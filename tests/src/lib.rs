@@ -271,6 +271,20 @@ impl Cluster {
         Ok(())
     }
 
+    /// Sends `signal` (`STOP`, `CONT`, ...) to a child with kill(1).
+    pub fn signal(&mut self, label: &str, signal: &str) -> Result<()> {
+        let (_, child) = self
+            .children
+            .iter()
+            .find(|(l, _)| l == label)
+            .with_context(|| format!("no process {label}"))?;
+        let status = std::process::Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()?;
+        anyhow::ensure!(status.success(), "kill -{signal} {label}");
+        Ok(())
+    }
+
     /// Whether a child is still running.
     pub fn running(&mut self, label: &str) -> bool {
         self.children
