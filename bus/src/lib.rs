@@ -24,6 +24,9 @@ pub mod senders;
 pub mod vouch;
 pub mod zenohd;
 
+/// A query on the bus (what a queryable receives: the expert server's relabelling requests).
+pub use zenoh::query::Query;
+
 use cabc_proto::codec::{self, Message};
 use cabc_proto::config::BusSection;
 use cabc_proto::keys::Keys;

@@ -6,7 +6,7 @@
 //! is decoded ([`codec::decode_request`]), so memory and work per request are bounded too.
 
 use anyhow::{Context, Result};
-use cabc_bus::{decode_sample, encoding_of, Bus, Role};
+use cabc_bus::{decode_sample, encoding_of, Bus, Query, Rejects, Role};
 use cabc_expert::relabel::{BatchStats, Expert, Relabeller};
 use cabc_proto::codec::{self};
 use cabc_proto::config::RunConfig;
@@ -178,66 +178,13 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
             query = queryable.recv_async() => {
                 let Ok(query) = query else { break };
                 let Some(permit) = admission.admit() else {
-                    let busy = {
-                        let mut m = metrics.lock().unwrap_or_else(|e| e.into_inner());
-                        m.busy += 1;
-                        m.busy
-                    };
-                    if busy == 1 || busy.is_multiple_of(100) {
-                        tracing::warn!(busy, "{MAX_IN_FLIGHT} requests in flight: refusing more until one is answered");
-                    }
-                    if let Err(e) = query.reply_err("busy: too many requests in flight, ask again").await {
-                        tracing::warn!("replying with an error: {e}");
-                    }
+                    refuse_busy(query, &metrics).await;
                     continue;
                 };
-                let relabeller = relabeller.clone();
-                let metrics = metrics.clone();
-                let rejects = bus.rejects.clone();
+                let (relabeller, metrics, rejects) = (relabeller.clone(), metrics.clone(), bus.rejects.clone());
                 tokio::spawn(async move {
                     let _permit = permit;
-                    // Residence time in this server, from receipt to reply: what the client subtracts from its
-                    // round trip to get the time on the wire.
-                    let received = Instant::now();
-                    let bytes = query.payload().map(|p| p.to_bytes().to_vec()).unwrap_or_default();
-                    let request = match codec::decode_request(&bytes, max_batch) {
-                        Ok(request) => request,
-                        Err(e) => {
-                        let why = e.to_string();
-                        rejects.refuse(query.key_expr().as_str(), &why);
-                        metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
-                        if let Err(e) = query.reply_err(format!("refused: {why}")).await {
-                            tracing::warn!("replying with an error: {e}");
-                        }
-                        return;
-                        }
-                    };
-                    let started = Instant::now();
-                    let answered = tokio::task::spawn_blocking(move || relabeller.answer(&request)).await;
-                    match answered {
-                        Ok(Ok((mut reply, stats))) => {
-                            metrics.lock().unwrap_or_else(|e| e.into_inner()).record(&stats);
-                            reply.batch_time_us = received.elapsed().as_micros() as u64;
-                            tracing::debug!(items = stats.items, ms = started.elapsed().as_secs_f64() * 1e3, "answered");
-                            let key = query.key_expr().clone();
-                            if let Err(e) = query
-                                .reply(key, codec::encode(&reply))
-                                .encoding(encoding_of::<ExpertReply>())
-                                .await
-                            {
-                                tracing::warn!("replying: {e}");
-                            }
-                        }
-                        Ok(Err(refused)) => {
-                            metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
-                            tracing::warn!("refused a request: {refused}");
-                            let _ = query.reply_err(format!("refused: {refused}")).await;
-                        }
-                        Err(e) => {
-                            tracing::error!("solver task failed: {e}");
-                            let _ = query.reply_err(format!("internal error: {e}")).await;
-                        }
-                    }
+                    answer(query, &relabeller, &metrics, &rejects, max_batch).await;
                 });
             }
             sample = control.recv_async() => {
@@ -268,6 +215,88 @@ async fn serve_async(mut config: RunConfig, expert: Expert, args: ServeArgs) -> 
     drop(queryable);
     bus.close().await?;
     Ok(())
+}
+
+/// Replies "busy" to a query past [`MAX_IN_FLIGHT`], counting it (and warning at the first and every 100th).
+async fn refuse_busy(query: Query, metrics: &Mutex<Metrics>) {
+    let busy = {
+        let mut m = metrics.lock().unwrap_or_else(|e| e.into_inner());
+        m.busy += 1;
+        m.busy
+    };
+    if busy == 1 || busy.is_multiple_of(100) {
+        tracing::warn!(
+            busy,
+            "{MAX_IN_FLIGHT} requests in flight: refusing more until one is answered"
+        );
+    }
+    if let Err(e) = query
+        .reply_err("busy: too many requests in flight, ask again")
+        .await
+    {
+        tracing::warn!("replying with an error: {e}");
+    }
+}
+
+/// One relabelling query: decoded (refused when malformed), solved on the blocking pool, answered with the reply and
+/// this server's residence time (what the client subtracts from its round trip to get the time on the wire).
+async fn answer(
+    query: Query,
+    relabeller: &Arc<Relabeller>,
+    metrics: &Mutex<Metrics>,
+    rejects: &Rejects,
+    max_batch: usize,
+) {
+    let received = Instant::now();
+    let bytes = query
+        .payload()
+        .map(|p| p.to_bytes().to_vec())
+        .unwrap_or_default();
+    let request = match codec::decode_request(&bytes, max_batch) {
+        Ok(request) => request,
+        Err(e) => {
+            let why = e.to_string();
+            rejects.refuse(query.key_expr().as_str(), &why);
+            metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
+            if let Err(e) = query.reply_err(format!("refused: {why}")).await {
+                tracing::warn!("replying with an error: {e}");
+            }
+            return;
+        }
+    };
+    let started = Instant::now();
+    let solver = relabeller.clone();
+    match tokio::task::spawn_blocking(move || solver.answer(&request)).await {
+        Ok(Ok((mut reply, stats))) => {
+            metrics
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .record(&stats);
+            reply.batch_time_us = received.elapsed().as_micros() as u64;
+            tracing::debug!(
+                items = stats.items,
+                ms = started.elapsed().as_secs_f64() * 1e3,
+                "answered"
+            );
+            let key = query.key_expr().clone();
+            if let Err(e) = query
+                .reply(key, codec::encode(&reply))
+                .encoding(encoding_of::<ExpertReply>())
+                .await
+            {
+                tracing::warn!("replying: {e}");
+            }
+        }
+        Ok(Err(refused)) => {
+            metrics.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
+            tracing::warn!("refused a request: {refused}");
+            let _ = query.reply_err(format!("refused: {refused}")).await;
+        }
+        Err(e) => {
+            tracing::error!("solver task failed: {e}");
+            let _ = query.reply_err(format!("internal error: {e}")).await;
+        }
+    }
 }
 
 #[cfg(test)]
