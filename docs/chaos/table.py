@@ -14,8 +14,11 @@ here = Path(__file__).resolve().parent
 repro = here.parent / "reproduction"
 
 
-def calm(k):
-    for path in (here / f"calm-v-b-s{k}" / "summary.json", repro / f"v-b-robust-judged-s{k}" / "summary.json"):
+def calm(k, name):
+    # The first measure (chaos-v-b-s<k>) ran on another machine: its undisturbed runs are the recorded ones. Later
+    # measures ran beside calm-v-b-s<k> (`run.sh --calm`), on their machine and binaries.
+    here_first = (here / f"calm-v-b-s{k}" / "summary.json",) if name != f"chaos-v-b-s{k}" else ()
+    for path in here_first + (repro / f"v-b-robust-judged-s{k}" / "summary.json",):
         if path.exists():
             return json.loads(path.read_text()), path.parent
     return None, None
@@ -54,7 +57,7 @@ print("|---|---|---|---|---|---|---|---|---|" + "---|" * len(ROLES))
 for report_path in reports:
     r = json.loads(report_path.read_text())
     k = int(report_path.parent.name.rsplit("-s", 1)[1])
-    undisturbed, where = calm(k)
+    undisturbed, where = calm(k, report_path.parent.name)
     by = r["faults_by_target_role"]
     stop = r["early_stop_version"]
     base = undisturbed.get("early_stop_version") if undisturbed else None
