@@ -1,0 +1,61 @@
+#!/usr/bin/env python3
+"""Issue 65 item 3's table: each run's crashes under `cabc robust` at the early stop's settings (judge) and at
+settings it never used (unseen: wider spawns), per noise level (0, 1 = the judge's noise, 2 = twice), with Wilson
+95 % intervals; then per method, summed over its runs. Reads <run>/{judge,unseen}.json beside this file (unseen.sh).
+
+    python3 docs/reproduction/robust/issue-65/table.py
+"""
+import json
+import math
+from pathlib import Path
+
+here = Path(__file__).resolve().parent
+
+
+def wilson(k, n, z=1.959963984540054):
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return (max(0.0, c - h), min(1.0, c + h))
+
+
+def method(run):
+    experiment = "V-C" if run.startswith("v-c") else "V-B (the default)"
+    if "-bc-" in run:
+        return f"{experiment}, plain BC (lambda 0)"
+    return f"{experiment}, " + ("baseline" if run.endswith("-baseline") else "proposed")
+
+
+def cell(k, n):
+    lo, hi = wilson(k, n)
+    return f"{k}/{n} [{lo:.2f}, {hi:.2f}]"
+
+
+runs = sorted(p for p in here.iterdir() if (p / "judge.json").exists() and (p / "unseen.json").exists())
+levels = [0.0, 1.0, 2.0]
+head = " | ".join(f"{t}, noise x{l:g}" for t in ("judge", "unseen") for l in levels)
+print(f"| run | method | {head} |")
+print("|---|---|" + "---|" * (2 * len(levels)))
+sums = {}
+for run in runs:
+    cells = []
+    for test in ("judge", "unseen"):
+        report = json.loads((run / f"{test}.json").read_text())
+        by = {l["level"]: l for l in report["levels"]}
+        for level in levels:
+            l = by[level]
+            cells.append(cell(l["crashes"], l["episodes"]))
+            s = sums.setdefault((method(run.name), test, level), [0, 0])
+            s[0] += l["crashes"]
+            s[1] += l["episodes"]
+    print(f"| {run.name} | {method(run.name)} | " + " | ".join(cells) + " |")
+print()
+print(f"| method | runs | {head} |")
+print("|---|---|" + "---|" * (2 * len(levels)))
+for m in sorted({method(r.name) for r in runs}):
+    n = sum(method(r.name) == m for r in runs)
+    cells = [cell(*sums[(m, t, l)]) for t in ("judge", "unseen") for l in levels]
+    print(f"| {m} | {n} | " + " | ".join(cells) + " |")
