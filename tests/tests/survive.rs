@@ -316,17 +316,13 @@ fn a_link_cut_past_the_lease_costs_its_time_and_no_step() {
     drop(pair);
 }
 
-/// deploy/SCALE-OUT.md §2's standalone router (plain TCP on loopback here), restarted mid-run: the learner and the
-/// actors are its clients, lose it for a few seconds and find it again; the run goes on with every epoch's whole
-/// budget and every step the actors published stored once.
-#[test]
-fn a_restarted_router_costs_its_time_and_no_step() {
-    let tmp = cabc_tests::test_dir();
-    let port = cabc_tests::free_port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let zenohd_config = tmp.path().join("zenohd.json5");
+/// A 10-epoch run `name` whose learner and actors are clients of a standalone zenohd (plain TCP on loopback), started
+/// as the child `zenohd`; with zenohd's binary and configuration file, to start it again.
+fn routed(dir: &Path, name: &str) -> (Cluster, std::path::PathBuf, std::path::PathBuf) {
+    let endpoint = format!("tcp/127.0.0.1:{}", cabc_tests::free_port());
+    let config = dir.join("zenohd.json5");
     std::fs::write(
-        &zenohd_config,
+        &config,
         format!(
             "{{ mode: \"router\", listen: {{ endpoints: [\"{endpoint}\"] }}, \
              scouting: {{ multicast: {{ enabled: false }} }} }}"
@@ -334,11 +330,27 @@ fn a_restarted_router_costs_its_time_and_no_step() {
     )
     .unwrap();
     let zenohd = cabc_tests::bin("zenohd").unwrap();
-    let zenohd_args = ["-c", zenohd_config.to_str().unwrap()];
-    let mut cluster = Cluster::on(tmp.path(), "routed", 10, "", &endpoint, "").unwrap();
+    let mut cluster = Cluster::on(dir, name, 10, "", &endpoint, "").unwrap();
     cluster
-        .start_program("zenohd", &[], &zenohd, &zenohd_args, "info")
+        .start_program(
+            "zenohd",
+            &[],
+            &zenohd,
+            &["-c", config.to_str().unwrap()],
+            "info",
+        )
         .unwrap();
+    (cluster, zenohd, config)
+}
+
+/// deploy/SCALE-OUT.md §2's standalone router (plain TCP on loopback here), restarted mid-run: the learner and the
+/// actors are its clients, lose it for a few seconds and find it again; the run goes on with every epoch's whole
+/// budget and every step the actors published stored once.
+#[test]
+fn a_restarted_router_costs_its_time_and_no_step() {
+    let tmp = cabc_tests::test_dir();
+    let (mut cluster, zenohd, zenohd_config) = routed(tmp.path(), "routed");
+    let zenohd_args = ["-c", zenohd_config.to_str().unwrap()];
     cluster.start_all(2, false).unwrap();
     cluster.wait_for_epochs(3, "learner");
     cluster.kill("zenohd").unwrap();
@@ -363,27 +375,7 @@ fn a_restarted_router_costs_its_time_and_no_step() {
 #[test]
 fn a_router_paused_past_the_lease_costs_its_time_and_no_step() {
     let tmp = cabc_tests::test_dir();
-    let endpoint = format!("tcp/127.0.0.1:{}", cabc_tests::free_port());
-    let zenohd_config = tmp.path().join("zenohd.json5");
-    std::fs::write(
-        &zenohd_config,
-        format!(
-            "{{ mode: \"router\", listen: {{ endpoints: [\"{endpoint}\"] }}, \
-             scouting: {{ multicast: {{ enabled: false }} }} }}"
-        ),
-    )
-    .unwrap();
-    let zenohd = cabc_tests::bin("zenohd").unwrap();
-    let mut cluster = Cluster::on(tmp.path(), "paused", 10, "", &endpoint, "").unwrap();
-    cluster
-        .start_program(
-            "zenohd",
-            &[],
-            &zenohd,
-            &["-c", zenohd_config.to_str().unwrap()],
-            "info",
-        )
-        .unwrap();
+    let (mut cluster, _, _) = routed(tmp.path(), "paused");
     cluster.start_all(2, false).unwrap();
     cluster.wait_for_epochs(3, "learner");
     cluster.signal("zenohd", "STOP").unwrap();
