@@ -147,6 +147,9 @@ struct RoundClosed {
     timed_out: bool,
     /// The steps the actors that left before their marker did not deliver.
     undone: u64,
+    /// The steps of this version the actors that left before their marker did deliver (stored; no marker counts
+    /// them).
+    delivered_by_lost: u64,
     lost: Vec<String>,
 }
 
@@ -496,6 +499,7 @@ impl ZenohActors {
             missing,
             timed_out,
             undone: undone(lost.iter().map(String::as_str), round.share, &heard),
+            delivered_by_lost: lost.iter().filter_map(|a| heard.get(a)).sum(),
             lost,
         }))
     }
@@ -547,6 +551,7 @@ impl Rollouts for ZenohActors {
         // After this epoch the live set alone says who collects.
         self.expected = 0;
         let mut markers = Vec::new();
+        let mut delivered_by_lost = 0;
         let mut missing;
         let mut timed_out = false;
         loop {
@@ -554,6 +559,7 @@ impl Rollouts for ZenohActors {
                 return Ok(None);
             };
             markers.extend(closed.markers);
+            delivered_by_lost += closed.delivered_by_lost;
             missing = closed.missing;
             timed_out |= closed.timed_out;
             if closed.undone == 0 {
@@ -590,8 +596,10 @@ impl Rollouts for ZenohActors {
             expecting = members;
         }
         Ok(Some(Collected {
-            steps_published: markers.iter().map(|m| m.steps).sum(),
-            steps_taken: markers.iter().map(|m| m.taken).sum(),
+            // An actor lost before its marker counts with the steps it was heard to deliver: its marker (what it
+            // published and took) is gone, and the rounds after it dealt only the rest of its share again.
+            steps_published: markers.iter().map(|m| m.steps).sum::<u64>() + delivered_by_lost,
+            steps_taken: markers.iter().map(|m| m.taken).sum::<u64>() + delivered_by_lost,
             steps_staged: markers.iter().map(|m| m.staged).sum(),
             steps_shielded: markers.iter().map(|m| m.shielded).sum(),
             missing,
