@@ -17,6 +17,7 @@ pub mod gate;
 pub mod interrupt;
 pub mod outbox;
 pub mod ports;
+mod publications;
 pub mod receipts;
 pub mod rollouts;
 pub mod security;

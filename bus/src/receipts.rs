@@ -5,13 +5,16 @@
 //! reliable delivery the publishers, rather than dropping anything. A copy of a segment (published again because its
 //! receipt was lost) is acknowledged again; the ledger drops it.
 
+use crate::gate::EpochGate;
 use crate::senders::{check_traj, traj_sender};
 use crate::{decode_sample, encoding_of, Bus};
 use cabc_proto::codec;
 use cabc_proto::keys::Keys;
-use cabc_proto::messages::{Ack, TrajMessage};
+use cabc_proto::messages::{Ack, Segment, TrajMessage};
 use cabc_proto::ports::PortError;
+use std::collections::BTreeMap;
 use std::sync::mpsc::{sync_channel, Receiver};
+use std::time::Instant;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
@@ -24,6 +27,35 @@ pub const TRAJ_QUEUE: usize = 1 << 16;
 pub struct Arrival {
     pub sender: Option<String>,
     pub message: Option<TrajMessage>,
+}
+
+impl Arrival {
+    /// Takes this message of `traj/*` into epoch `version`'s gathering: a segment to `store` (its steps of `version`
+    /// counted in `heard` by actor), a marker to the gate.
+    pub(crate) fn take_in(
+        self,
+        version: u64,
+        gate: &mut EpochGate,
+        heard: &mut BTreeMap<String, u64>,
+        store: &mut dyn FnMut(Segment),
+    ) {
+        if let Some(sender) = &self.sender {
+            gate.heard_from(sender, Instant::now());
+        }
+        match self.message {
+            Some(TrajMessage::Segment(segment)) => {
+                if segment.policy_version == version {
+                    *heard.entry(segment.actor.clone()).or_default() += segment.steps.len() as u64;
+                }
+                store(segment)
+            }
+            Some(TrajMessage::EpochDone(marker)) => {
+                heard.entry(marker.actor.clone()).or_default();
+                gate.done(marker);
+            }
+            None => {}
+        }
+    }
 }
 
 /// The learner's subscription to every actor's `traj/<actor>`: the arrivals come out of the receiver.

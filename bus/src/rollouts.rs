@@ -24,23 +24,22 @@
 
 use crate::gate::{share, undone, Closed, EpochGate};
 use crate::interrupt::Interrupt;
+use crate::publications::Publications;
+use crate::receipts::Receipts;
 pub use crate::receipts::TRAJ_QUEUE;
-use crate::receipts::{Arrival, Receipts};
 pub use crate::senders::{
     actor_of_token, check_eval, check_traj, eval_sender, evaluator_of_token, traj_sender,
 };
-use crate::{decode_sample, encoding_of, Bus};
+use crate::{decode_sample, Bus};
 use bytes::Bytes;
 use cabc_proto::codec;
-use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, TrajMessage};
+use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::mpsc::RecvTimeoutError;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use zenoh::handlers::{FifoChannel, FifoChannelHandler};
 use zenoh::pubsub::Subscriber;
-use zenoh::query::Queryable;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::Wait;
 
@@ -68,9 +67,6 @@ const STOP_LINGER: Duration = Duration::from_secs(10);
 /// How long an actor or evaluator's own stopping may take before the learner says Stop again.
 const STOP_AGAIN: Duration = Duration::from_millis(500);
 
-/// The publications the policy queryable holds, at most this many bytes (always the latest).
-const HELD_BYTES: usize = 256 << 20;
-
 fn transport(e: impl std::fmt::Display) -> PortError {
     PortError::Transport(e.to_string())
 }
@@ -83,10 +79,9 @@ pub struct ZenohActors {
     eval: Subscriber<FifoChannelHandler<Sample>>,
     alive: Subscriber<FifoChannelHandler<Sample>>,
     evaluators_alive: Subscriber<FifoChannelHandler<Sample>>,
-    _policy: Queryable<()>,
     /// The encoded publications of the last versions (the queryable's answers): the latest for late joiners, any
     /// held version for an evaluator that missed it (`policy?version=<v>`).
-    published: Arc<Mutex<BTreeMap<u64, Bytes>>>,
+    published: Publications,
     live: BTreeSet<String>,
     /// Actors that left and did not come back.
     left: BTreeSet<String>,
@@ -187,42 +182,13 @@ impl ZenohActors {
             .history(true)
             .wait()
             .map_err(transport)?;
-        let published: Arc<Mutex<BTreeMap<u64, Bytes>>> = Arc::default();
-        let answer = published.clone();
-        let policy = bus
-            .session
-            .declare_queryable(keys.policy())
-            .callback(move |query| {
-                let held = answer.lock().unwrap_or_else(|e| e.into_inner());
-                let wanted = query.parameters().get("version");
-                let bytes = match wanted.map(str::parse::<u64>) {
-                    None => held.last_key_value().map(|(_, b)| b.clone()),
-                    Some(Ok(version)) => held.get(&version).cloned(),
-                    Some(Err(_)) => None,
-                };
-                drop(held);
-                // No reply: nothing published yet, or a version no longer held (the asker logs it).
-                let Some(latest) = bytes else {
-                    return;
-                };
-                let key = query.key_expr().clone();
-                if let Err(e) = query
-                    .reply(key, latest)
-                    .encoding(encoding_of::<PolicyUpdate>())
-                    .wait()
-                {
-                    tracing::warn!("answering a policy query: {e}");
-                }
-            })
-            .wait()
-            .map_err(transport)?;
+        let published = Publications::declare(&bus)?;
         Ok(ZenohActors {
             bus,
             traj,
             eval,
             alive,
             evaluators_alive,
-            _policy: policy,
             published,
             live: BTreeSet::new(),
             left: BTreeSet::new(),
@@ -244,32 +210,6 @@ impl ZenohActors {
     /// The bus, to close it at the end.
     pub fn into_bus(self) -> Bus {
         self.bus
-    }
-
-    /// One message of `traj/*` (checked against its key as it arrived): a segment to `store`, a marker to the gate.
-    fn take_in(
-        arrival: Arrival,
-        version: u64,
-        gate: &mut EpochGate,
-        heard: &mut BTreeMap<String, u64>,
-        store: &mut dyn FnMut(Segment),
-    ) {
-        if let Some(sender) = &arrival.sender {
-            gate.heard_from(sender, Instant::now());
-        }
-        match arrival.message {
-            Some(TrajMessage::Segment(segment)) => {
-                if segment.policy_version == version {
-                    *heard.entry(segment.actor.clone()).or_default() += segment.steps.len() as u64;
-                }
-                store(segment)
-            }
-            Some(TrajMessage::EpochDone(marker)) => {
-                heard.entry(marker.actor.clone()).or_default();
-                gate.done(marker);
-            }
-            None => {}
-        }
     }
 
     /// Applies the liveliness changes that arrived (to the gate too, when an epoch is open).
@@ -358,16 +298,7 @@ impl ZenohActors {
         published_unix_ms: u64,
         share: u64,
     ) -> Result<(), PortError> {
-        {
-            let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
-            held.insert(version, encoded.clone());
-            let mut bytes: usize = held.values().map(Bytes::len).sum();
-            while bytes > HELD_BYTES && held.len() > 1 {
-                if let Some((_, dropped)) = held.pop_first() {
-                    bytes -= dropped.len();
-                }
-            }
-        }
+        self.published.hold(version, encoded.clone());
         self.bus
             .put_encoded_blocking::<PolicyUpdate>(&self.bus.keys.policy(), encoded.clone())
             .map_err(transport)?;
@@ -416,7 +347,7 @@ impl ZenohActors {
         let mut heard: BTreeMap<String, u64> = BTreeMap::new();
         // What arrived while the learner trained (`collection.overlap`), before anything is published again.
         while let Ok(arrival) = self.traj.arrivals.try_recv() {
-            Self::take_in(arrival, version, &mut gate, &mut heard, store);
+            arrival.take_in(version, &mut gate, &mut heard, store);
         }
         let closed = loop {
             if self.interrupt.is_set() {
@@ -424,7 +355,7 @@ impl ZenohActors {
             }
             self.follow_liveliness(Some(&mut gate));
             match self.traj.arrivals.recv_timeout(POLL) {
-                Ok(arrival) => Self::take_in(arrival, version, &mut gate, &mut heard, store),
+                Ok(arrival) => arrival.take_in(version, &mut gate, &mut heard, store),
                 Err(RecvTimeoutError::Timeout) => {}
                 Err(RecvTimeoutError::Disconnected) => {
                     return Err(transport("the subscription to traj/* closed"))
@@ -479,7 +410,7 @@ impl ZenohActors {
         // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
         // its liveliness went.
         while let Ok(arrival) = self.traj.arrivals.try_recv() {
-            Self::take_in(arrival, version, &mut gate, &mut heard, store);
+            arrival.take_in(version, &mut gate, &mut heard, store);
         }
         let (missing, timed_out) = match closed {
             Closed::AllDone => (Vec::new(), false),
@@ -621,16 +552,7 @@ impl Rollouts for ZenohActors {
                 }
             }
         }
-        // A version with its evaluation is no longer held for evaluators that missed it (the latest stays, for late
-        // joiners): a restarted evaluator takes up the versions not evaluated instead of evaluating them all again.
-        let mut held = self.published.lock().unwrap_or_else(|e| e.into_inner());
-        let latest = held.last_key_value().map(|(v, _)| *v);
-        for report in &reports {
-            if Some(report.version) != latest {
-                held.remove(&report.version);
-            }
-        }
-        drop(held);
+        self.published.evaluated(&reports);
         reports
     }
 
