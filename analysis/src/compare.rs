@@ -38,6 +38,11 @@ pub struct CompareOptions {
     /// per group in <OUT>-first50.png.
     #[arg(long)]
     pub by_group: bool,
+    /// With --by-group, one more comparison `A=B` of two groups' labels (as the table names them, e.g.
+    /// `v-c-ref-ten=v-c-ref-bc-ten (baseline)`): P(A reaches its first 50-lap version before B), beside each group
+    /// against its own baseline. Repeatable.
+    #[arg(long, value_name = "A=B", requires = "by_group")]
+    pub versus: Vec<String>,
 }
 
 /// Reads the runs, draws the figures (logging their paths) and returns the Markdown table.
@@ -56,7 +61,19 @@ pub fn run(options: &CompareOptions) -> Result<String, CompareError> {
         for figure in figures {
             tracing::info!("wrote {}", figure.display());
         }
-        return Ok(crate::groups::table(&records));
+        let versus = options
+            .versus
+            .iter()
+            .map(|pair| {
+                pair.split_once('=')
+                    .map(|(a, b)| (a.trim().to_string(), b.trim().to_string()))
+                    .ok_or_else(|| CompareError::Versus {
+                        pair: pair.clone(),
+                        why: "not of the form A=B".into(),
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        return crate::groups::table(&records, &versus);
     }
     for figure in draw(&records, &options.out)? {
         tracing::info!("wrote {}", figure.display());

@@ -4,9 +4,11 @@
 //! laps completed over all evaluations and the late evaluations' steps ([`RunRecord::late_steps`]), a second table
 //! gives the statistics over seeds ([`crate::intervals`]), and `<out>-groups.png` draws the late steps per group, a
 //! dot per seed, filled where the run reached `eval_laps` laps, with the group's IQM and its bootstrap 95 % interval
-//! (`<out>-first50.png` the same for the first 50-lap version).
+//! (`<out>-first50.png` the same for the first 50-lap version). Under the tables, each group with both methods
+//! against its own baseline, and each pair asked for (`--versus A=B`, e.g. the proposed method against a baseline
+//! run as a group of its own), by rliable's probability of improvement of the first 50-lap version.
 
-use crate::runs::{RunRecord, LATE_VERSIONS};
+use crate::runs::{CompareError, RunRecord, LATE_VERSIONS};
 use crate::stats::{bootstrap_95, iqm};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
@@ -62,7 +64,9 @@ fn cell(r: &RunRecord) -> String {
 
 /// The Markdown table: a row per group, a column per seed, then the group's count of runs that reached the laps
 /// and the median [range] of its laps and late steps.
-pub fn table(runs: &[RunRecord]) -> String {
+///
+/// `versus` names more pairs (A, B) of group labels to compare; a label that no group has is an error.
+pub fn table(runs: &[RunRecord], versus: &[(String, String)]) -> Result<String, CompareError> {
     let seeds = seeds(runs);
     let seed_name = |s: &Option<u64>| s.map_or("seed ?".into(), |s| format!("seed {s}"));
     let mut out = format!(
@@ -116,11 +120,35 @@ pub fn table(runs: &[RunRecord]) -> String {
             ));
         }
     }
+    let of = |label: &str, pair: &(String, String)| {
+        groups
+            .iter()
+            .find(|(g, _)| g == label)
+            .map(|(_, runs)| runs)
+            .ok_or_else(|| CompareError::Versus {
+                pair: format!("{}={}", pair.0, pair.1),
+                why: format!(
+                    "no group {label:?} among {}",
+                    groups
+                        .iter()
+                        .map(|(g, _)| format!("{g:?}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+    };
+    for pair in versus {
+        let (a, b) = (of(&pair.0, pair)?, of(&pair.1, pair)?);
+        pairs.push_str(&format!(
+            "* {}",
+            crate::intervals::improvement_line(&pair.0, a, &pair.1, b)
+        ));
+    }
     if !pairs.is_empty() {
         out.push('\n');
         out.push_str(&pairs);
     }
-    out
+    Ok(out)
 }
 
 /// Distinct colours for the seeds (Tableau 10).
@@ -352,6 +380,31 @@ mod tests {
     }
 
     #[test]
+    fn a_pair_asked_for_is_compared_and_an_unknown_label_refused() {
+        // The proposed group against a baseline run as a group of its own (plain BC beside the caption's baseline).
+        let runs = [
+            record("ten-s1", 42, &[(40, 50, 2600)], Some(41)),
+            record("ten-s2", 43, &[(50, 50, 2600)], Some(51)),
+            record("bc-s1-baseline", 42, &[(60, 50, 2600)], Some(61)),
+            record("bc-s2-baseline", 43, &[(45, 50, 2600)], Some(46)),
+        ];
+        let versus = [("ten".to_string(), "bc (baseline)".to_string())];
+        let table = table(&runs, &versus).unwrap();
+        let pairs: Vec<&str> = table.lines().filter(|l| l.starts_with("* P(")).collect();
+        // 40 and 50 against 60 and 45: three pairs of four won.
+        assert_eq!(
+            pairs,
+            ["* P(ten reaches its first 50-lap version before bc (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.00, 1.00] (95 % CI)"]
+        );
+        let wrong = [("ten".to_string(), "bc".to_string())];
+        let err = super::table(&runs, &wrong).unwrap_err().to_string();
+        assert!(
+            err.contains("--versus ten=bc: no group \"bc\"") && err.contains("\"bc (baseline)\""),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn a_row_per_group_a_column_per_seed() {
         let runs = [
             record(
@@ -364,7 +417,7 @@ mod tests {
             record("ref-s2", 43, &[(0, 0, 30), (1, 2, 120)], None),
             record("abl-s2", 43, &[(5, 0, 12)], None),
         ];
-        let table = table(&runs);
+        let table = table(&runs, &[]).unwrap();
         let rows: Vec<&str> = table.lines().filter(|l| l.starts_with("| ")).collect();
         assert_eq!(
             rows[0],

@@ -13,6 +13,8 @@ pub enum CompareError {
     Run { path: PathBuf, why: String },
     #[error("drawing {path}: {why}")]
     Draw { path: PathBuf, why: String },
+    #[error("--versus {pair}: {why}")]
+    Versus { pair: String, why: String },
 }
 
 /// One evaluation as `evals.csv` holds it.

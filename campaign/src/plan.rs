@@ -19,6 +19,9 @@
 //! [[view]]
 //! name = "v-b-recipe-view"
 //! groups = ["v-b-ref", "v-b-ref-warmup"]
+//! # More comparisons than each group against its own baseline (`cabc compare --versus A=B`): a label is a group's
+//! # name, its baseline runs `<group> (baseline)`.
+//! versus = [["v-b-ref-warmup", "v-b-ref (baseline)"]]
 //! ```
 //!
 //! A slice's fields: `preset`, and optionally `tag` (the group is `<preset>-<tag>`), `methods` (`proposed`,
@@ -115,6 +118,19 @@ struct SliceFile {
 pub struct View {
     pub name: String,
     pub groups: Vec<String>,
+    /// Pairs (A, B) of group labels: P(A reaches its first 50-lap version before B) under the view's tables.
+    #[serde(default)]
+    pub versus: Vec<[String; 2]>,
+}
+
+impl View {
+    /// `cabc compare`'s arguments for the pairs: `--versus A=B` each.
+    pub fn versus_args(&self) -> Vec<String> {
+        self.versus
+            .iter()
+            .flat_map(|[a, b]| ["--versus".to_string(), format!("{a}={b}")])
+            .collect()
+    }
 }
 
 /// A plan: its slices in order, and its views.
@@ -182,6 +198,15 @@ impl Plan {
         for view in &file.views {
             if view.groups.is_empty() {
                 bail!("view {}: no groups", view.name);
+            }
+            for label in view.versus.iter().flatten() {
+                let group = label.strip_suffix(" (baseline)").unwrap_or(label);
+                if !view.groups.iter().any(|g| g == group) {
+                    bail!(
+                        "view {}: versus names {label:?}, whose group {group:?} is not among its groups",
+                        view.name
+                    );
+                }
             }
         }
         Ok(Self {
@@ -366,6 +391,7 @@ slices = [{ preset = "v-c-ref", methods = ["baseline"] }, { preset = "v-a", meth
 [[view]]
 name = "v"
 groups = ["v-b-ref", "v-b-rerun"]
+versus = [["v-b-ref", "v-b-rerun (baseline)"]]
 "#;
 
     #[test]
@@ -405,8 +431,19 @@ groups = ["v-b-ref", "v-b-rerun"]
             plan.views,
             [View {
                 name: "v".into(),
-                groups: vec!["v-b-ref".into(), "v-b-rerun".into()]
+                groups: vec!["v-b-ref".into(), "v-b-rerun".into()],
+                versus: vec![["v-b-ref".into(), "v-b-rerun (baseline)".into()]],
             }]
+        );
+        assert_eq!(
+            plan.views[0].versus_args(),
+            ["--versus", "v-b-ref=v-b-rerun (baseline)"]
+        );
+        let stray = PLAN.replace("v-b-rerun (baseline)", "v-b-other (baseline)");
+        let err = format!("{:#}", Plan::parse(&stray).unwrap_err());
+        assert!(
+            err.contains("whose group \"v-b-other\" is not among its groups"),
+            "{err}"
         );
     }
 

@@ -48,6 +48,21 @@ pub fn tabled_groups(root: &Path) -> Result<Vec<String>> {
     Ok(groups)
 }
 
+/// Whether `folders` hold runs of a group label as `cabc compare --by-group` names it: `<group>` its proposed runs,
+/// `<group> (baseline)` its baselines.
+fn has_runs(folders: &[PathBuf], label: &str) -> bool {
+    let (group, baseline) = match label.strip_suffix(" (baseline)") {
+        Some(group) => (group, true),
+        None => (label, false),
+    };
+    folders.iter().any(|f| {
+        f.file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.parse::<RunName>().ok())
+            .is_some_and(|r| r.group() == group && r.baseline == baseline)
+    })
+}
+
 /// Runs `compare` (a program and its first arguments) with `args` in `root`; its stdout, which becomes the table.
 fn draw(root: &Path, compare: &[String], args: &[String], folders: &[PathBuf]) -> Result<String> {
     let (program, first) = compare.split_first().context("no compare command")?;
@@ -133,12 +148,13 @@ pub fn tables(root: &Path, compare: &[String], views: &[View]) -> Result<()> {
         }
         eprintln!("[campaign] view {}: {} runs", view.name, folders.len());
         let prefix = out.join(&view.name).display().to_string();
-        let table = draw(
-            root,
-            compare,
-            &["--by-group".into(), "--out".into(), prefix],
-            &folders,
-        )?;
+        let mut args = vec!["--by-group".into(), "--out".into(), prefix];
+        // A pair whose runs have not ended yet (a group of a campaign still running) waits for them.
+        let mut view = view.clone();
+        view.versus
+            .retain(|pair| pair.iter().all(|label| has_runs(&folders, label)));
+        args.extend(view.versus_args());
+        let table = draw(root, compare, &args, &folders)?;
         std::fs::write(
             root.join(out).join(format!("{}-table.md", view.name)),
             &table,
@@ -154,6 +170,23 @@ pub fn tables(root: &Path, compare: &[String], views: &[View]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pair_waits_for_the_runs_of_both_its_labels() {
+        let folders: Vec<PathBuf> = [
+            "v-c-ref-ten-s1",
+            "v-c-ref-ten-s1-baseline",
+            "v-c-ref-bc-ten-s2-baseline",
+        ]
+        .iter()
+        .map(|n| Path::new(RESULTS_DIR).join(n))
+        .collect();
+        assert!(has_runs(&folders, "v-c-ref-ten"));
+        assert!(has_runs(&folders, "v-c-ref-ten (baseline)"));
+        assert!(has_runs(&folders, "v-c-ref-bc-ten (baseline)"));
+        assert!(!has_runs(&folders, "v-c-ref-bc-ten"));
+        assert!(!has_runs(&folders, "v-c-ref-variant-ten"));
+    }
 
     #[test]
     fn a_table_goes_between_its_markers() {
