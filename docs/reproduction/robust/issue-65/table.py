@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Issue 65 item 3's table: each run's crashes under `cabc robust` at the early stop's settings (judge) and at
 settings it never used (unseen: wider spawns), per noise level (0, 1 = the judge's noise, 2 = twice), with Wilson
-95 % intervals; then per method, summed over its runs. Reads <run>/{judge,unseen}.json beside this file (unseen.sh).
+95 % intervals; then per method, summed over its runs; then per seed, the proposed policy against each baseline of
+its experiment on the same seed (fewer crashes / as many / more). Reads <run>/{judge,unseen}.json beside this file
+(unseen.sh).
 
     python3 docs/reproduction/robust/issue-65/table.py
 """
 import json
 import math
+import re
 from pathlib import Path
 
 here = Path(__file__).resolve().parent
@@ -59,3 +62,44 @@ for m in sorted({method(r.name) for r in runs}):
     n = sum(method(r.name) == m for r in runs)
     cells = [cell(*sums[(m, t, l)]) for t in ("judge", "unseen") for l in levels]
     print(f"| {m} | {n} | " + " | ".join(cells) + " |")
+
+
+def seed_of(run):
+    return int(re.search(r"-s(\d+)(-baseline)?$", run).group(1))
+
+
+crashes = {}
+for run in runs:
+    for test in ("judge", "unseen"):
+        report = json.loads((run / f"{test}.json").read_text())
+        for l in report["levels"]:
+            crashes[(run.name, test, l["level"])] = l["crashes"]
+print()
+print("Per seed, the proposed policy against a baseline's on the same seed: the seeds where it crashed less, as "
+      "often, more (crashes summed over those seeds, proposed / baseline).")
+print()
+print(f"| proposed against | seeds | {head} |")
+print("|---|---|" + "---|" * (2 * len(levels)))
+for m in sorted({method(r.name) for r in runs}):
+    if m.endswith("proposed"):
+        continue
+    experiment = m.split(",")[0]
+    pairs = []
+    for r in runs:
+        if method(r.name) != m:
+            continue
+        mates = [q.name for q in runs if method(q.name) == f"{experiment}, proposed" and seed_of(q.name) == seed_of(r.name)]
+        if mates:
+            pairs.append((mates[0], r.name))
+    if not pairs:
+        continue
+    cells = []
+    for t in ("judge", "unseen"):
+        for l in levels:
+            a = [crashes[(p, t, l)] for p, _ in pairs]
+            b = [crashes[(q, t, l)] for _, q in pairs]
+            less = sum(x < y for x, y in zip(a, b))
+            same = sum(x == y for x, y in zip(a, b))
+            more = sum(x > y for x, y in zip(a, b))
+            cells.append(f"{less} / {same} / {more} ({sum(a)} / {sum(b)})")
+    print(f"| {m} | {len(pairs)} | " + " | ".join(cells) + " |")
