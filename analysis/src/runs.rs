@@ -92,43 +92,55 @@ fn number<T: std::str::FromStr>(text: &str) -> Option<T> {
     text.parse().ok()
 }
 
-impl RunRecord {
-    pub fn read(dir: &Path) -> Result<RunRecord, CompareError> {
-        let fail = |why: String| CompareError::Run {
-            path: dir.to_path_buf(),
-            why,
-        };
-        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join(RunDir::SUMMARY))
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok());
-        // A folder of results without config.toml (older copies): the name and lambda from summary.json.
+/// What names a run: from its config.toml, or (a folder of results without one: older copies) its summary.json.
+struct Identity {
+    name: String,
+    lambda: f64,
+    seed: Option<u64>,
+    eval_laps: u32,
+}
+
+impl Identity {
+    fn read(dir: &Path, summary: Option<&serde_json::Value>) -> Result<Identity, String> {
         let config_path = dir.join(RunDir::CONFIG);
-        let (name, lambda, seed, eval_laps) = if config_path.exists() {
-            let config = RunConfig::load(&config_path.display().to_string())
-                .map_err(|e| fail(e.to_string()))?;
-            (
-                config.run.name.clone(),
-                config.algorithm.lambda,
-                Some(config.run.seed),
-                config.collection.eval_laps,
-            )
-        } else {
-            let s = summary
-                .as_ref()
-                .ok_or_else(|| fail("neither config.toml nor summary.json".into()))?;
-            (
-                s["run"].as_str().unwrap_or("?").to_string(),
-                s["lambda"].as_f64().unwrap_or(f64::NAN),
-                None,
-                cabc_proto::config::CollectionSection::default().eval_laps,
-            )
-        };
-        let metrics = Table::read(&dir.join(RunDir::METRICS))
-            .map_err(|e| fail(format!("metrics.csv: {e}")))?;
+        if config_path.exists() {
+            let config =
+                RunConfig::load(&config_path.display().to_string()).map_err(|e| e.to_string())?;
+            return Ok(Identity {
+                name: config.run.name.clone(),
+                lambda: config.algorithm.lambda,
+                seed: Some(config.run.seed),
+                eval_laps: config.collection.eval_laps,
+            });
+        }
+        let s = summary.ok_or("neither config.toml nor summary.json")?;
+        Ok(Identity {
+            name: s["run"].as_str().unwrap_or("?").to_string(),
+            lambda: s["lambda"].as_f64().unwrap_or(f64::NAN),
+            seed: None,
+            eval_laps: cabc_proto::config::CollectionSection::default().eval_laps,
+        })
+    }
+}
+
+/// What the comparison reads of metrics.csv.
+struct Metrics {
+    epochs: u64,
+    imitation: Vec<(u64, f64)>,
+    wall_s: f64,
+    /// Per epoch; empty for older folders.
+    incomplete: Vec<f64>,
+    collection: Vec<(f64, f64)>,
+}
+
+impl Metrics {
+    fn read(dir: &Path) -> Result<Metrics, String> {
+        let metrics =
+            Table::read(&dir.join(RunDir::METRICS)).map_err(|e| format!("metrics.csv: {e}"))?;
         let column = |name| {
             metrics
                 .column(name)
-                .map_err(|e| fail(format!("metrics.csv: {e}")))
+                .map_err(|e| format!("metrics.csv: {e}"))
         };
         let epochs: Vec<u64> = column("epoch")?.iter().filter_map(|v| number(v)).collect();
         let imitation = epochs
@@ -161,61 +173,78 @@ impl RunRecord {
                 .collect(),
             _ => Vec::new(),
         };
-        let evals_table =
-            Table::read(&dir.join(RunDir::EVALS)).map_err(|e| fail(format!("evals.csv: {e}")))?;
-        let evals_column = |name| {
-            evals_table
-                .column(name)
-                .map_err(|e| fail(format!("evals.csv: {e}")))
-        };
-        let versions = evals_column("version")?;
-        // Older folders may lack the steps.
-        let steps = evals_table
-            .column("steps")
-            .unwrap_or_else(|_| vec![""; versions.len()]);
-        let mut evals: Vec<Eval> = versions
-            .iter()
-            .zip(evals_column("laps")?)
-            .zip(evals_column("lap_mean")?)
-            .zip(evals_column("lap_std")?)
-            .zip(steps)
-            .filter_map(|((((v, l), m), s), steps)| {
-                Some(Eval {
-                    version: number(v)?,
-                    laps: number(l)?,
-                    lap_mean: number(m),
-                    lap_std: number(s),
-                    steps: number(steps),
-                })
+        Ok(Metrics {
+            epochs: epochs.len() as u64,
+            imitation,
+            wall_s,
+            incomplete,
+            collection,
+        })
+    }
+}
+
+/// The evaluations of evals.csv in version order, one per version.
+fn read_evals(dir: &Path) -> Result<Vec<Eval>, String> {
+    let table = Table::read(&dir.join(RunDir::EVALS)).map_err(|e| format!("evals.csv: {e}"))?;
+    let column = |name| table.column(name).map_err(|e| format!("evals.csv: {e}"));
+    let versions = column("version")?;
+    // Older folders may lack the steps.
+    let steps = table
+        .column("steps")
+        .unwrap_or_else(|_| vec![""; versions.len()]);
+    let mut evals: Vec<Eval> = versions
+        .iter()
+        .zip(column("laps")?)
+        .zip(column("lap_mean")?)
+        .zip(column("lap_std")?)
+        .zip(steps)
+        .filter_map(|((((v, l), m), s), steps)| {
+            Some(Eval {
+                version: number(v)?,
+                laps: number(l)?,
+                lap_mean: number(m),
+                lap_std: number(s),
+                steps: number(steps),
             })
-            .collect();
-        evals.sort_by_key(|e| e.version);
-        evals.dedup_by_key(|e| e.version);
-        let expert_lap_time = summary.as_ref().and_then(|s| {
+        })
+        .collect();
+    evals.sort_by_key(|e| e.version);
+    evals.dedup_by_key(|e| e.version);
+    Ok(evals)
+}
+
+impl RunRecord {
+    pub fn read(dir: &Path) -> Result<RunRecord, CompareError> {
+        let fail = |why: String| CompareError::Run {
+            path: dir.to_path_buf(),
+            why,
+        };
+        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join(RunDir::SUMMARY))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        let identity = Identity::read(dir, summary.as_ref()).map_err(fail)?;
+        let metrics = Metrics::read(dir).map_err(fail)?;
+        let evals = read_evals(dir).map_err(fail)?;
+        let summary = summary.as_ref();
+        let expert_lap_time = summary.and_then(|s| {
             let e = &s["expert_lap_time"];
             Some((e["mean"].as_f64()?, e["std"].as_f64()?))
         });
         Ok(RunRecord {
-            name,
-            lambda,
-            seed,
-            eval_laps,
+            name: identity.name,
+            lambda: identity.lambda,
+            seed: identity.seed,
+            eval_laps: identity.eval_laps,
             evals,
-            imitation,
-            epochs: epochs.len() as u64,
-            wall_s,
-            incomplete_share: cabc_proto::stats::mean(&incomplete),
-            early_stop: summary
-                .as_ref()
-                .and_then(|s| s["early_stop_version"].as_u64()),
+            imitation: metrics.imitation,
+            epochs: metrics.epochs,
+            wall_s: metrics.wall_s,
+            incomplete_share: cabc_proto::stats::mean(&metrics.incomplete),
+            early_stop: summary.and_then(|s| s["early_stop_version"].as_u64()),
             expert_lap_time,
-            ended: summary
-                .as_ref()
-                .and_then(|s| s["ended"].as_str().map(str::to_string)),
-            peak_mb: summary
-                .as_ref()
-                .and_then(|s| s["learner_peak_rss_mb"].as_f64()),
-            collection,
+            ended: summary.and_then(|s| s["ended"].as_str().map(str::to_string)),
+            peak_mb: summary.and_then(|s| s["learner_peak_rss_mb"].as_f64()),
+            collection: metrics.collection,
         })
     }
 

@@ -129,22 +129,10 @@ impl HullTester {
         self.phase_one(m, r)
     }
 
+    /// Phase 1 of the revised simplex: pivots until the artificials are out of the basis (inside), no column
+    /// improves (outside), or the iteration limit (undecided).
     fn phase_one(&mut self, m: usize, r: usize) -> Membership {
-        // Basis: the r artificials (ids m..m+r), B = I, x_B = b = [0, ..., 0, 1].
-        self.basis.clear();
-        self.basis.extend(m..m + r);
-        self.binv.clear();
-        self.binv.resize(r * r, 0.0);
-        for i in 0..r {
-            self.binv[i * r + i] = 1.0;
-        }
-        self.xb.clear();
-        self.xb.resize(r, 0.0);
-        self.xb[r - 1] = 1.0;
-        self.in_basis.clear();
-        self.in_basis.resize(m, false);
-        self.y.resize(r, 0.0);
-        self.u.resize(r, 0.0);
+        self.start_basis(m, r);
         let max_iterations = 50 * (m + r) + 1000;
         let mut degenerate = 0usize;
         let mut since_refactor = 0usize;
@@ -159,93 +147,16 @@ impl HullTester {
             if objective <= TOL {
                 return self.verify_inside(m, r);
             }
-            // y = c_B^T B^-1 (c = 1 on artificials).
-            for k in 0..r {
-                self.y[k] = (0..r)
-                    .filter(|&i| self.basis[i] >= m)
-                    .map(|i| self.binv[i * r + k])
-                    .sum();
-            }
-            // Pricing: reduced cost of point j is -y . a_j (artificials never re-enter).
-            // Partial pricing (Dantzig within blocks of PRICING_BLOCK columns, from a rotating start); Bland's
-            // rule scans from column 0 and takes the first improving one.
-            let bland = degenerate >= DEGENERATE_RUN;
-            let mut entering = usize::MAX;
-            let mut best = -TOL;
-            let begin = if bland { 0 } else { cursor };
-            for step in 0..m {
-                let j = (begin + step) % m;
-                if !self.in_basis[j] {
-                    let a = &self.cols[j * r..(j + 1) * r];
-                    let dot: f64 = self.y.iter().zip(a).map(|(y, a)| y * a).sum();
-                    let reduced = -dot;
-                    if reduced < best {
-                        entering = j;
-                        best = reduced;
-                        if bland {
-                            break;
-                        }
-                    }
-                }
-                if !bland && entering != usize::MAX && (step + 1) % PRICING_BLOCK == 0 {
-                    cursor = (j + 1) % m;
-                    break;
-                }
-            }
-            if entering == usize::MAX {
+            let Some(entering) = self.price(m, r, degenerate >= DEGENERATE_RUN, &mut cursor) else {
                 // Optimal with a positive objective: outside, certified by y (w = y[..d]).
                 return self.verify_outside(m, r);
-            }
-            // u = B^-1 a_entering.
-            let a = &self.cols[entering * r..(entering + 1) * r];
-            for i in 0..r {
-                self.u[i] = (0..r).map(|k| self.binv[i * r + k] * a[k]).sum();
-            }
-            // Ratio test; ties go to artificials first (drives them out), then to the smallest variable id (Bland).
-            let mut leave = usize::MAX;
-            let mut ratio = f64::INFINITY;
-            for i in 0..r {
-                if self.u[i] > PIVOT_TOL {
-                    let t = self.xb[i].max(0.0) / self.u[i];
-                    let better = t < ratio - 1e-15
-                        || (t <= ratio + 1e-15
-                            && leave != usize::MAX
-                            && tie_break(self.basis[i], self.basis[leave], m));
-                    if better {
-                        ratio = t;
-                        leave = i;
-                    }
-                }
-            }
-            if leave == usize::MAX {
+            };
+            let Some((leave, ratio)) = self.ratio_test(m, r, entering) else {
                 // Unbounded cannot happen in phase 1 (the objective is >= 0); numerical trouble.
                 return Membership::Undecided;
-            }
+            };
             degenerate = if ratio <= TOL { degenerate + 1 } else { 0 };
-            // Pivot.
-            let pivot = self.u[leave];
-            for i in 0..r {
-                if i != leave {
-                    self.xb[i] -= ratio * self.u[i];
-                }
-            }
-            self.xb[leave] = ratio;
-            for k in 0..r {
-                self.binv[leave * r + k] /= pivot;
-            }
-            for i in 0..r {
-                if i != leave && self.u[i] != 0.0 {
-                    let f = self.u[i];
-                    for k in 0..r {
-                        self.binv[i * r + k] -= f * self.binv[leave * r + k];
-                    }
-                }
-            }
-            if self.basis[leave] < m {
-                self.in_basis[self.basis[leave]] = false;
-            }
-            self.basis[leave] = entering;
-            self.in_basis[entering] = true;
+            self.pivot(m, r, entering, leave, ratio);
             since_refactor += 1;
             if since_refactor >= REFACTOR_EVERY {
                 since_refactor = 0;
@@ -255,6 +166,112 @@ impl HullTester {
             }
         }
         Membership::Undecided
+    }
+
+    /// The starting basis: the r artificials (ids m..m+r), B = I, x_B = b = [0, ..., 0, 1].
+    fn start_basis(&mut self, m: usize, r: usize) {
+        self.basis.clear();
+        self.basis.extend(m..m + r);
+        self.binv.clear();
+        self.binv.resize(r * r, 0.0);
+        for i in 0..r {
+            self.binv[i * r + i] = 1.0;
+        }
+        self.xb.clear();
+        self.xb.resize(r, 0.0);
+        self.xb[r - 1] = 1.0;
+        self.in_basis.clear();
+        self.in_basis.resize(m, false);
+        self.y.resize(r, 0.0);
+        self.u.resize(r, 0.0);
+    }
+
+    /// The entering point, none when no reduced cost improves. y = c_B^T B^-1 (c = 1 on artificials); the reduced
+    /// cost of point j is -y . a_j (artificials never re-enter). Partial pricing: Dantzig within blocks of
+    /// PRICING_BLOCK columns from a rotating start (`cursor`); with `bland`, Bland's rule scans from column 0 and
+    /// takes the first improving one.
+    fn price(&mut self, m: usize, r: usize, bland: bool, cursor: &mut usize) -> Option<usize> {
+        for k in 0..r {
+            self.y[k] = (0..r)
+                .filter(|&i| self.basis[i] >= m)
+                .map(|i| self.binv[i * r + k])
+                .sum();
+        }
+        let mut entering = usize::MAX;
+        let mut best = -TOL;
+        let begin = if bland { 0 } else { *cursor };
+        for step in 0..m {
+            let j = (begin + step) % m;
+            if !self.in_basis[j] {
+                let a = &self.cols[j * r..(j + 1) * r];
+                let dot: f64 = self.y.iter().zip(a).map(|(y, a)| y * a).sum();
+                let reduced = -dot;
+                if reduced < best {
+                    entering = j;
+                    best = reduced;
+                    if bland {
+                        break;
+                    }
+                }
+            }
+            if !bland && entering != usize::MAX && (step + 1) % PRICING_BLOCK == 0 {
+                *cursor = (j + 1) % m;
+                break;
+            }
+        }
+        (entering != usize::MAX).then_some(entering)
+    }
+
+    /// u = B^-1 a_entering, and the row that leaves with its ratio, none when no row bounds the step. Ties go to
+    /// artificials first (drives them out), then to the smallest variable id (Bland).
+    fn ratio_test(&mut self, m: usize, r: usize, entering: usize) -> Option<(usize, f64)> {
+        let a = &self.cols[entering * r..(entering + 1) * r];
+        for i in 0..r {
+            self.u[i] = (0..r).map(|k| self.binv[i * r + k] * a[k]).sum();
+        }
+        let mut leave = usize::MAX;
+        let mut ratio = f64::INFINITY;
+        for i in 0..r {
+            if self.u[i] > PIVOT_TOL {
+                let t = self.xb[i].max(0.0) / self.u[i];
+                let better = t < ratio - 1e-15
+                    || (t <= ratio + 1e-15
+                        && leave != usize::MAX
+                        && tie_break(self.basis[i], self.basis[leave], m));
+                if better {
+                    ratio = t;
+                    leave = i;
+                }
+            }
+        }
+        (leave != usize::MAX).then_some((leave, ratio))
+    }
+
+    /// The pivot: `entering` takes row `leave`'s place in the basis, x_B and B^-1 updated by u.
+    fn pivot(&mut self, m: usize, r: usize, entering: usize, leave: usize, ratio: f64) {
+        let pivot = self.u[leave];
+        for i in 0..r {
+            if i != leave {
+                self.xb[i] -= ratio * self.u[i];
+            }
+        }
+        self.xb[leave] = ratio;
+        for k in 0..r {
+            self.binv[leave * r + k] /= pivot;
+        }
+        for i in 0..r {
+            if i != leave && self.u[i] != 0.0 {
+                let f = self.u[i];
+                for k in 0..r {
+                    self.binv[i * r + k] -= f * self.binv[leave * r + k];
+                }
+            }
+        }
+        if self.basis[leave] < m {
+            self.in_basis[self.basis[leave]] = false;
+        }
+        self.basis[leave] = entering;
+        self.in_basis[entering] = true;
     }
 
     /// Recomputes B^-1 and x_B = B^-1 b from the basis (Gauss-Jordan with partial pivoting).
