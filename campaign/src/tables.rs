@@ -2,7 +2,7 @@
 //! `<group>-table.md`, less the views), and the views over groups of the plans (`[[view]]`), each also into
 //! docs/REPRODUCTION.md between its markers (`<!-- NAME-table ...` and `<!-- end NAME-table -->`) where it has them.
 //! The drawing is `cabc compare` (`--by-group` for a view) of the groups' run folders, with their paths relative
-//! to the root, as the bash campaign passed them.
+//! to the root, as the bash campaign passed them. `cabc campaign tables --view NAME` redraws one view alone.
 
 use crate::plan::View;
 use crate::status::RESULTS_DIR;
@@ -139,30 +139,37 @@ pub fn tables(root: &Path, compare: &[String], views: &[View]) -> Result<()> {
         std::fs::write(root.join(out).join(format!("{group}-table.md")), table)?;
     }
     for view in views {
-        let mut folders = vec![];
-        for group in &view.groups {
-            folders.extend(group_folders(root, group)?);
-        }
-        if folders.is_empty() {
-            continue;
-        }
-        eprintln!("[campaign] view {}: {} runs", view.name, folders.len());
-        let prefix = out.join(&view.name).display().to_string();
-        let mut args = vec!["--by-group".into(), "--out".into(), prefix];
-        // A pair whose runs have not ended yet (a group of a campaign still running) waits for them.
-        let mut view = view.clone();
-        view.versus
-            .retain(|pair| pair.iter().all(|label| has_runs(&folders, label)));
-        args.extend(view.versus_args());
-        let table = draw(root, compare, &args, &folders)?;
-        std::fs::write(
-            root.join(out).join(format!("{}-table.md", view.name)),
-            &table,
-        )?;
-        let report = root.join(REPORT);
-        if let Ok(doc) = std::fs::read_to_string(&report) {
-            std::fs::write(&report, splice(&doc, &view.name, &table))?;
-        }
+        self::view(root, compare, view)?;
+    }
+    Ok(())
+}
+
+/// Redraws one view: its table and figures in docs/reproduction/, and its place in docs/REPRODUCTION.md.
+pub fn view(root: &Path, compare: &[String], view: &View) -> Result<()> {
+    let out = Path::new(RESULTS_DIR);
+    let mut folders = vec![];
+    for group in &view.groups {
+        folders.extend(group_folders(root, group)?);
+    }
+    if folders.is_empty() {
+        return Ok(());
+    }
+    eprintln!("[campaign] view {}: {} runs", view.name, folders.len());
+    let prefix = out.join(&view.name).display().to_string();
+    let mut args = vec!["--by-group".into(), "--out".into(), prefix];
+    // A pair whose runs have not ended yet (a group of a campaign still running) waits for them.
+    let mut view = view.clone();
+    view.versus
+        .retain(|pair| pair.iter().all(|label| has_runs(&folders, label)));
+    args.extend(view.versus_args());
+    let table = draw(root, compare, &args, &folders)?;
+    std::fs::write(
+        root.join(out).join(format!("{}-table.md", view.name)),
+        &table,
+    )?;
+    let report = root.join(REPORT);
+    if let Ok(doc) = std::fs::read_to_string(&report) {
+        std::fs::write(&report, splice(&doc, &view.name, &table))?;
     }
     Ok(())
 }

@@ -67,6 +67,9 @@ enum Command {
         /// The drawing command, followed by `--out PREFIX FOLDER...` (and `--by-group` for a view).
         #[arg(long, default_value = "target/release/cabc compare")]
         compare: String,
+        /// Redraws this view alone (its table, figures and place in docs/REPRODUCTION.md), no group's.
+        #[arg(long, value_name = "NAME")]
+        view: Option<String>,
     },
 }
 
@@ -107,7 +110,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 bail!("{failed} slice(s) failed");
             }
         }
-        Command::Tables { root, compare } => {
+        Command::Tables {
+            root,
+            compare,
+            view,
+        } => {
             let root = &absolute(root)?;
             let views = cabc_campaign::plans_in(&root.join(PLAN_DIR))
                 .with_context(|| format!("the plans in {}", root.join(PLAN_DIR).display()))?
@@ -118,7 +125,23 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             if let Some(program) = compare.first_mut().filter(|p| p.contains('/')) {
                 *program = root.join(&*program).display().to_string();
             }
-            cabc_campaign::tables::tables(root, &compare, &views)?;
+            match view {
+                None => cabc_campaign::tables::tables(root, &compare, &views)?,
+                Some(name) => {
+                    let Some(view) = views.iter().find(|v| &v.name == name) else {
+                        bail!(
+                            "no view {name:?} in the plans of {} (views: {})",
+                            root.join(PLAN_DIR).display(),
+                            views
+                                .iter()
+                                .map(|v| v.name.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        );
+                    };
+                    cabc_campaign::tables::view(root, &compare, view)?;
+                }
+            }
         }
     }
     Ok(())
