@@ -85,10 +85,11 @@ fn draw(root: &Path, compare: &[String], args: &[String], folders: &[PathBuf]) -
     Ok(String::from_utf8(out.stdout)?)
 }
 
-/// Puts a table's rows (its lines starting with '|') after the line starting with `<!-- NAME-table` in `doc`, in
-/// place of what was there up to the line starting with `<!-- end NAME-table -->`; `doc` unchanged without markers.
-/// Where the table file holds several tables (a view's per-seed table, then its statistics over seeds), a blank
-/// line keeps them apart: Markdown would read the second one's rows as the first one's.
+/// Puts a table's rows (its lines starting with '|') and its comparisons (`* P(...`, [`crate::plan::View`]'s pairs
+/// and each group against its baseline) after the line starting with `<!-- NAME-table` in `doc`, in place of what
+/// was there up to the line starting with `<!-- end NAME-table -->`; `doc` unchanged without markers. Where the
+/// table file holds several tables (a view's per-seed table, then its statistics over seeds), a blank line keeps
+/// them apart: Markdown would read the second one's rows as the first one's.
 pub fn splice(doc: &str, name: &str, table: &str) -> String {
     let (start, end) = (
         format!("<!-- {name}-table"),
@@ -107,7 +108,7 @@ pub fn splice(doc: &str, name: &str, table: &str) -> String {
         if line.starts_with(&start) {
             let (mut seen, mut gap) = (false, false);
             for row in table.lines() {
-                if !row.starts_with('|') {
+                if !row.starts_with('|') && !row.starts_with("* P(") {
                     gap = seen;
                     continue;
                 }
@@ -206,10 +207,10 @@ mod tests {
         assert_eq!(splice(doc, "x", table), doc);
         // A view's two tables stay two tables.
         let two =
-            "Per seed.\n\n| a |\n|---|\n| 1 |\n\nOver seeds.\n\n| b | c |\n|---|---|\n| 2 | 3 |\n";
+            "Per seed.\n\n| a |\n|---|\n| 1 |\n\nOver seeds.\n\n| b | c |\n|---|---|\n| 2 | 3 |\n\n* P(x) 0.5\n* P(y) 0.6\n";
         assert_eq!(
             splice(doc, "v", two),
-            "a\n<!-- v-table: refreshed -->\n| a |\n|---|\n| 1 |\n\n| b | c |\n|---|---|\n| 2 | 3 |\n<!-- end v-table -->\nb\n<!-- w-table -->\n| w |\n"
+            "a\n<!-- v-table: refreshed -->\n| a |\n|---|\n| 1 |\n\n| b | c |\n|---|---|\n| 2 | 3 |\n\n* P(x) 0.5\n* P(y) 0.6\n<!-- end v-table -->\nb\n<!-- w-table -->\n| w |\n"
         );
     }
 
