@@ -6,15 +6,24 @@ its experiment on the same seed (fewer crashes / as many / more), and the mean d
 a bootstrap 95 % interval over the seeds (10000 resamples, seed 0). Reads <run>/{judge,unseen}.json beside this file
 (unseen.sh).
 
-    python3 docs/reproduction/robust/issue-65/table.py
+    python3 docs/reproduction/robust/issue-65/table.py [--readme]
+
+With --readme the tables go into README.md beside this file, between its markers (`<!-- table.py -->` and
+`<!-- end table.py -->`), instead of stdout.
 """
 import json
 import math
 import random
 import re
+import sys
 from pathlib import Path
 
 here = Path(__file__).resolve().parent
+readme = "--readme" in sys.argv[1:]
+if readme:
+    import io
+
+    out, sys.stdout = sys.stdout, io.StringIO()
 
 
 def wilson(k, n, z=1.959963984540054):
@@ -128,3 +137,15 @@ for m, pairs in differences:
             means = sorted(sum(rng.choice(d) for _ in d) / len(d) for _ in range(10000))
             cells.append(f"{sum(d) / len(d):+.1f} [{means[249]:+.1f}, {means[9749]:+.1f}]")
     print(f"| {m} | {len(pairs)} | " + " | ".join(cells) + " |")
+
+if readme:
+    tables, sys.stdout = sys.stdout.getvalue(), out
+    path = here / "README.md"
+    text = path.read_text()
+    start, end = "<!-- table.py -->\n", "<!-- end table.py -->\n"
+    if start not in text or end not in text:
+        sys.exit(f"{path}: no markers {start.strip()} ... {end.strip()}")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(head + start + tables + end + tail)
+    print(f"wrote the tables into {path}")
