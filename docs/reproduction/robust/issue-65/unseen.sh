@@ -6,7 +6,8 @@
 #   unseen: spawns wider in lateral offset (0.8) and heading (0.2 rad), the same speeds;
 # each at noise levels 0, 1 and 2 (2: twice the judge's noise), SPAWNS spawns (default 20), 50 laps after the out-lap
 # (the run's eval_laps), seed 7 (the judge's episodes draw from the run's seed and the version instead).
-# The summaries (`cabc robust`'s stdout) go to docs/reproduction/robust/issue-65/<run>/{judge,unseen}.json.
+# The reports (`cabc robust`'s robust.json, with each episode's outcome) go to
+# docs/reproduction/robust/issue-65/<run>/{judge,unseen}.json.
 #
 #   docs/reproduction/robust/issue-65/unseen.sh RUN...        (CABC=path to cabc; SPAWNS=n)
 set -euo pipefail
@@ -20,8 +21,9 @@ for run in "$@"; do
   name=$(basename "$run")
   [ -f "runs/$name/best-policy.safetensors" ] || { echo "[unseen] $name: no runs/$name/best-policy.safetensors, skipped" >&2; continue; }
   mkdir -p "$here/$name"
-  "$cabc" robust "runs/$name" "${noise[@]}" --out "runs/$name/robust-judge" > "$here/$name/judge.json"
-  "$cabc" robust "runs/$name" "${noise[@]}" --lateral 0.8 --heading 0.2 --out "runs/$name/robust-unseen" \
-    > "$here/$name/unseen.json"
+  "$cabc" robust "runs/$name" "${noise[@]}" --out "runs/$name/robust-judge" > /dev/null
+  "$cabc" robust "runs/$name" "${noise[@]}" --lateral 0.8 --heading 0.2 --out "runs/$name/robust-unseen" > /dev/null
+  cp "runs/$name/robust-judge/robust.json" "$here/$name/judge.json"
+  cp "runs/$name/robust-unseen/robust.json" "$here/$name/unseen.json"
   echo "[unseen] $name done" >&2
 done
