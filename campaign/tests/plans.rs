@@ -44,8 +44,15 @@ fn the_plans_keep_the_bash_campaigns_slices() {
 
 #[test]
 fn the_plans_views_are_the_bash_campaigns() {
-    // Issues 45's, 46's, 58's and 59's plans came after the translation: their views are their own (below).
-    let after = ["issue-45", "issue-46", "issue-58", "issue-59"];
+    // Issues 45's, 46's, 58's, 59's and 65's plans came after the translation: their views are their own (below).
+    let after = [
+        "issue-45",
+        "issue-46",
+        "issue-58",
+        "issue-59",
+        "issue-65",
+        "issue-65-v-a",
+    ];
     let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
         .unwrap()
         .into_iter()
@@ -83,6 +90,19 @@ fn the_plans_views_are_the_bash_campaigns() {
             "{name}: the recipe's runs first, the variants beside them"
         );
     }
+    // Issue 65: V-C's three arms, the proposed method against the baseline that is a group of its own.
+    let v_c = plan("issue-65");
+    assert_eq!(v_c.views.len(), 1);
+    assert_eq!(
+        v_c.views[0].versus_args()[..2],
+        ["--versus", "v-c-ref-ten=v-c-ref-bc-ten (baseline)"]
+    );
+    let v_a = plan("issue-65-v-a");
+    assert_eq!(
+        v_a.views[0].groups,
+        ["v-a-cpu-dart", "v-a-cpu-critic-on"],
+        "issue-65-v-a: the recipe's group beside its test"
+    );
 }
 
 /// A slice's arguments are what bash's `eval` made of its text, and its runs are named as reproduce.sh names them.
