@@ -9,7 +9,10 @@ a bootstrap 95 % interval over the seeds (10000 resamples, seed 0). Reads <run>/
     python3 docs/reproduction/robust/issue-65/table.py [--readme]
 
 With --readme the tables go into README.md beside this file, between its markers (`<!-- table.py -->` and
-`<!-- end table.py -->`), instead of stdout.
+`<!-- end table.py -->`), the summed and the paired-difference tables into docs/REPRODUCTION.md (between
+`<!-- robust-issue-65 -->` and `<!-- end robust-issue-65 -->`), instead of stdout, and the figure robust.svg beside it
+is drawn: per method summed over
+its runs, the crash share with its Wilson interval, a panel per test and noise level.
 """
 import json
 import math
@@ -138,7 +141,51 @@ for m, pairs in differences:
             cells.append(f"{sum(d) / len(d):+.1f} [{means[249]:+.1f}, {means[9749]:+.1f}]")
     print(f"| {m} | {len(pairs)} | " + " | ".join(cells) + " |")
 
+
+
+def figure(path):
+    """robust.svg: a panel per (test, level), a row per method: the summed crash share, a dot, and its Wilson 95 %
+    interval, a line; the axis from 0 to 1."""
+    methods = sorted({method(r.name) for r in runs})
+    colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
+    label_w, panel_w, row_h, top, gap = 230, 150, 22, 46, 12
+    panels = [(t, l) for t in ("judge", "unseen") for l in levels]
+    width = label_w + len(panels) * (panel_w + gap) + 10
+    height = top + len(methods) * row_h + 40
+    svg = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
+           f'font-size="11"><rect width="100%" height="100%" fill="white"/>',
+           f'<text x="10" y="16" font-size="13">Crashes from random spawns under cabc robust, per method summed over '
+           f'its runs: the share and its Wilson 95 % interval</text>']
+    for i, m in enumerate(methods):
+        y = top + i * row_h + row_h / 2
+        n = sum(method(r.name) == m for r in runs)
+        svg.append(f'<text x="10" y="{y + 4:.1f}" fill="{colours[i % len(colours)]}">{m} ({n} runs)</text>')
+    for j, (t, l) in enumerate(panels):
+        x0 = label_w + j * (panel_w + gap)
+        svg.append(f'<text x="{x0}" y="{top - 8}">{t}, noise x{l:g}</text>')
+        svg.append(f'<rect x="{x0}" y="{top}" width="{panel_w}" height="{len(methods) * row_h}" fill="none" '
+                   f'stroke="#999"/>')
+        for tick in (0.0, 0.5, 1.0):
+            x = x0 + tick * panel_w
+            svg.append(f'<line x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + len(methods) * row_h}" '
+                       f'stroke="#ddd"/>')
+            svg.append(f'<text x="{x:.1f}" y="{top + len(methods) * row_h + 14}" text-anchor="middle">{tick:g}</text>')
+        for i, m in enumerate(methods):
+            k, n = sums[(m, t, l)]
+            lo, hi = wilson(k, n)
+            y = top + i * row_h + row_h / 2
+            c = colours[i % len(colours)]
+            svg.append(f'<line x1="{x0 + lo * panel_w:.1f}" y1="{y:.1f}" x2="{x0 + hi * panel_w:.1f}" y2="{y:.1f}" '
+                       f'stroke="{c}" stroke-width="2"/>')
+            svg.append(f'<circle cx="{x0 + k / n * panel_w:.1f}" cy="{y:.1f}" r="4" fill="{c}"/>')
+    svg.append(f'<text x="{label_w}" y="{height - 6}">crash share (crashes / episodes); judge: the early stop\'s '
+               f'spawn ranges, unseen: wider; x1: the default early stop\'s noise</text>')
+    svg.append("</svg>")
+    path.write_text("\n".join(svg) + "\n")
+
+
 if readme:
+    figure(here / "robust.svg")
     tables, sys.stdout = sys.stdout.getvalue(), out
     path = here / "README.md"
     text = path.read_text()
@@ -148,4 +195,18 @@ if readme:
     head, rest = text.split(start, 1)
     _, tail = rest.split(end, 1)
     path.write_text(head + start + tables + end + tail)
-    print(f"wrote the tables into {path}")
+    blocks = tables.split("\n\n")
+    summed = next(b for b in blocks if b.startswith("| method | runs |"))
+    difference = [b for b in blocks if b.startswith("| proposed against")][-1]
+    report = here.parents[2] / "REPRODUCTION.md"
+    text = report.read_text()
+    start, end = "<!-- robust-issue-65 -->\n", "<!-- end robust-issue-65 -->\n"
+    if start not in text or end not in text:
+        sys.exit(f"{report}: no markers {start.strip()} ... {end.strip()}")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    middle = (summed.strip() + "\n\nThe crash rate's difference, proposed minus baseline, in points: the mean over the "
+              "paired seeds with its\nbootstrap 95 % interval over seeds (below 0: the proposed policy crashes "
+              "less).\n\n" + difference.strip() + "\n")
+    report.write_text(head + start + middle + end + tail)
+    print(f"wrote the tables into {path}, {report} and the figure into {here / 'robust.svg'}")
