@@ -397,6 +397,29 @@ impl Cluster {
     }
 
     /// The last lines of a child's log (for failure messages).
+    /// The lines of every log of the run (`<label>.log`) that hold one of `needles`, at most `limit` a log, each
+    /// under its log's name: what a failed count needs to show (the epochs' closings, the warnings).
+    pub fn log_lines(&self, needles: &[&str], limit: usize) -> String {
+        let mut out = String::new();
+        let mut logs: Vec<PathBuf> = std::fs::read_dir(&self.dir)
+            .map(|d| d.filter_map(|e| Some(e.ok()?.path())).collect())
+            .unwrap_or_default();
+        logs.retain(|p| p.extension().is_some_and(|e| e == "log"));
+        logs.sort();
+        for log in logs {
+            let text = std::fs::read_to_string(&log).unwrap_or_default();
+            let lines: Vec<&str> = text
+                .lines()
+                .filter(|l| needles.iter().any(|n| l.contains(n)))
+                .take(limit)
+                .collect();
+            if !lines.is_empty() {
+                out.push_str(&format!("[{}]\n{}\n", log.display(), lines.join("\n")));
+            }
+        }
+        out
+    }
+
     pub fn log_tail(&self, label: &str) -> String {
         let text =
             std::fs::read_to_string(self.dir.join(format!("{label}.log"))).unwrap_or_default();

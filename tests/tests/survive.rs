@@ -388,7 +388,13 @@ fn a_router_paused_past_the_lease_costs_its_time_and_no_step() {
         csv_column(&metrics, "steps_collected"),
         csv_column(&metrics, "steps_published"),
     );
-    assert_eq!(stored, published, "each epoch stores what its markers say");
+    assert_eq!(
+        stored,
+        published,
+        "each epoch stores what its markers say; taken {:?}\n{}",
+        csv_column(&metrics, "steps_taken"),
+        cluster.log_lines(&["epoch done", "WARN", "ERROR"], 80)
+    );
     cluster.assert_nothing_lost(256);
     println!("survive: zenohd paused 13 s; stored {stored:?}, published {published:?}");
 }
