@@ -6,7 +6,7 @@
 # evals.csv, config.toml) and the study's judge.json / unseen.json go to docs/reproduction/robust/issue-65/<run>/.
 # A run that already holds a summary.json is not run again (resumable); its study is redone only if missing.
 #
-#   CABC_BIN=.deps/chaos-bin3 docs/reproduction/robust/issue-65/calm.sh K...     (seeds 42-44 were calm-v-b-s1..3)
+#   [CABC_BIN=DIR] docs/reproduction/robust/issue-65/calm.sh K...      (this checkout's binaries, built, without CABC_BIN)
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../../../.." && pwd)
 cd "$root"
