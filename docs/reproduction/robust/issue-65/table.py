@@ -184,29 +184,27 @@ def figure(path):
     path.write_text("\n".join(svg) + "\n")
 
 
-if readme:
-    figure(here / "robust.svg")
-    tables, sys.stdout = sys.stdout.getvalue(), out
-    path = here / "README.md"
+def splice(path, name, middle):
+    """Puts `middle` between the markers `<!-- NAME -->` and `<!-- end NAME -->` of the file at `path`."""
     text = path.read_text()
-    start, end = "<!-- table.py -->\n", "<!-- end table.py -->\n"
+    start, end = f"<!-- {name} -->\n", f"<!-- end {name} -->\n"
     if start not in text or end not in text:
         sys.exit(f"{path}: no markers {start.strip()} ... {end.strip()}")
     head, rest = text.split(start, 1)
     _, tail = rest.split(end, 1)
-    path.write_text(head + start + tables + end + tail)
+    path.write_text(head + start + middle + end + tail)
+
+
+if readme:
+    figure(here / "robust.svg")
+    tables, sys.stdout = sys.stdout.getvalue(), out
+    splice(here / "README.md", "table.py", tables)
     blocks = tables.split("\n\n")
     summed = next(b for b in blocks if b.startswith("| method | runs |"))
     difference = [b for b in blocks if b.startswith("| proposed against")][-1]
     report = here.parents[2] / "REPRODUCTION.md"
-    text = report.read_text()
-    start, end = "<!-- robust-issue-65 -->\n", "<!-- end robust-issue-65 -->\n"
-    if start not in text or end not in text:
-        sys.exit(f"{report}: no markers {start.strip()} ... {end.strip()}")
-    head, rest = text.split(start, 1)
-    _, tail = rest.split(end, 1)
-    middle = (summed.strip() + "\n\nThe crash rate's difference, proposed minus baseline, in points: the mean over the "
-              "paired seeds with its\nbootstrap 95 % interval over seeds (below 0: the proposed policy crashes "
-              "less).\n\n" + difference.strip() + "\n")
-    report.write_text(head + start + middle + end + tail)
-    print(f"wrote the tables into {path}, {report} and the figure into {here / 'robust.svg'}")
+    splice(report, "robust-issue-65",
+           summed.strip() + "\n\nThe crash rate's difference, proposed minus baseline, in points: the mean over the "
+           "paired seeds with its\nbootstrap 95 % interval over seeds (below 0: the proposed policy crashes "
+           "less).\n\n" + difference.strip() + "\n")
+    print(f"wrote the tables into {here / 'README.md'}, {report} and the figure into {here / 'robust.svg'}")
