@@ -22,12 +22,7 @@ pub fn group_of(name: &str) -> String {
 
 /// A group's label: the group, "(baseline)" for the baseline runs.
 fn label(r: &RunRecord) -> String {
-    let group = group_of(&r.name);
-    if r.is_baseline() {
-        format!("{group} (baseline)")
-    } else {
-        group
-    }
+    cabc_proto::run_name::group_label(&group_of(&r.name), r.is_baseline())
 }
 
 /// The groups' labels in first-appearance order, each with its runs.
@@ -112,7 +107,7 @@ pub fn table(runs: &[RunRecord], versus: &[(String, String)]) -> Result<String, 
     // Each group with both methods: the proposed method against its own baseline.
     let mut pairs = String::new();
     for (group, proposed) in &groups {
-        let baseline = format!("{group} (baseline)");
+        let baseline = cabc_proto::run_name::group_label(group, true);
         if let Some((_, baselines)) = groups.iter().find(|(g, _)| *g == baseline) {
             pairs.push_str(&format!(
                 "* {}",

@@ -200,7 +200,7 @@ impl Plan {
                 bail!("view {}: no groups", view.name);
             }
             for label in view.versus.iter().flatten() {
-                let group = label.strip_suffix(" (baseline)").unwrap_or(label);
+                let (group, _) = cabc_proto::run_name::label_group(label);
                 if !view.groups.iter().any(|g| g == group) {
                     bail!(
                         "view {}: versus names {label:?}, whose group {group:?} is not among its groups",

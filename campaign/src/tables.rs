@@ -48,18 +48,13 @@ pub fn tabled_groups(root: &Path) -> Result<Vec<String>> {
     Ok(groups)
 }
 
-/// Whether `folders` hold runs of a group label as `cabc compare --by-group` names it: `<group>` its proposed runs,
-/// `<group> (baseline)` its baselines.
+/// Whether `folders` hold runs of a group label as `cabc compare --by-group` names it ([`RunName::label`]).
 fn has_runs(folders: &[PathBuf], label: &str) -> bool {
-    let (group, baseline) = match label.strip_suffix(" (baseline)") {
-        Some(group) => (group, true),
-        None => (label, false),
-    };
     folders.iter().any(|f| {
         f.file_name()
             .and_then(|n| n.to_str())
             .and_then(|n| n.parse::<RunName>().ok())
-            .is_some_and(|r| r.group() == group && r.baseline == baseline)
+            .is_some_and(|r| r.label() == label)
     })
 }
 

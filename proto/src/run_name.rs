@@ -72,6 +72,11 @@ impl RunName {
         &self.experiment
     }
 
+    /// Its group's label in a comparison ([`group_label`]).
+    pub fn label(&self) -> String {
+        group_label(self.group(), self.baseline)
+    }
+
     /// "baseline" or "proposed".
     pub fn method(&self) -> &'static str {
         if self.baseline {
@@ -129,6 +134,24 @@ fn check_experiment(experiment: &str) -> Result<(), RunNameError> {
     }
 }
 
+/// How a comparison names a group's runs of one method (`cabc compare --by-group`'s rows, `--versus A=B`'s labels):
+/// the group for its proposed runs, `<group> (baseline)` for its baselines.
+pub fn group_label(group: &str, baseline: bool) -> String {
+    if baseline {
+        format!("{group} (baseline)")
+    } else {
+        group.to_string()
+    }
+}
+
+/// The group a label names ([`group_label`]'s inverse), and whether it names the baselines.
+pub fn label_group(label: &str) -> (&str, bool) {
+    match label.strip_suffix(" (baseline)") {
+        Some(group) => (group, true),
+        None => (label, false),
+    }
+}
+
 /// The group of any run folder's name: the experiment of a name of the convention ([`RunName::group`]), else the
 /// name less a `-baseline` suffix (a run named by hand, `v-b-s1-to-300`, is a group of its own).
 pub fn group_of(name: &str) -> &str {
@@ -145,6 +168,14 @@ pub fn group_of(name: &str) -> &str {
 mod tests {
     use super::*;
     use std::path::Path;
+
+    #[test]
+    fn a_label_names_a_group_and_its_method() {
+        let run: RunName = "v-c-ref-bc-ten-s2-baseline".parse().unwrap();
+        assert_eq!(run.label(), "v-c-ref-bc-ten (baseline)");
+        assert_eq!(label_group(&run.label()), ("v-c-ref-bc-ten", true));
+        assert_eq!(label_group("v-c-ref-ten"), ("v-c-ref-ten", false));
+    }
 
     #[test]
     fn formats_and_parses_back() {

@@ -56,18 +56,25 @@ levels = [0.0, 1.0, 2.0]
 head = " | ".join(f"{t}, noise x{l:g}" for t in ("judge", "unseen") for l in levels)
 print(f"| run | method | {head} |")
 print("|---|---|" + "---|" * (2 * len(levels)))
+# (run, test, level) -> crashes, episodes: each report read once.
+crashes = {}
+episodes = {}
+for run in runs:
+    for test in ("judge", "unseen"):
+        report = json.loads((run / f"{test}.json").read_text())
+        for l in report["levels"]:
+            crashes[(run.name, test, l["level"])] = l["crashes"]
+            episodes[(run.name, test, l["level"])] = l["episodes"]
 sums = {}
 for run in runs:
     cells = []
     for test in ("judge", "unseen"):
-        report = json.loads((run / f"{test}.json").read_text())
-        by = {l["level"]: l for l in report["levels"]}
         for level in levels:
-            l = by[level]
-            cells.append(cell(l["crashes"], l["episodes"]))
+            key = (run.name, test, level)
+            cells.append(cell(crashes[key], episodes[key]))
             s = sums.setdefault((method(run.name), test, level), [0, 0])
-            s[0] += l["crashes"]
-            s[1] += l["episodes"]
+            s[0] += crashes[key]
+            s[1] += episodes[key]
     print(f"| {run.name} | {method(run.name)} | " + " | ".join(cells) + " |")
 print()
 print(f"| method | runs | {head} |")
@@ -82,15 +89,7 @@ def seed_of(run):
     return int(re.search(r"-s(\d+)(-baseline)?$", run).group(1))
 
 
-crashes = {}
-episodes = {}
 differences = []
-for run in runs:
-    for test in ("judge", "unseen"):
-        report = json.loads((run / f"{test}.json").read_text())
-        for l in report["levels"]:
-            crashes[(run.name, test, l["level"])] = l["crashes"]
-            episodes[(run.name, test, l["level"])] = l["episodes"]
 print()
 print("Per seed, the proposed policy against a baseline's on the same seed: the seeds where it crashed less, as "
       "often, more (crashes summed over those seeds, proposed / baseline).")
