@@ -3,7 +3,7 @@
 # (crate campaign/). The plans are data, deploy/campaign/<plan>.toml, with the commentary on their slices' results.
 # Resumable: an ended run is skipped, an interrupted one resumed (run it again, in a later session too).
 #
-#   deploy/campaign.sh [--plan recipe|cost|issue-18] [--pin [REV]] [--list] [--status] [--only N] [--lane I/N]
+#   deploy/campaign.sh [--plan recipe|cost|issue-18] [--pin [REV]] [--list] [--status] [--only N[,N...]] [--lane I/N]
 #                      [--snapshot] [--tables]
 #
 # --plan picks the plan: `recipe` (the default, issue 30: the V-B recipe over seeds 42-51, its baseline and its keys
@@ -18,11 +18,11 @@
 #   --list        cabc campaign list --plan P      the slices
 #   --status      cabc campaign status --plan P    each slice's runs: ended (and how), in progress (at which epoch)
 #                                                  or not started
-#   (none)        cabc campaign run --plan P --lane I/N [--only N] --bin .deps/campaign-bin/current
+#   (none)        cabc campaign run --plan P --lane I/N [--only N[,N...]] --bin .deps/campaign-bin/current
 #                 --lane I/N is one of N lanes that share the machine's cores, on its own loopback port (7447 + I):
 #                 each lane takes the next slice no other lane has claimed (runs/campaign-claims/), so that the lanes
 #                 stay busy until the last slice (a run's numbers do not depend on its port or its neighbours; only
-#                 its wall clock does); --only N runs slice N alone
+#                 its wall clock does); --only N runs slice N alone, --only N,M those (plan order)
 #   --tables      cabc campaign tables             redraws every group's figures and table in docs/reproduction/
 #                 (the groups with a <group>-table.md) with this checkout's learner (target/release, built), where
 #                 the pinned binaries' `cabc compare` predates a column or a figure (the runs' numbers are the

@@ -6,7 +6,8 @@
 //! `bus.connect`, before the slice's own arguments: a run's numbers do not depend on its port), and with N > 1 takes
 //! the next slice that no other lane has claimed ([`crate::claims`]), so that the lanes stay busy until the last
 //! slice; a slice that ended well is marked done, one that failed keeps its claim until its lane ends (a later
-//! session's lane takes it over). With one lane, or `--only`, nothing is claimed. The runs use the binaries of
+//! session's lane takes it over). With one lane, or `--only`, nothing is claimed; `--only 17,41` runs those slices
+//! alone, in the plan's order (a second lane given what the first will not reach soon). The runs use the binaries of
 //! `CABC_BIN` (the pinned ones, `.deps/campaign-bin/current`). Logs: the lane's own in `runs/campaign.log` (one lane)
 //! or `runs/campaign-lane<I>.log`, with the per-run step's output; each run's in `runs/<run>/logs/`.
 
@@ -51,8 +52,8 @@ pub struct LaneOptions {
     /// The repository's root: the runner runs there, `runs/` is there.
     pub root: PathBuf,
     pub lane: Lane,
-    /// Runs this slice alone (its index in the plan), without claiming it.
-    pub only: Option<usize>,
+    /// Runs these slices alone (their indices in the plan), in the plan's order, without claiming them; empty: all.
+    pub only: Vec<usize>,
     /// The binaries of the runs (`CABC_BIN`): must hold `learner`.
     pub bin: PathBuf,
     /// The per-run step, its program and first arguments, called with the bus's settings and a slice's arguments:
@@ -93,13 +94,11 @@ pub fn run_lane(plan: &Plan, opts: &LaneOptions) -> Result<usize> {
             learner.display()
         );
     }
-    if let Some(only) = opts.only {
-        if only >= plan.slices.len() {
-            bail!(
-                "--only {only}: the plan has slices 0 to {}",
-                plan.slices.len().saturating_sub(1)
-            );
-        }
+    if let Some(only) = opts.only.iter().find(|&&i| i >= plan.slices.len()) {
+        bail!(
+            "--only {only}: the plan has slices 0 to {}",
+            plan.slices.len().saturating_sub(1)
+        );
     }
     let Lane { index, count } = opts.lane;
     let port = BASE_PORT + index as u16;
@@ -138,14 +137,18 @@ pub fn run_lane(plan: &Plan, opts: &LaneOptions) -> Result<usize> {
     let mut failed = 0;
     for (i, slice) in plan.slices.iter().enumerate() {
         let text = slice.text();
-        let claim = match opts.only {
-            Some(only) if only != i => continue,
-            Some(_) => None,
-            None if count > 1 => match claims.claim(&text).context("claiming a slice")? {
+        let claim = if !opts.only.is_empty() {
+            if !opts.only.contains(&i) {
+                continue;
+            }
+            None
+        } else if count > 1 {
+            match claims.claim(&text).context("claiming a slice")? {
                 Some(claim) => Some(claim),
                 None => continue,
-            },
-            None => None,
+            }
+        } else {
+            None
         };
         say(format!("[campaign] {} slice {i}: {text}", utc_now()))?;
         let out = log()?;

@@ -47,9 +47,10 @@ enum Command {
         /// This lane, I of N lanes that share the slices (one lane claims nothing).
         #[arg(long, default_value = "0/1")]
         lane: Lane,
-        /// Runs slice N alone (its number in `list`), unclaimed.
-        #[arg(long)]
-        only: Option<usize>,
+        /// Runs these slices alone (their numbers in `list`: `--only 17` or `--only 17,41`), in the plan's order,
+        /// unclaimed.
+        #[arg(long, value_delimiter = ',', value_name = "N[,N...]")]
+        only: Vec<usize>,
         /// The runs' binaries (CABC_BIN for the runner), under the root unless absolute.
         #[arg(long, default_value = ".deps/campaign-bin/current")]
         bin: PathBuf,
@@ -101,7 +102,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let opts = LaneOptions {
                 root: root.clone(),
                 lane: *lane,
-                only: *only,
+                only: only.clone(),
                 bin: under(bin),
                 runner,
             };

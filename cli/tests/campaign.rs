@@ -160,7 +160,7 @@ fn lanes_take_each_slice_once_and_take_over_a_dead_lanes_slice() {
     assert_eq!(run_lanes(dir, &[&[], &[]]), ["s71"]);
 }
 
-/// One lane claims nothing and runs every slice; `--only N` runs slice N alone. The runner gets the bus's settings
+/// One lane claims nothing and runs every slice; `--only N` runs slice N alone, `--only N,M` those two. The runner gets the bus's settings
 /// and the slice's words as bash's eval made them (quotes removed), CABC_BIN, and the root as its directory; the
 /// lane's log has the slices and the runner's output.
 #[test]
@@ -208,6 +208,9 @@ fn a_lane_passes_the_slices_arguments() {
     };
     assert_eq!(run(&["--lane", "2/3", "--only", "1"]), call(1));
     std::fs::remove_file(dir.join("calls")).unwrap();
+    // Several, in the plan's order whatever the order given.
+    assert_eq!(run(&["--lane", "2/3", "--only", "1,0"]), call(3) + &call(1));
+    std::fs::remove_file(dir.join("calls")).unwrap();
     // One lane: everything, unclaimed (a second time too), on port 7447.
     for _ in 0..2 {
         let calls = run(&[]);
@@ -232,7 +235,7 @@ fn a_lane_passes_the_slices_arguments() {
     for (args, why) in [
         (vec!["--bin", "nothing"], "no pinned binaries"),
         (
-            vec!["--bin", "bin", "--only", "2"],
+            vec!["--bin", "bin", "--only", "0,2"],
             "the plan has slices 0 to 1",
         ),
         (vec!["--bin", "bin", "--lane", "2/2"], "I < N"),
