@@ -349,14 +349,24 @@ impl Cluster {
 
     /// Waits until the run's `metrics.csv` holds `epochs` rows (240 s at most; then panics with `learner`'s log).
     pub fn wait_for_epochs(&self, epochs: usize, learner: &str) {
-        let path = self.dir.join("metrics.csv");
+        self.wait_for_rows("metrics.csv", epochs, learner);
+    }
+
+    /// Waits (4 min at most) until the learner has `n` evaluations in `evals.csv`: an evaluator is up and follows
+    /// the run's versions.
+    pub fn wait_for_evaluations(&self, n: usize, learner: &str) {
+        self.wait_for_rows("evals.csv", n, learner);
+    }
+
+    fn wait_for_rows(&self, file: &str, rows: usize, learner: &str) {
+        let path = self.dir.join(file);
         let started = Instant::now();
         while std::fs::read_to_string(&path).map_or(0, |t| t.lines().count().saturating_sub(1))
-            < epochs
+            < rows
         {
             assert!(
                 started.elapsed() < Duration::from_secs(240),
-                "{epochs} epochs not done:\n{}",
+                "{rows} rows of {file} not written:\n{}",
                 self.log_tail(learner)
             );
             std::thread::sleep(Duration::from_millis(50));

@@ -253,20 +253,29 @@ fn the_gate_follows_the_live_actors_and_the_learner_gives_up_without_any() {
 #[test]
 fn a_forged_update_with_a_huge_version_leaves_the_evaluation_running() {
     let tmp = cabc_tests::test_dir();
-    let mut cluster = Cluster::new(tmp.path(), "forged", 10, "").unwrap();
+    // The evaluator up first: under load (beside a campaign, 3 of 11 tries) it subscribed after the forgery went out
+    // and never saw it. Forty epochs: a smoke epoch takes a fraction of a second, so that the run is still on when
+    // the forger's session is up.
+    let mut cluster = Cluster::new(tmp.path(), "forged", 40, "").unwrap();
     cluster.start_all(2, false).unwrap();
     cluster.wait_for_epochs(2, "learner");
+    cluster.wait_for_evaluations(1, "learner");
     let config = RunConfig::load(&cluster.config.display().to_string()).unwrap();
     let keys = cabc_proto::keys::Keys::new(&config.run.name).unwrap();
     let forger = cabc_bus::Bus::join(&config.bus, cabc_bus::Role::Connect, keys, "forger").unwrap();
     // A version far past the learner's, with weights no actor takes (issue 64: the evaluator stayed at it).
     let forged = cabc_fixtures::policy_update(1_000_000, "forged", vec![0; 64]);
     forger.put_blocking(&forger.keys.policy(), &forged).unwrap();
+    let forged_at = csv_column(&cluster.dir.join("metrics.csv"), "epoch").len();
     let summary = cluster.summary("learner");
-    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    assert_eq!(summary["epochs"], 40, "{summary:#}");
+    assert!(
+        forged_at < 38,
+        "the run had {forged_at} epochs of 40 done before the forged update went out: too late to test it"
+    );
     let evaluated = csv_column(&cluster.dir.join("evals.csv"), "version");
     assert!(
-        evaluated.contains(&9) || evaluated.contains(&8),
+        evaluated.contains(&39) || evaluated.contains(&38),
         "the evaluation stopped at the forged update: {evaluated:?}"
     );
     let eval = std::fs::read_to_string(cluster.dir.join("eval.log")).unwrap();
