@@ -40,7 +40,16 @@ def wilson(k, n, z=1.959963984540054):
 
 
 def method(run):
-    experiment = "V-C" if run.startswith("v-c") else "V-B (the default)"
+    # V-C's protocols apart: the reference's (v-c-ref-*ten), its variant (v-c-ref-*variant-ten) and the variant
+    # with the judged early stop (v-c-ref-variant-judged).
+    if "variant-judged" in run:
+        experiment = "V-C variant, judged stop"
+    elif "variant" in run:
+        experiment = "V-C variant"
+    elif run.startswith("v-c"):
+        experiment = "V-C"
+    else:
+        experiment = "V-B (the default)"
     if "-bc-" in run:
         return f"{experiment}, plain BC (lambda 0)"
     return f"{experiment}, " + ("baseline" if run.endswith("-baseline") else "proposed")
