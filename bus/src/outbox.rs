@@ -104,7 +104,9 @@ impl Held {
         }
     }
 
-    /// The segments to publish again now: all of them (`all`), or those unacknowledged for `after`.
+    /// The segments to publish again now: all of them (`all`), or those unacknowledged for `after`. A stranded one
+    /// stays stranded: published again just after the router is back, it may reach the router before the learner's
+    /// subscription does and be dropped there, so it still goes again before the next marker.
     fn due(&mut self, all: bool, after: Duration) -> Vec<Bytes> {
         let now = Instant::now();
         self.segments
@@ -112,7 +114,6 @@ impl Held {
             .filter(|u| all || now.duration_since(u.sent) >= after)
             .map(|u| {
                 u.sent = now;
-                u.stranded = false;
                 u.encoded.clone()
             })
             .collect()
@@ -340,7 +341,8 @@ impl<'a> ZenohSegments<'a> {
         crate::ports::MarkerEcho::new(
             self.key.clone(),
             self.last_marker.clone(),
-            Arc::new(move || lock(&held).stranded()),
+            // Every segment not acknowledged, stranded or not (MarkerEcho's doc says why).
+            Arc::new(move || lock(&held).due(true, Duration::ZERO)),
         )
     }
 
@@ -440,10 +442,15 @@ mod tests {
         held.hold(1, 2, Bytes::from_static(b"c"));
         assert_eq!(held.stranded(), [Bytes::from_static(b"b")]);
         assert!(held.stranded().is_empty(), "published again once");
-        // Published again after the reconnection by the outbox's thread: no longer stranded either.
+        // Published again after the reconnection by the outbox's thread: still stranded (that copy may have reached
+        // the router before the learner's subscription did), until it goes before a marker or is acknowledged.
         held.strand();
         assert_eq!(held.due(true, Duration::from_secs(60)).len(), 2);
+        assert_eq!(held.stranded().len(), 2);
         assert!(held.stranded().is_empty());
+        held.strand();
+        held.acknowledged(&ack(1, &[1, 2]));
+        assert!(held.stranded().is_empty(), "acknowledged: gone");
     }
 
     #[test]

@@ -193,27 +193,30 @@ pub struct ZenohPolicySource<'a> {
 
 /// A collector's last "done with j" marker ([`crate::outbox::ZenohSegments::echo`]): when the learner publishes a
 /// version again that the actor has already answered, its marker may have been lost (a link cut longer than zenoh's
-/// lease drops what was in flight), so the source sends it again (issue 64), after the segments a lost router
-/// stranded (`stranded`, the outbox's: the marker must not overtake them); the learner's gate takes a marker twice
-/// as once.
+/// lease drops what was in flight), so the source sends it again (issue 64), after every segment the learner has not
+/// acknowledged yet (`unacknowledged`, the outbox's: the marker must not overtake them). Not only those a lost router
+/// stranded: a segment put after the router came back but before the learner's subscription reached it is dropped
+/// as well, and its marker, echoed alone, closed the epoch without it (seen under load in
+/// `a_restarted_router_costs_its_time_and_no_step`: 115 of an epoch's 239 steps). The learner's gate takes a marker
+/// twice as once, its ledger a segment twice as once.
 #[derive(Clone)]
 pub struct MarkerEcho {
     key: String,
     last: Arc<Mutex<Option<EpochDone>>>,
-    stranded: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
+    unacknowledged: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
 }
 
 impl MarkerEcho {
-    /// The marker last put on `key`, as the segment sink keeps it in `last`, sent after what `stranded` gives.
+    /// The marker last put on `key`, as the segment sink keeps it in `last`, sent after what `unacknowledged` gives.
     pub(crate) fn new(
         key: String,
         last: Arc<Mutex<Option<EpochDone>>>,
-        stranded: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
+        unacknowledged: Arc<dyn Fn() -> Vec<Bytes> + Send + Sync>,
     ) -> MarkerEcho {
         MarkerEcho {
             key,
             last,
-            stranded,
+            unacknowledged,
         }
     }
 }
@@ -262,13 +265,13 @@ impl<'a> ZenohPolicySource<'a> {
                 version = marker.version,
                 "the learner published the version again: sending its marker again"
             );
-            for encoded in (echo.stranded)() {
+            for encoded in (echo.unacknowledged)() {
                 match self
                     .bus
                     .put_encoded_blocking::<TrajMessage>(&echo.key, encoded)
                 {
                     Ok(()) => with_stats(&self.stats, |s| s.segments_resent += 1),
-                    Err(e) => tracing::warn!("publishing a stranded segment again: {e}"),
+                    Err(e) => tracing::warn!("publishing an unacknowledged segment again: {e}"),
                 }
             }
             if let Err(e) = self
