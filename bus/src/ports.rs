@@ -219,6 +219,34 @@ impl MarkerEcho {
             unacknowledged,
         }
     }
+
+    /// Sends the last marker again if it answers the publication `(version, published_unix_ms)`, after every segment
+    /// not acknowledged yet; whether it did.
+    pub fn again(&self, bus: &Bus, publication: (u64, u64), stats: &SharedStats) -> bool {
+        let marker = self
+            .last
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+            .filter(|m| (m.version, m.published_unix_ms) == publication);
+        let Some(marker) = marker else {
+            return false;
+        };
+        tracing::info!(
+            version = marker.version,
+            "the learner published the version again: sending its marker again"
+        );
+        for encoded in (self.unacknowledged)() {
+            match bus.put_encoded_blocking::<TrajMessage>(&self.key, encoded) {
+                Ok(()) => with_stats(stats, |s| s.segments_resent += 1),
+                Err(e) => tracing::warn!("publishing an unacknowledged segment again: {e}"),
+            }
+        }
+        if let Err(e) = bus.put_blocking(&self.key, &TrajMessage::EpochDone(marker)) {
+            tracing::warn!("sending the marker again: {e}");
+        }
+        true
+    }
 }
 
 impl<'a> ZenohPolicySource<'a> {
@@ -251,35 +279,8 @@ impl<'a> ZenohPolicySource<'a> {
 
     /// `update` is a publication this actor already took: if it has answered it, the marker goes out again.
     fn echo_marker(&self, update: &PolicyUpdate) {
-        let Some(echo) = &self.echo else {
-            return;
-        };
-        let marker = echo
-            .last
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
-            .filter(|m| (m.version, m.published_unix_ms) == identity(update));
-        if let Some(marker) = marker {
-            tracing::info!(
-                version = marker.version,
-                "the learner published the version again: sending its marker again"
-            );
-            for encoded in (echo.unacknowledged)() {
-                match self
-                    .bus
-                    .put_encoded_blocking::<TrajMessage>(&echo.key, encoded)
-                {
-                    Ok(()) => with_stats(&self.stats, |s| s.segments_resent += 1),
-                    Err(e) => tracing::warn!("publishing an unacknowledged segment again: {e}"),
-                }
-            }
-            if let Err(e) = self
-                .bus
-                .put_blocking(&echo.key, &TrajMessage::EpochDone(marker))
-            {
-                tracing::warn!("sending the marker again: {e}");
-            }
+        if let Some(echo) = &self.echo {
+            echo.again(self.bus, identity(update), &self.stats);
         }
     }
 

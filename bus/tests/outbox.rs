@@ -1,6 +1,7 @@
 //! An actor's segments reach the learner at least once (issue 64): over two zenoh sessions on loopback, a learner
 //! that loses segments on their first delivery gets them again from the actor's outbox, and the learner's own
-//! receipts (`cabc_bus::receipts`) empty the outbox with nothing published twice.
+//! receipts (`cabc_bus::receipts`) empty the outbox with nothing published twice; a marker sent again goes after
+//! every segment the learner has not acknowledged.
 
 mod common;
 
@@ -150,4 +151,62 @@ fn the_learners_receipts_empty_the_outbox_and_nothing_goes_out_twice() {
     std::thread::sleep(RESEND + Duration::from_millis(500));
     assert!(receipts.arrivals.try_recv().is_err());
     assert_eq!(stats.lock().unwrap().segments_resent, 0);
+}
+
+/// A segment and its marker put before the learner's subscription reached the router (a router just restarted, the
+/// learner not back on it yet) are both dropped there. When the learner publishes the version again, the marker goes
+/// out again after every segment not acknowledged, not only those a lost router stranded: alone, it would close the
+/// epoch without the segment (seen in the restarted-router test, stop 71).
+#[test]
+fn an_echoed_marker_goes_after_every_segment_not_acknowledged() {
+    use cabc_proto::messages::EpochDone;
+    let (learner, actor) = pair("outbox-echo");
+    let stats = SharedStats::default();
+    let mut sink = ZenohSegments::resending_after(
+        &actor,
+        "actor-0",
+        &Interrupt::default(),
+        stats.clone(),
+        Duration::from_secs(600),
+    )
+    .unwrap();
+    let marker = EpochDone {
+        actor: "actor-0".into(),
+        version: 3,
+        published_unix_ms: 1234,
+        segments: 1,
+        steps: 0,
+        taken: 0,
+        staged: 0,
+        shielded: 0,
+    };
+    // Nobody subscribes yet: both are dropped.
+    sink.put(segment(0)).unwrap();
+    sink.put(TrajMessage::EpochDone(marker.clone())).unwrap();
+    assert_eq!(sink.unacknowledged(), 1);
+    // Gone through the router before the subscription is declared.
+    std::thread::sleep(Duration::from_secs(1));
+    let receipts = Receipts::subscribe(&learner).unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(receipts.arrivals.try_recv().is_err(), "both were dropped");
+    let echo = sink.echo();
+    assert!(
+        !echo.again(&actor, (3, 999), &stats),
+        "another publication of the version: not answered by this marker"
+    );
+    assert!(echo.again(&actor, (3, 1234), &stats));
+    let mut arrived = Vec::new();
+    while arrived.len() < 2 {
+        let arrival = receipts
+            .arrivals
+            .recv_timeout(Duration::from_secs(10))
+            .expect("the segment and the marker arrive");
+        arrived.push(match arrival.message {
+            Some(TrajMessage::Segment(s)) => format!("segment {}", s.seq),
+            Some(TrajMessage::EpochDone(m)) => format!("marker {}", m.version),
+            None => "garbage".into(),
+        });
+    }
+    assert_eq!(arrived, ["segment 0", "marker 3"]);
+    wait_until("the segment acknowledged", || sink.unacknowledged() == 0);
 }
