@@ -55,6 +55,15 @@ def method(run):
     return f"{experiment}, " + ("baseline" if run.endswith("-baseline") else "proposed")
 
 
+EXPERIMENTS = ["V-B (the default)", "V-C", "V-C variant", "V-C variant, judged stop"]
+
+
+def order(m):
+    """Methods in the experiments' order (a later experiment's rows, and their bootstrap draws, after the earlier)."""
+    experiment = m.rsplit(", ", 1)[0]
+    return (EXPERIMENTS.index(experiment) if experiment in EXPERIMENTS else len(EXPERIMENTS), m)
+
+
 def cell(k, n):
     lo, hi = wilson(k, n)
     return f"{k}/{n} [{lo:.2f}, {hi:.2f}]"
@@ -88,7 +97,7 @@ for run in runs:
 print()
 print(f"| method | runs | {head} |")
 print("|---|---|" + "---|" * (2 * len(levels)))
-for m in sorted({method(r.name) for r in runs}):
+for m in sorted({method(r.name) for r in runs}, key=order):
     n = sum(method(r.name) == m for r in runs)
     cells = [cell(*sums[(m, t, l)]) for t in ("judge", "unseen") for l in levels]
     print(f"| {m} | {n} | " + " | ".join(cells) + " |")
@@ -105,7 +114,7 @@ print("Per seed, the proposed policy against a baseline's on the same seed: the 
 print()
 print(f"| proposed against | seeds | {head} |")
 print("|---|---|" + "---|" * (2 * len(levels)))
-for m in sorted({method(r.name) for r in runs}):
+for m in sorted({method(r.name) for r in runs}, key=order):
     if m.endswith("proposed"):
         continue
     experiment = m.split(",")[0]
@@ -154,7 +163,7 @@ for m, pairs in differences:
 def figure(path):
     """robust.svg: a panel per (test, level), a row per method: the summed crash share, a dot, and its Wilson 95 %
     interval, a line; the axis from 0 to 1."""
-    methods = sorted({method(r.name) for r in runs})
+    methods = sorted({method(r.name) for r in runs}, key=order)
     colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
     label_w, panel_w, row_h, top, gap = 230, 150, 22, 46, 12
     panels = [(t, l) for t in ("judge", "unseen") for l in levels]
@@ -190,6 +199,26 @@ def figure(path):
                f'spawn ranges, unseen: wider; x1: the default early stop\'s noise</text>')
     svg.append("</svg>")
     path.write_text("\n".join(svg) + "\n")
+
+
+# The judged block: each judged run beside its twin, the same seed and method under the fixed-spawn stop (a judged
+# run is that run up to its stop, then goes on until the judge passes twice).
+twins = [(q.name.replace("variant-judged", "variant-ten"), q.name) for q in runs if "variant-judged" in q.name]
+twins = [(a, b) for a, b in twins if (a, "judge", 0.0) in crashes]
+if twins:
+    def stop(run):
+        summary = here.parents[1] / run / "summary.json"
+        return json.loads(summary.read_text()).get("early_stop_version") if summary.exists() else None
+
+    print()
+    print("The judged stop against the fixed-spawn stop: each judged run's policy beside its twin's, the same seed and "
+          "method without the judged stop (crashes of 20, twin / judged).")
+    print()
+    print(f"| judged run | stop, twin / judged | {head} |")
+    print("|---|---|" + "---|" * (2 * len(levels)))
+    for a, b in twins:
+        cells = [f"{crashes[(a, t, l)]} / {crashes[(b, t, l)]}" for t in ("judge", "unseen") for l in levels]
+        print(f"| {b} | {stop(a)} / {stop(b)} | " + " | ".join(cells) + " |")
 
 
 def splice(path, name, middle):
