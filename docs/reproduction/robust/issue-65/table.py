@@ -164,8 +164,9 @@ def figure(path):
     """robust.svg: a panel per (test, level), a row per method: the summed crash share, a dot, and its Wilson 95 %
     interval, a line; the axis from 0 to 1."""
     methods = sorted({method(r.name) for r in runs}, key=order)
-    colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
-    label_w, panel_w, row_h, top, gap = 230, 150, 22, 46, 12
+    colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+               "#17becf"]
+    label_w, panel_w, row_h, top, gap = 290, 150, 22, 46, 12
     panels = [(t, l) for t in ("judge", "unseen") for l in levels]
     width = label_w + len(panels) * (panel_w + gap) + 10
     height = top + len(methods) * row_h + 40
