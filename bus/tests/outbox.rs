@@ -34,6 +34,38 @@ fn pair(run: &str) -> (Bus, Bus) {
     (learner, actor)
 }
 
+/// `actor-0`'s segment sink, publishing again what stays unacknowledged for `resend`, and its stats.
+fn segments(actor: &Bus, resend: Duration) -> (ZenohSegments<'_>, SharedStats) {
+    let stats = SharedStats::default();
+    let sink = ZenohSegments::resending_after(
+        actor,
+        "actor-0",
+        &Interrupt::default(),
+        stats.clone(),
+        resend,
+    )
+    .unwrap();
+    (sink, stats)
+}
+
+/// The next `n` messages on `traj/*`, each from actor-0, as "segment <seq>" or "marker <version>".
+fn arrive(receipts: &Receipts, n: usize) -> Vec<String> {
+    (0..n)
+        .map(|_| {
+            let arrival = receipts
+                .arrivals
+                .recv_timeout(Duration::from_secs(10))
+                .expect("a message arrives");
+            assert_eq!(arrival.sender.as_deref(), Some("actor-0"));
+            match arrival.message {
+                Some(TrajMessage::Segment(s)) => format!("segment {}", s.seq),
+                Some(TrajMessage::EpochDone(m)) => format!("marker {}", m.version),
+                None => panic!("an undecodable message"),
+            }
+        })
+        .collect()
+}
+
 fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
     let began = Instant::now();
     while !done() {
@@ -83,15 +115,7 @@ fn segments_lost_on_their_first_delivery_are_published_again_until_acknowledged(
         })
         .wait()
         .unwrap();
-    let stats = SharedStats::default();
-    let mut sink = ZenohSegments::resending_after(
-        &actor,
-        "actor-0",
-        &Interrupt::default(),
-        stats.clone(),
-        RESEND,
-    )
-    .unwrap();
+    let (mut sink, stats) = segments(&actor, RESEND);
     for seq in 0..6 {
         sink.put(segment(seq)).unwrap();
     }
@@ -121,31 +145,20 @@ fn segments_lost_on_their_first_delivery_are_published_again_until_acknowledged(
 fn the_learners_receipts_empty_the_outbox_and_nothing_goes_out_twice() {
     let (learner, actor) = pair("outbox-receipts");
     let receipts = Receipts::subscribe(&learner).unwrap();
-    let stats = SharedStats::default();
-    let mut sink = ZenohSegments::resending_after(
-        &actor,
-        "actor-0",
-        &Interrupt::default(),
-        stats.clone(),
-        RESEND,
-    )
-    .unwrap();
+    let (mut sink, stats) = segments(&actor, RESEND);
     for seq in 0..5 {
         sink.put(segment(seq)).unwrap();
     }
-    let mut arrived = Vec::new();
-    while arrived.len() < 5 {
-        let arrival = receipts
-            .arrivals
-            .recv_timeout(Duration::from_secs(10))
-            .expect("a segment arrives");
-        assert_eq!(arrival.sender.as_deref(), Some("actor-0"));
-        match arrival.message {
-            Some(TrajMessage::Segment(s)) => arrived.push(s.seq),
-            other => panic!("{other:?}"),
-        }
-    }
-    assert_eq!(arrived, [0, 1, 2, 3, 4]);
+    assert_eq!(
+        arrive(&receipts, 5),
+        [
+            "segment 0",
+            "segment 1",
+            "segment 2",
+            "segment 3",
+            "segment 4"
+        ]
+    );
     wait_until("every segment acknowledged", || sink.unacknowledged() == 0);
     // Past the resend wait: nothing was published again.
     std::thread::sleep(RESEND + Duration::from_millis(500));
@@ -161,15 +174,7 @@ fn the_learners_receipts_empty_the_outbox_and_nothing_goes_out_twice() {
 fn an_echoed_marker_goes_after_every_segment_not_acknowledged() {
     use cabc_proto::messages::EpochDone;
     let (learner, actor) = pair("outbox-echo");
-    let stats = SharedStats::default();
-    let mut sink = ZenohSegments::resending_after(
-        &actor,
-        "actor-0",
-        &Interrupt::default(),
-        stats.clone(),
-        Duration::from_secs(600),
-    )
-    .unwrap();
+    let (mut sink, stats) = segments(&actor, Duration::from_secs(600));
     let marker = EpochDone {
         actor: "actor-0".into(),
         version: 3,
@@ -195,18 +200,6 @@ fn an_echoed_marker_goes_after_every_segment_not_acknowledged() {
         "another publication of the version: not answered by this marker"
     );
     assert!(echo.again(&actor, (3, 1234), &stats));
-    let mut arrived = Vec::new();
-    while arrived.len() < 2 {
-        let arrival = receipts
-            .arrivals
-            .recv_timeout(Duration::from_secs(10))
-            .expect("the segment and the marker arrive");
-        arrived.push(match arrival.message {
-            Some(TrajMessage::Segment(s)) => format!("segment {}", s.seq),
-            Some(TrajMessage::EpochDone(m)) => format!("marker {}", m.version),
-            None => "garbage".into(),
-        });
-    }
-    assert_eq!(arrived, ["segment 0", "marker 3"]);
+    assert_eq!(arrive(&receipts, 2), ["segment 0", "marker 3"]);
     wait_until("the segment acknowledged", || sink.unacknowledged() == 0);
 }
