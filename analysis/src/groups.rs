@@ -389,7 +389,16 @@ mod tests {
         // 40 and 50 against 60 and 45: three pairs of four won.
         assert_eq!(
             pairs,
-            ["* P(ten reaches its first 50-lap version before bc (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.00, 1.00] (95 % CI)"]
+            ["* P(ten reaches its first 50-lap version before bc (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.00, 1.00] (95 % CI); by seed (2 in common): sooner on 1, later on 1, as soon on 0"]
+        );
+        // A seed run twice on one side pairs with nothing defined: no count, rather than a guessed one.
+        let [ten, bc] = [&runs[..2], &runs[2..]].map(|of| of.iter().collect::<Vec<_>>());
+        assert_eq!(crate::intervals::by_seed(&ten, &bc), Some((1, 1, 0)));
+        assert_eq!(crate::intervals::by_seed(&[ten[0], ten[0]], &bc), None);
+        assert_eq!(
+            crate::intervals::by_seed(&ten[..1], &bc[1..]),
+            None,
+            "no seed in common"
         );
         let wrong = [("ten".to_string(), "bc".to_string())];
         let err = super::table(&runs, &wrong).unwrap_err().to_string();
@@ -431,7 +440,7 @@ mod tests {
         let pairs: Vec<&str> = table.lines().filter(|l| l.starts_with("* P(")).collect();
         assert_eq!(
             pairs,
-            ["* P(ref reaches its first 50-lap version before ref (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.50, 1.00] (95 % CI)"]
+            ["* P(ref reaches its first 50-lap version before ref (baseline)), rliable's probability of improvement over every pair of runs: 0.75 [0.50, 1.00] (95 % CI); by seed (1 in common): sooner on 1, later on 0, as soon on 0"]
         );
         let tmp = tempfile::tempdir().unwrap();
         let paths = draw(&runs, &tmp.path().join("ablation")).unwrap();

@@ -57,20 +57,53 @@ pub fn interval_row(label: &str, of: &[&RunRecord]) -> String {
 }
 
 /// The sentence that compares `a` (named `a_name`) with `b` on the first 50-lap version (never: the budget):
-/// rliable's probability of improvement, P(a's version < b's) with ties half, and its 95 % interval.
+/// rliable's probability of improvement, P(a's version < b's) with ties half, and its 95 % interval; then, over the
+/// seeds both have, on how many `a` got there sooner, later and as soon ([`by_seed`]).
 pub fn improvement_line(a_name: &str, a: &[&RunRecord], b_name: &str, b: &[&RunRecord]) -> String {
     let first = |of: &[&RunRecord]| {
         of.iter()
             .map(|r| first_full_or_budget(r))
             .collect::<Vec<_>>()
     };
+    let paired = by_seed(a, b).map_or(String::new(), |(sooner, later, same)| {
+        format!(
+            "; by seed ({} in common): sooner on {sooner}, later on {later}, as soon on {same}",
+            sooner + later + same
+        )
+    });
     let (a, b) = (first(a), first(b));
     match (probability_lower(&a, &b), bootstrap_95_lower(&a, &b)) {
         (Some(p), Some((lo, hi))) => format!(
-            "P({a_name} reaches its first 50-lap version before {b_name}), rliable's probability of improvement over every pair of runs: {p:.2} [{lo:.2}, {hi:.2}] (95 % CI)\n"
+            "P({a_name} reaches its first 50-lap version before {b_name}), rliable's probability of improvement over every pair of runs: {p:.2} [{lo:.2}, {hi:.2}] (95 % CI){paired}\n"
         ),
         _ => String::new(),
     }
+}
+
+/// Over the seeds that `a` and `b` both ran, once each: on how many `a`'s first 50-lap version (never: the budget)
+/// came before `b`'s, after it, and at the same version. None when no seed pairs up, or when a seed appears twice on
+/// one side (then which run to pair is not defined).
+pub fn by_seed(a: &[&RunRecord], b: &[&RunRecord]) -> Option<(usize, usize, usize)> {
+    let once = |of: &[&RunRecord]| {
+        let mut seeds = std::collections::BTreeMap::new();
+        for r in of {
+            if seeds.insert(r.seed?, first_full_or_budget(r)).is_some() {
+                return None;
+            }
+        }
+        Some(seeds)
+    };
+    let (a, b) = (once(a)?, once(b)?);
+    let mut counts = (0, 0, 0);
+    for (seed, x) in &a {
+        match b.get(seed).map(|y| x.total_cmp(y)) {
+            Some(std::cmp::Ordering::Less) => counts.0 += 1,
+            Some(std::cmp::Ordering::Greater) => counts.1 += 1,
+            Some(std::cmp::Ordering::Equal) => counts.2 += 1,
+            None => {}
+        }
+    }
+    (counts.0 + counts.1 + counts.2 > 0).then_some(counts)
 }
 
 #[cfg(test)]
