@@ -107,6 +107,26 @@ def seed_of(run):
     return int(re.search(r"-s(\d+)(-baseline)?$", run).group(1))
 
 
+def tally(pairs, t, l):
+    """Over `pairs` of runs (first, second) at test t and level l: on how many the first crashed less, as often and
+    more, and the crashes summed (first / second)."""
+    a = [crashes[(p, t, l)] for p, _ in pairs]
+    b = [crashes[(q, t, l)] for _, q in pairs]
+    less = sum(x < y for x, y in zip(a, b))
+    same = sum(x == y for x, y in zip(a, b))
+    more = sum(x > y for x, y in zip(a, b))
+    return f"{less} / {same} / {more} ({sum(a)} / {sum(b)})"
+
+
+def shift(pairs, t, l, rng):
+    """The crash rate's difference, first minus second, in points: the mean over `pairs` with its bootstrap 95 %
+    interval (10000 resamples of the pairs drawn from `rng`)."""
+    d = [100.0 * (crashes[(p, t, l)] / episodes[(p, t, l)] - crashes[(q, t, l)] / episodes[(q, t, l)])
+         for p, q in pairs]
+    means = sorted(sum(rng.choice(d) for _ in d) / len(d) for _ in range(10000))
+    return f"{sum(d) / len(d):+.1f} [{means[249]:+.1f}, {means[9749]:+.1f}]"
+
+
 differences = []
 print()
 print("Per seed, the proposed policy against a baseline's on the same seed: the seeds where it crashed less, as "
@@ -127,15 +147,7 @@ for m in sorted({method(r.name) for r in runs}, key=order):
             pairs.append((mates[0], r.name))
     if not pairs:
         continue
-    cells = []
-    for t in ("judge", "unseen"):
-        for l in levels:
-            a = [crashes[(p, t, l)] for p, _ in pairs]
-            b = [crashes[(q, t, l)] for _, q in pairs]
-            less = sum(x < y for x, y in zip(a, b))
-            same = sum(x == y for x, y in zip(a, b))
-            more = sum(x > y for x, y in zip(a, b))
-            cells.append(f"{less} / {same} / {more} ({sum(a)} / {sum(b)})")
+    cells = [tally(pairs, t, l) for t in ("judge", "unseen") for l in levels]
     print(f"| {m} | {len(pairs)} | " + " | ".join(cells) + " |")
     differences.append((m, pairs))
 
@@ -147,15 +159,7 @@ print(f"| proposed against | seeds | {head} |")
 print("|---|---|" + "---|" * (2 * len(levels)))
 rng = random.Random(0)
 for m, pairs in differences:
-    cells = []
-    for t in ("judge", "unseen"):
-        for l in levels:
-            d = []
-            for p, q in pairs:
-                n = episodes[(p, t, l)]
-                d.append(100.0 * (crashes[(p, t, l)] / n - crashes[(q, t, l)] / episodes[(q, t, l)]))
-            means = sorted(sum(rng.choice(d) for _ in d) / len(d) for _ in range(10000))
-            cells.append(f"{sum(d) / len(d):+.1f} [{means[249]:+.1f}, {means[9749]:+.1f}]")
+    cells = [shift(pairs, t, l, rng) for t in ("judge", "unseen") for l in levels]
     print(f"| {m} | {len(pairs)} | " + " | ".join(cells) + " |")
 
 
@@ -220,23 +224,13 @@ if twins:
     for a, b in twins:
         cells = [f"{crashes[(a, t, l)]} / {crashes[(b, t, l)]}" for t in ("judge", "unseen") for l in levels]
         print(f"| {b} | {stop(a)} / {stop(b)} | " + " | ".join(cells) + " |")
-    # Over the pairs: where the judged policy crashed less, as often, more (sums twin / judged), and the crash
+    # Over the pairs: where the judged policy crashed less, as often, more (sums judged / twin), and the crash
     # rate's difference, judged minus twin, in points: the mean over pairs with its bootstrap 95 % interval.
-    counts, shifts = [], []
+    judged_first = [(b, a) for a, b in twins]
     twin_rng = random.Random(0)
-    for t in ("judge", "unseen"):
-        for l in levels:
-            a = [crashes[(p, t, l)] for p, _ in twins]
-            b = [crashes[(q, t, l)] for _, q in twins]
-            fewer = sum(y < x for x, y in zip(a, b))
-            same = sum(y == x for x, y in zip(a, b))
-            more = sum(y > x for x, y in zip(a, b))
-            counts.append(f"{fewer} / {same} / {more} ({sum(a)} / {sum(b)})")
-            d = [100.0 * (crashes[(q, t, l)] / episodes[(q, t, l)] - crashes[(p, t, l)] / episodes[(p, t, l)])
-                 for p, q in twins]
-            means = sorted(sum(twin_rng.choice(d) for _ in d) / len(d) for _ in range(10000))
-            shifts.append(f"{sum(d) / len(d):+.1f} [{means[249]:+.1f}, {means[9749]:+.1f}]")
-    print(f"| {len(twins)} pairs: judged fewer / as many / more (twin / judged) | | " + " | ".join(counts) + " |")
+    counts = [tally(judged_first, t, l) for t in ("judge", "unseen") for l in levels]
+    shifts = [shift(judged_first, t, l, twin_rng) for t in ("judge", "unseen") for l in levels]
+    print(f"| {len(twins)} pairs: judged fewer / as many / more (judged / twin) | | " + " | ".join(counts) + " |")
     print(f"| {len(twins)} pairs: judged minus twin, points, mean [95 % CI] | | " + " | ".join(shifts) + " |")
 
 
