@@ -11,8 +11,8 @@ use cabc_sim::vehicle::VehicleParams;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use crate::drive::{drive, DriveEnd, DriveOptions};
-use crate::mpcc::{Mpcc, MpccError};
+use crate::drive::{drive, drive_from, DriveEnd, DriveOptions};
+use crate::mpcc::{phases, Mpcc, MpccConfig, MpccError};
 use crate::relabel::{Expert, Relabeller};
 
 /// Step-time statistics of a closed-loop run.
@@ -165,4 +165,275 @@ pub fn batch_throughput(mpcc: &Arc<Mpcc>, steps: usize) -> anyhow::Result<serde_
         );
     }
     Ok(json!(rows))
+}
+
+/// `expert-server bench --profile`: where one stream's MPCC step goes, from Clarabel's own timers
+/// ([`phases::SolverPhases`]) and the step's wall time outside Clarabel (the rollout, the RK4 Jacobians, the
+/// contour errors, the QP's assembly), over a closed-loop drive of `steps` steps from the fixed spawn.
+pub fn profile(mpcc: &Mpcc, steps: usize) -> Result<serde_json::Value, MpccError> {
+    phases::start();
+    let r = drive(
+        mpcc,
+        &VehicleParams::default(),
+        &DriveOptions {
+            laps: usize::MAX,
+            max_steps: steps.max(1),
+            stop_on_failure: false,
+        },
+    );
+    let p = phases::take();
+    if let DriveEnd::Error(e) = &r.end {
+        return Err(MpccError::Config(format!("profile drive stopped: {e}")));
+    }
+    let n = r.steps.len().max(1) as f64;
+    let per_step = |d: Duration| ms(d) / n;
+    let step: f64 = r.steps.iter().map(|s| s.step_time).sum::<f64>() * 1e3 / n;
+    let solve: f64 = r.steps.iter().map(|s| s.solve_time).sum::<f64>() * 1e3 / n;
+    let parts = [
+        (
+            "outside Clarabel (rollout, Jacobians, contour, assembly)",
+            step - solve,
+        ),
+        (
+            "Clarabel: data (update_P/A/q/b or set-up)",
+            per_step(p.data),
+        ),
+        ("Clarabel: default start", per_step(p.default_start)),
+        ("Clarabel: scale cones", per_step(p.scale_cones)),
+        (
+            "Clarabel: kkt update (numeric LDL factorisation)",
+            per_step(p.kkt_update),
+        ),
+        (
+            "Clarabel: kkt solve (two solves an iteration)",
+            per_step(p.kkt_solve),
+        ),
+        (
+            "Clarabel: rest of the iteration (residuals, step length)",
+            per_step(p.iteration_rest),
+        ),
+    ];
+    Ok(json!({
+        "steps": r.steps.len(),
+        "step_ms_mean": step,
+        "qps_per_step": p.qps as f64 / n,
+        "iterations_per_qp": p.iterations as f64 / (p.qps.max(1) as f64),
+        "qp": {"variables": mpcc.layout().n(), "rows": mpcc.layout().m(), "kkt_nnz": p.kkt_nnz, "ldl_nnz": p.ldl_nnz},
+        "ms_per_step": parts.iter().map(|(k, v)| json!({"part": k, "ms": v, "share": v / step})).collect::<Vec<_>>(),
+    }))
+}
+
+/// One way of running MPCC-conv that `expert-server bench --candidates` measures beside the reference's.
+#[derive(Debug, Clone)]
+pub struct Candidate {
+    /// Short name.
+    pub name: &'static str,
+    /// What it changes, against the reference.
+    pub change: &'static str,
+    /// The controller's configuration.
+    pub config: MpccConfig,
+}
+
+/// The candidates of issue 75, the reference first.
+pub fn candidates() -> Vec<Candidate> {
+    let reference = MpccConfig::default();
+    let with = |f: &dyn Fn(&mut MpccConfig)| {
+        let mut c = reference.clone();
+        f(&mut c);
+        c
+    };
+    vec![
+        Candidate {
+            name: "reference",
+            change: "none: 2 QPs a step, gap 1e-5, feasibility 1e-6, every row",
+            config: reference.clone(),
+        },
+        Candidate {
+            name: "lazy-boxes",
+            change: "the v_y, ω, ψ boxes only when the minimiser leaves them (the same minimiser)",
+            config: with(&|c| c.lazy_state_boxes = true),
+        },
+        Candidate {
+            name: "tol-1e-4",
+            change: "gap 1e-4, feasibility 1e-5",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (1e-4, 1e-5)),
+        },
+        Candidate {
+            name: "tol-3e-4",
+            change: "gap 3e-4, feasibility 3e-5",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (3e-4, 3e-5)),
+        },
+        Candidate {
+            name: "tol-1e-3",
+            change: "gap 1e-3, feasibility 1e-4",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (1e-3, 1e-4)),
+        },
+        Candidate {
+            name: "tol-3e-3",
+            change: "gap 3e-3, feasibility 3e-4",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (3e-3, 3e-4)),
+        },
+        Candidate {
+            name: "converged-1e-2",
+            change: "the second QP only when the first moved a scaled variable by 1e-2 or more",
+            config: with(&|c| c.qp_converged_step = 1e-2),
+        },
+        Candidate {
+            name: "one-qp",
+            change: "one QP a step",
+            config: with(&|c| c.qp_iters = 1),
+        },
+        Candidate {
+            name: "lazy-tol-1e-3",
+            change: "lazy-boxes and tol-1e-3",
+            config: with(&|c| {
+                c.lazy_state_boxes = true;
+                (c.tol_gap, c.tol_feas) = (1e-3, 1e-4);
+            }),
+        },
+    ]
+}
+
+/// A candidate's figures: its step time side by side with the others, its laps from the fixed spawn, and its
+/// failures from random spawns.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CandidateRow {
+    pub name: String,
+    pub change: String,
+    /// Median over the repeats of each drive's step p50 [ms].
+    pub step_ms_p50: f64,
+    /// Its ratio to the reference's.
+    pub step_ratio: f64,
+    pub solve_ms_p50: f64,
+    /// Clarabel iterations per step, mean.
+    pub iterations_per_step: f64,
+    /// QPs per step, mean.
+    pub qps_per_step: f64,
+    /// QPs solved again with every row, per step (`lazy_state_boxes`).
+    pub full_resolves_per_step: f64,
+    /// Flying laps (all but the first) of the drive from the fixed spawn: mean [s] and count.
+    pub flying_lap_mean_s: Option<f64>,
+    pub flying_laps: usize,
+    /// Failed steps of the drive from the fixed spawn.
+    pub failures: usize,
+    /// Random spawns (the training distribution, `Spawn::Random`): episodes, failed steps, episodes that ended
+    /// off the band or stalled before `spawn_steps`.
+    pub spawn_episodes: usize,
+    pub spawn_failed_steps: usize,
+    pub spawn_truncated: usize,
+}
+
+/// Measures `cands` side by side: `repeat` rounds, each timing every candidate's drive of `steps` steps in turn
+/// (so that a drift of the machine's speed falls on all of them), then each one's random-spawn episodes
+/// (`spawns` of `spawn_steps` steps, spawns drawn from seed 75).
+pub fn compare(
+    track: &cabc_sim::track::Track,
+    cands: &[Candidate],
+    steps: usize,
+    repeat: usize,
+    spawns: usize,
+    spawn_steps: usize,
+) -> Result<Vec<CandidateRow>, MpccError> {
+    let plant = VehicleParams::default();
+    let mpccs = cands
+        .iter()
+        .map(|c| Mpcc::new(track.clone(), plant.clone(), c.config.clone()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut reports: Vec<Vec<BenchReport>> = vec![Vec::new(); cands.len()];
+    for _ in 0..repeat.max(1) {
+        for (m, out) in mpccs.iter().zip(reports.iter_mut()) {
+            out.push(bench(m, &plant, steps)?);
+        }
+    }
+    let opts = DriveOptions {
+        laps: usize::MAX,
+        max_steps: steps.max(1),
+        stop_on_failure: false,
+    };
+    let spawn_states: Vec<_> = (0..spawns as u64)
+        .map(|i| {
+            let mut env = cabc_sim::env::Env::new(
+                std::sync::Arc::new(track.clone()),
+                plant.clone(),
+                cabc_sim::env::EnvConfig::default(),
+            );
+            env.reset(
+                cabc_proto::config::Spawn::Random,
+                &mut cabc_sim::env::Env::rng(75, i),
+            );
+            env.vehicle_state()
+        })
+        .collect();
+    let spawn_opts = DriveOptions {
+        laps: usize::MAX,
+        max_steps: spawn_steps,
+        stop_on_failure: false,
+    };
+    let mut rows = Vec::new();
+    for ((c, m), runs) in cands.iter().zip(&mpccs).zip(&reports) {
+        let mut p50s: Vec<f64> = runs.iter().map(|r| ms(r.p50)).collect();
+        let mut solves: Vec<f64> = runs.iter().map(|r| ms(r.solve_p50)).collect();
+        let laps = drive(m, &plant, &opts);
+        let flying = laps.lap_times.get(1..).unwrap_or_default();
+        let qps: u64 = laps.steps.iter().map(|s| u64::from(s.qps)).sum();
+        let its: u64 = laps.steps.iter().map(|s| u64::from(s.qp_iterations)).sum();
+        let resolves: u64 = laps.steps.iter().map(|s| u64::from(s.full_resolves)).sum();
+        let n = laps.steps.len().max(1) as f64;
+        let (mut failed, mut truncated) = (0, 0);
+        for q in &spawn_states {
+            let r = drive_from(m, &plant, *q, &spawn_opts);
+            failed += r.failures;
+            truncated += usize::from(matches!(r.end, DriveEnd::Truncated(_) | DriveEnd::Error(_)));
+        }
+        rows.push(CandidateRow {
+            name: c.name.into(),
+            change: c.change.into(),
+            step_ms_p50: stats::median(&mut p50s).unwrap_or(0.0),
+            step_ratio: 0.0,
+            solve_ms_p50: stats::median(&mut solves).unwrap_or(0.0),
+            iterations_per_step: its as f64 / n,
+            qps_per_step: qps as f64 / n,
+            full_resolves_per_step: resolves as f64 / n,
+            flying_lap_mean_s: stats::mean(flying),
+            flying_laps: flying.len(),
+            failures: laps.failures,
+            spawn_episodes: spawn_states.len(),
+            spawn_failed_steps: failed,
+            spawn_truncated: truncated,
+        });
+    }
+    let reference = rows.first().map_or(1.0, |r| r.step_ms_p50);
+    for r in &mut rows {
+        r.step_ratio = r.step_ms_p50 / reference;
+    }
+    Ok(rows)
+}
+
+/// The rows of [`compare`] as a Markdown table.
+pub fn candidates_table(rows: &[CandidateRow]) -> String {
+    let mut t = String::from(
+        "| candidate | change | step p50 | ratio | solve p50 | IPM it. / step | QPs / step | full re-solves / step | \
+         flying lap | failures | random spawns: failed steps, truncated |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let lap = r
+            .flying_lap_mean_s
+            .map_or("-".into(), |l| format!("{l:.3} s ({} laps)", r.flying_laps));
+        t += &format!(
+            "| {} | {} | {:.3} ms | {:.2} | {:.3} ms | {:.1} | {:.2} | {:.3} | {lap} | {} | {}, {} of {} |\n",
+            r.name,
+            r.change,
+            r.step_ms_p50,
+            r.step_ratio,
+            r.solve_ms_p50,
+            r.iterations_per_step,
+            r.qps_per_step,
+            r.full_resolves_per_step,
+            r.failures,
+            r.spawn_failed_steps,
+            r.spawn_truncated,
+            r.spawn_episodes
+        );
+    }
+    t
 }

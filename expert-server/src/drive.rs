@@ -52,6 +52,10 @@ pub struct DriveStep {
     pub success: bool,
     /// MPCC status.
     pub status: QpStatus,
+    /// QPs solved in the step.
+    pub qps: u32,
+    /// QPs solved again with every row (`lazy_state_boxes`).
+    pub full_resolves: u32,
     /// Clarabel iterations summed over the step's QPs.
     pub qp_iterations: u32,
     /// Clarabel solve time [s].
@@ -140,6 +144,8 @@ pub fn drive_from(
             action: u,
             success: step.success,
             status: step.status,
+            qps: step.qps,
+            full_resolves: step.full_resolves,
             qp_iterations: step.qp_iterations,
             solve_time: step.solve_time.as_secs_f64(),
             step_time: step.step_time.as_secs_f64(),

@@ -55,6 +55,19 @@ enum Command {
         /// machine's speed drifts by ±20 % over minutes; one run is one sample of it).
         #[arg(long, default_value_t = 1)]
         repeat: usize,
+        /// Where a step's time goes instead: Clarabel's own timers per phase and the time outside Clarabel.
+        #[arg(long, conflicts_with = "candidates")]
+        profile: bool,
+        /// Measure the ways of cutting a step (issue 75) side by side with the reference's: step time (median of
+        /// --repeat interleaved drives), iterations, QPs, laps from the fixed spawn, failures from random spawns.
+        #[arg(long)]
+        candidates: bool,
+        /// With --candidates: random spawns (the training distribution) each candidate drives.
+        #[arg(long, default_value_t = 40)]
+        spawns: usize,
+        /// With --candidates: steps of each random-spawn episode.
+        #[arg(long, default_value_t = 100)]
+        spawn_steps: usize,
     },
 }
 
@@ -103,12 +116,38 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&report.summary())?);
             Ok(())
         }
-        Command::Bench { steps, repeat } => {
+        Command::Bench {
+            steps,
+            repeat,
+            profile,
+            candidates,
+            spawns,
+            spawn_steps,
+        } => {
             if steps < 10 {
                 bail!("--steps must be at least 10");
             }
             if repeat == 0 {
                 bail!("--repeat must be at least 1");
+            }
+            if profile {
+                let report = bench::profile(&mpcc(&config)?, steps)?;
+                println!("{}", serde_json::to_string_pretty(&report)?);
+                return Ok(());
+            }
+            if candidates {
+                let track = mpcc(&config)?.track().clone();
+                let rows = bench::compare(
+                    &track,
+                    &bench::candidates(),
+                    steps,
+                    repeat,
+                    spawns,
+                    spawn_steps,
+                )?;
+                eprint!("{}", bench::candidates_table(&rows));
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+                return Ok(());
             }
             let report = bench::report(&Arc::new(mpcc(&config)?), steps, repeat)?;
             println!("{}", serde_json::to_string_pretty(&report)?);

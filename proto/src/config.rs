@@ -105,6 +105,11 @@ impl RunConfig {
             origin: origin.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
+        // `actors.count = "auto"` was resolved without `collection.overlap`, which keeps a core for the learner.
+        if config.collection.overlap && actors_count_is_auto(text) {
+            let a = &mut config.actors;
+            a.count = ActorsSection::auto_count(ActorsSection::machine_cores(), a.auto_max, true);
+        }
         let (actors, evaluators) = (config.actors.count, config.actors.evaluators);
         config.bus.security.resolve(actors, evaluators, None);
         config.validate(origin)?;
@@ -247,6 +252,15 @@ impl RunConfig {
     pub fn steps_per_actor(&self, epoch: u64) -> u64 {
         self.epoch_steps(epoch).div_ceil(self.actors.count as u64)
     }
+}
+
+/// Whether a configuration's text (one that parsed) writes `actors.count = "auto"`.
+fn actors_count_is_auto(text: &str) -> bool {
+    let table: toml::Table = toml::from_str(text).unwrap_or_default();
+    table
+        .get("actors")
+        .and_then(|a| a.get("count"))
+        .is_some_and(|c| c.as_str() == Some("auto"))
 }
 
 #[cfg(test)]

@@ -67,6 +67,10 @@ pub struct MpccConfig {
 
     /// QP iterations per control step.
     pub qp_iters: usize,
+    /// A control step stops its QP loop early once a QP's step D* − D is this small (the largest change of a scaled
+    /// stage variable, inputs and states alike), as an SQP stops at convergence: the next QP would be built around
+    /// nearly the same iterate. 0: always `qp_iters` QPs (the reference).
+    pub qp_converged_step: f64,
     /// Weight of the previous iterate in the damped update D ← damping·D + (1 − damping)·D*.
     pub damping: f64,
     /// QP iterations at a stream's start.
@@ -92,6 +96,10 @@ pub struct MpccConfig {
     /// has none): the T-scaling is enough, and it takes ~40 % fewer interior-point iterations with the same
     /// closed-loop results.
     pub equilibrate: bool,
+    /// Solve each QP first without the box rows of v_x, v_y, ω and ψ (bounds a drive does not reach), and again
+    /// with them only when its minimiser leaves those boxes: the same minimiser (the lean QP is a relaxation of the
+    /// full one), a smaller KKT system (issue 75). False: every row, always (the reference).
+    pub lazy_state_boxes: bool,
     /// Reuse one Clarabel solver per stream and overwrite its data (`update_P/q/A/b`) instead of rebuilding.
     pub reuse_solver: bool,
 }
@@ -123,6 +131,7 @@ impl Default for MpccConfig {
             state_scale: [4.0, 2.0, 7.0, 6.0, 6.0, 2.0 * std::f64::consts::PI],
             input_scale: [2.0, 0.436, 4.5],
             qp_iters: 2,
+            qp_converged_step: 0.0,
             damping: 0.25,
             start_qp_iters: 5,
             start_damping: 0.5,
@@ -133,6 +142,7 @@ impl Default for MpccConfig {
             accept_almost_solved: false,
             iterative_refinement: false,
             equilibrate: false,
+            lazy_state_boxes: false,
             reuse_solver: true,
         }
     }

@@ -62,6 +62,7 @@
 mod config;
 mod contour;
 mod pattern;
+pub mod phases;
 mod qp;
 mod status;
 
@@ -101,6 +102,8 @@ pub struct Mpcc {
     model: VehicleParams,
     rk4: Rk4,
     layout: QpLayout,
+    /// The lean layout tried first under `lazy_state_boxes`.
+    lean: Option<QpLayout>,
 }
 
 /// Per-stream controller memory (expert.md §7): the warm start w̄_ws (N+1 rows of (a, δ, v_s)), w_prev, and the
@@ -111,6 +114,8 @@ pub struct MpccStream {
     w_prev: [f64; 3],
     steps: u64,
     ws: QpWorkspace,
+    /// The full layout's solver under `lazy_state_boxes` (its fallback).
+    ws_full: QpWorkspace,
 }
 
 impl MpccStream {
@@ -143,6 +148,8 @@ pub struct MpccStep {
     pub qps: u32,
     /// Sum of Clarabel's interior-point iterations.
     pub qp_iterations: u32,
+    /// QPs solved again with every row because the lean QP's minimiser left a lazy box (`lazy_state_boxes`).
+    pub full_resolves: u32,
     /// Wall time spent inside Clarabel (setup or data update, and solve), summed over the QPs.
     pub solve_time: Duration,
     /// Wall time of the whole step (rollout, linearisation, assembly, solves).
@@ -169,6 +176,7 @@ struct LoopOutcome {
     status: QpStatus,
     qps: u32,
     iterations: u32,
+    full_resolves: u32,
     solve_time: Duration,
 }
 
@@ -183,11 +191,25 @@ impl Mpcc {
         if !(0.0..1.0).contains(&cfg.damping) || !(0.0..1.0).contains(&cfg.start_damping) {
             return Err(MpccError::Config("damping must lie in [0, 1)".into()));
         }
+        let tolerance = |t: f64| t > 0.0 && t < 1.0;
+        if !(tolerance(cfg.tol_gap) && tolerance(cfg.tol_feas)) {
+            return Err(MpccError::Config(
+                "tol_gap and tol_feas must lie in (0, 1)".into(),
+            ));
+        }
+        if !(cfg.qp_converged_step >= 0.0 && cfg.qp_converged_step.is_finite()) {
+            return Err(MpccError::Config(
+                "qp_converged_step must be a number >= 0".into(),
+            ));
+        }
         if cfg.spline_points < 4 {
             return Err(MpccError::Config("spline_points must be at least 4".into()));
         }
         let splines = TrackSplines::new(&track, cfg.spline_points, cfg.track_tightening)?;
         let layout = QpLayout::new(&cfg, track.length());
+        let lean = cfg
+            .lazy_state_boxes
+            .then(|| QpLayout::lean(&cfg, track.length()));
         let rk4 = Rk4 {
             dt: cfg.dt,
             substeps: cfg.rk4_substeps,
@@ -199,17 +221,23 @@ impl Mpcc {
             model,
             rk4,
             layout,
+            lean,
         })
     }
 
-    /// The run's expert: the reference controller ([`MpccConfig::default`]) on the run's track (`sim.track`), its
-    /// prediction model the simulator's vehicle. The one constructor of the MPCC of a run (expert server, `learner
-    /// run --local`, `expert-server drive` and `bench`).
+    /// The run's expert: the reference controller ([`MpccConfig::default`]) with the run's `expert.mpcc_lazy_boxes`
+    /// (off by default) on the run's track (`sim.track`), its prediction model the simulator's vehicle. The one
+    /// constructor of the MPCC of a run (expert server, actors, `learner run --local`, `expert-server drive` and
+    /// `bench`).
     pub fn from_config(config: &RunConfig) -> Result<Self, MpccError> {
+        let cfg = MpccConfig {
+            lazy_state_boxes: config.expert.mpcc_lazy_boxes,
+            ..MpccConfig::default()
+        };
         Self::new(
             Track::from_kind(config.sim.track),
             VehicleParams::default(),
-            MpccConfig::default(),
+            cfg,
         )
     }
 
@@ -272,7 +300,7 @@ impl Mpcc {
     /// The QP loop of expert.md §7.2–3 around the warm start `w_ws` (N+1 rows) from `x0`.
     fn qp_loop(
         &self,
-        ws: &mut QpWorkspace,
+        ws: &mut [QpWorkspace; 2],
         x0: &[f64; 7],
         w_ws: &[[f64; 3]],
         w_prev: [f64; 3],
@@ -286,11 +314,13 @@ impl Mpcc {
             status: QpStatus::NotRun,
             qps: 0,
             iterations: 0,
+            full_resolves: 0,
             solve_time: Duration::ZERO,
         };
         for _ in 0..iters {
-            let sol = self.qp_around(&d, &slabs, w_prev, ws);
+            let (sol, resolved) = self.qp_around(&d, &slabs, w_prev, ws);
             out.qps += 1;
+            out.full_resolves += u32::from(resolved);
             out.iterations += sol.iterations;
             out.solve_time += sol.solve_time;
             out.status = sol.status;
@@ -298,10 +328,15 @@ impl Mpcc {
                 out.success = false;
                 break;
             }
+            let mut largest_step = 0.0f64;
             for (dk, sk) in d.iter_mut().zip(&sol.stages).skip(1) {
                 for j in 0..NZ {
+                    largest_step = largest_step.max((sk[j] - dk[j]).abs() / self.layout.scale[j]);
                     dk[j] = damping * dk[j] + (1.0 - damping) * sk[j];
                 }
+            }
+            if largest_step < self.cfg.qp_converged_step {
+                break;
             }
         }
         out.iterate = d;
@@ -315,7 +350,7 @@ impl Mpcc {
         let u0 = self.cfg.start_input;
         let w0 = [u0, u0, 0.0];
         let w_ws = vec![w0; self.cfg.horizon + 1];
-        let mut ws = QpWorkspace::default();
+        let mut ws = [QpWorkspace::default(), QpWorkspace::default()];
         let out = self.qp_loop(
             &mut ws,
             &x0,
@@ -324,11 +359,13 @@ impl Mpcc {
             self.cfg.start_qp_iters,
             self.cfg.start_damping,
         );
+        let [ws, ws_full] = ws;
         Ok(MpccStream {
             w_ws: out.iterate.iter().map(|z| [z[7], z[8], z[VS]]).collect(),
             w_prev: w0,
             steps: 0,
             ws,
+            ws_full,
         })
     }
 
@@ -337,14 +374,19 @@ impl Mpcc {
         let t0 = Instant::now();
         let n = self.cfg.horizon;
         let x0 = self.measure(q)?;
+        let mut ws = [
+            std::mem::take(&mut stream.ws),
+            std::mem::take(&mut stream.ws_full),
+        ];
         let out = self.qp_loop(
-            &mut stream.ws,
+            &mut ws,
             &x0,
             &stream.w_ws,
             stream.w_prev,
             self.cfg.qp_iters,
             self.cfg.damping,
         );
+        [stream.ws, stream.ws_full] = ws;
         let plan: Vec<[f64; 3]> = if out.success {
             out.iterate[1..]
                 .iter()
@@ -365,6 +407,7 @@ impl Mpcc {
             status: out.status,
             qps: out.qps,
             qp_iterations: out.iterations,
+            full_resolves: out.full_resolves,
             solve_time: out.solve_time,
             step_time: t0.elapsed(),
             measured: x0,
@@ -388,7 +431,8 @@ impl Mpcc {
     pub fn probe_qp(&self, stream: &MpccStream, q: &State) -> Result<QpSolution, MpccError> {
         let x0 = self.measure(q)?;
         let (d, slabs) = self.initial_iterate(&x0, &stream.w_ws);
-        Ok(self.qp_around(&d, &slabs, stream.w_prev, &mut QpWorkspace::default()))
+        let mut ws = [QpWorkspace::default(), QpWorkspace::default()];
+        Ok(self.qp_around(&d, &slabs, stream.w_prev, &mut ws).0)
     }
 
     /// The initial iterate of a step (nonlinear rollout of w̄_ws[1..N] from x0; stage k holds w̄_ws[k]) and the
@@ -404,14 +448,16 @@ impl Mpcc {
         (d, slabs)
     }
 
-    /// Linearise around the iterate `d` (transition k at (q̄_k, w̄_{k−1}), errors at stages 1..N) and solve.
+    /// Linearise around the iterate `d` (transition k at (q̄_k, w̄_{k−1}), errors at stages 1..N) and solve: with
+    /// `lazy_state_boxes` the lean QP first (workspace 0), and the full one (workspace 1) only when the lean
+    /// minimiser leaves a box it left out or the lean QP failed; whether it was solved again.
     fn qp_around(
         &self,
         d: &[Stage],
         slabs: &[Slab],
         w_prev: [f64; 3],
-        ws: &mut QpWorkspace,
-    ) -> QpSolution {
+        ws: &mut [QpWorkspace; 2],
+    ) -> (QpSolution, bool) {
         let n = self.cfg.horizon;
         let lin: Vec<Linearisation> = d[..n]
             .iter()
@@ -432,7 +478,19 @@ impl Mpcc {
             slabs,
             w_prev,
         };
-        self.layout.solve(&input, ws)
+        let [ws, ws_full] = ws;
+        let Some(lean) = &self.lean else {
+            return (self.layout.solve(&input, ws), false);
+        };
+        let tried = lean.solve(&input, ws);
+        if tried.status.is_success(self.cfg.accept_almost_solved) && lean.within_lazy_boxes(&tried)
+        {
+            return (tried, false);
+        }
+        let mut full = self.layout.solve(&input, ws_full);
+        full.iterations += tried.iterations;
+        full.solve_time += tried.solve_time;
+        (full, true)
     }
 }
 

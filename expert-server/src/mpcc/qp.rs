@@ -53,6 +53,10 @@ const Y: usize = 4;
 const OMEGA: usize = 2;
 /// Stage variables with box rows (X, Y have none: the reference's ±1e9 bounds are dropped).
 const BOXED: [usize; 8] = [0, 1, 2, 5, S, 7, 8, VS];
+/// The boxes a lean layout leaves out (`MpccConfig::lazy_state_boxes`): v_y, ω and ψ, state bounds that a
+/// closed-loop drive does not reach. The inputs' boxes bind (saturated steering and acceleration), and s's box keeps
+/// the KKT system well conditioned (module docs), so they stay.
+const LAZY: [usize; 3] = [1, 2, 5];
 const EQ_PER_STAGE: usize = 7;
 /// Variables per stage in z: the 10 stage variables and σ.
 const VARS_PER_STAGE: usize = NZ + 1;
@@ -115,6 +119,8 @@ pub struct QpLayout {
     ub: [f64; NZ],
     /// Whether input j has rate rows at stages k ≥ 2.
     rate_rows: [bool; 3],
+    /// The stage variables with box rows: [`BOXED`], or without [`LAZY`] in a lean layout.
+    boxed: Vec<usize>,
     cfg: MpccConfig,
     p_pat: Pattern,
     a_pat: Pattern,
@@ -158,12 +164,19 @@ pub struct QpSolution {
 impl QpLayout {
     /// The layout for `cfg` on a track of length `track_length`.
     pub fn new(cfg: &MpccConfig, track_length: f64) -> Self {
-        Self::build(cfg, track_length, true)
+        Self::build(cfg, track_length, true, false)
+    }
+
+    /// The lean layout: [`QpLayout::new`]'s without the box rows of [`LAZY`]'s state variables. Its minimiser is
+    /// the full QP's whenever it lies within those boxes ([`QpLayout::within_lazy_boxes`]): the lean QP is a
+    /// relaxation of the full one.
+    pub fn lean(cfg: &MpccConfig, track_length: f64) -> Self {
+        Self::build(cfg, track_length, true, true)
     }
 
     /// The layout, with the rate rows that can never bind left out (`prune`) or kept (to test that leaving them
-    /// out changes nothing).
-    pub(super) fn build(cfg: &MpccConfig, track_length: f64, prune: bool) -> Self {
+    /// out changes nothing), and with or without the box rows of [`LAZY`] (`lean`).
+    pub(super) fn build(cfg: &MpccConfig, track_length: f64, prune: bool, lean: bool) -> Self {
         let (sx, sw) = (cfg.state_scale, cfg.input_scale);
         let scale = [
             sx[0],
@@ -205,6 +218,10 @@ impl QpLayout {
             lb,
             ub,
             rate_rows,
+            boxed: BOXED
+                .into_iter()
+                .filter(|j| !(lean && LAZY.contains(j)))
+                .collect(),
             cfg: cfg.clone(),
             p_pat: Pattern::new(0, 0, &[]),
             a_pat: Pattern::new(0, 0, &[]),
@@ -265,8 +282,26 @@ impl QpLayout {
     pub fn m(&self) -> usize {
         // Per stage: the box rows, the rate rows (all three inputs at stage 1), the two slab rows.
         let later_rates = self.rate_rows.iter().filter(|&&r| r).count();
-        let stage = |rates: usize| 2 * BOXED.len() + 2 * rates + 2;
+        let stage = |rates: usize| 2 * self.boxed.len() + 2 * rates + 2;
         self.m_eq() + stage(3) + stage(later_rates) * (self.horizon - 1)
+    }
+
+    /// Whether a solution of this layout keeps the boxes it leaves out, to the solver's feasibility tolerance (in
+    /// scaled units, as the full layout's rows would hold them): then it is the full QP's minimiser too. True for a
+    /// layout that leaves none out; false for an unsolved QP.
+    pub fn within_lazy_boxes(&self, sol: &QpSolution) -> bool {
+        let tol = self.cfg.tol_feas;
+        let left_out: Vec<usize> = BOXED
+            .into_iter()
+            .filter(|j| !self.boxed.contains(j))
+            .collect();
+        !sol.stages.is_empty()
+            && sol.stages[1..].iter().all(|z| {
+                left_out.iter().all(|&j| {
+                    let (v, c) = (z[j], self.scale[j]);
+                    v / c <= self.ub[j] / c + tol && v / c >= self.lb[j] / c - tol
+                })
+            })
     }
 
     /// Nonzeros of (P, A).
@@ -356,23 +391,28 @@ impl QpLayout {
                     && s.update_q(&ws.asm.q).is_ok()
                     && s.update_b(&ws.asm.b).is_ok()
             });
+        let mut handed_over = t0.elapsed();
         if updated {
             let solver = ws.solver.as_mut().expect("updated above");
             solver.solve();
             sol.status = solver.solution.status.into();
             sol.iterations = solver.solution.iterations;
+            record_phases(handed_over, solver);
         }
         // A fresh solver: first use, no reuse, or (with equilibration) a reused solver that failed, because its
         // equilibration belongs to an earlier QP of the stream and can be poor for this one.
         if !updated
             || (self.cfg.equilibrate && !sol.status.is_success(self.cfg.accept_almost_solved))
         {
+            let set_up = Instant::now();
             let (p, a) = (self.p_pat.matrix(&ws.p_nz), self.a_pat.matrix(&ws.a_nz));
             match DefaultSolver::new(&p, &ws.asm.q, &a, &ws.asm.b, &self.cones(), self.settings()) {
                 Ok(mut s) => {
+                    handed_over = set_up.elapsed();
                     s.solve();
                     sol.status = s.solution.status.into();
                     sol.iterations += s.solution.iterations;
+                    record_phases(handed_over, &s);
                     ws.solver = Some(s);
                 }
                 Err(_) => {
@@ -408,6 +448,16 @@ impl QpLayout {
             ws.solver = None;
         }
         sol
+    }
+}
+
+/// Adds a solve to the phases being recorded on this thread, if any ([`super::phases`]).
+fn record_phases(handed_over: Duration, solver: &DefaultSolver<f64>) {
+    if super::phases::recording() {
+        let timers = format!("{:?}", solver.timers);
+        let ldl = &solver.info.linsolver;
+        let nnz = (ldl.nnzA, ldl.nnzL);
+        super::phases::add(handed_over, solver.solution.iterations, &timers, nnz);
     }
 }
 

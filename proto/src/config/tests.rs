@@ -97,6 +97,47 @@ fn steps_are_split_between_actors() {
     assert_eq!(c.steps_per_actor(1), 342);
 }
 
+/// Issue 75: `actors.count = "auto"` follows the machine's cores, less the learner's core when collection overlaps
+/// training, capped by `actors.auto_max`; the configuration written out holds the number.
+#[test]
+fn actors_count_auto_follows_the_cores_and_is_written_as_a_number() {
+    assert_eq!(ActorsSection::auto_count(2, 8, false), 2);
+    assert_eq!(ActorsSection::auto_count(2, 8, true), 1);
+    assert_eq!(ActorsSection::auto_count(1, 8, true), 1);
+    assert_eq!(ActorsSection::auto_count(64, 8, false), 8);
+    assert_eq!(ActorsSection::auto_count(0, 8, false), 1);
+    let cores = ActorsSection::machine_cores();
+    let c = RunConfig::from_toml("[actors]\ncount = \"auto\"\nauto_max = 64\n", "t.toml").unwrap();
+    assert_eq!(c.actors.count, ActorsSection::auto_count(cores, 64, false));
+    let text = c.to_toml();
+    assert!(
+        text.contains(&format!("count = {}", c.actors.count)),
+        "{text}"
+    );
+    assert_eq!(RunConfig::from_toml(&text, "rt").unwrap(), c);
+    let overlap = "[actors]\ncount = \"auto\"\nauto_max = 64\n[collection]\noverlap = true\n";
+    let c = RunConfig::from_toml(overlap, "t.toml").unwrap();
+    assert_eq!(c.actors.count, ActorsSection::auto_count(cores, 64, true));
+    // A number stays as written, overlap or not.
+    let fixed = "[actors]\ncount = 3\n[collection]\noverlap = true\n";
+    assert_eq!(
+        RunConfig::from_toml(fixed, "t.toml").unwrap().actors.count,
+        3
+    );
+    let c = RunConfig::default()
+        .with_overrides(&["actors.count=auto".into(), "actors.auto_max=1".into()])
+        .unwrap();
+    assert_eq!(c.actors.count, 1);
+    let err = RunConfig::from_toml("[actors]\ncount = \"many\"\n", "t.toml").unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("t.toml") && msg.contains("count") && msg.contains("\"auto\""),
+        "{msg}"
+    );
+    assert!(RunConfig::from_toml("[actors]\ncount = -1\n", "t.toml").is_err());
+    assert!(RunConfig::from_toml("[actors]\ncount = 0\n", "t.toml").is_err());
+}
+
 #[test]
 fn bus_security_is_off_by_default_and_fills_in_the_ids() {
     assert_eq!(RunConfig::default().bus.security.mode, SecurityMode::None);
@@ -297,8 +338,8 @@ fn the_default_is_the_recipe_and_the_term_as_the_paper_writes_it() {
 }
 
 /// Issue 59 item 3: the main job's default (`v-b`) is `v-b-term` with the robust keys, DART in collection, the
-/// sensor noise and the early stop judged on random spawns under the noise of `cabc robust`'s test; nothing else
-/// differs.
+/// sensor noise and the early stop judged on random spawns under the noise of `cabc robust`'s test, and (issue 75)
+/// an actor per core and the MPCC's lazy boxes; nothing else differs.
 #[test]
 fn the_default_is_the_term_with_dart_the_sensor_noise_and_the_judged_early_stop() {
     assert_eq!(DEFAULT_PRESET, "v-b");
@@ -314,12 +355,19 @@ fn the_default_is_the_term_with_dart_the_sensor_noise_and_the_judged_early_stop(
             "collection.early_stop_action_noise_std=[0.02,0.005]".to_string(),
             "collection.early_stop_state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]"
                 .to_string(),
+            "actors.count=auto".to_string(),
+            "expert.mpcc_lazy_boxes=true".to_string(),
         ])
         .unwrap();
     assert_eq!(
         default.to_toml(),
         robust.to_toml(),
-        "only the robust keys differ"
+        "only the robust keys and issue 75's differ"
+    );
+    let cores = ActorsSection::machine_cores();
+    assert_eq!(
+        default.actors.count,
+        ActorsSection::auto_count(cores, 8, false)
     );
 }
 

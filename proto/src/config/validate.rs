@@ -111,13 +111,14 @@ impl RunConfig {
             );
         }
         // Counts and periods that must be at least 1.
-        let counts: [(&'static str, u64); 8] = [
+        let counts: [(&'static str, u64); 9] = [
             ("algorithm.autolabel_every", self.algorithm.autolabel_every),
             (
                 "collection.steps_per_epoch",
                 self.collection.steps_per_epoch,
             ),
             ("actors.count", self.actors.count.into()),
+            ("actors.auto_max", self.actors.auto_max.into()),
             ("actors.evaluators", self.actors.evaluators.into()),
             ("actors.envs_per_actor", self.actors.envs_per_actor.into()),
             ("training.batch_size", self.training.batch_size as u64),

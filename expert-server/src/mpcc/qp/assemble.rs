@@ -3,9 +3,7 @@
 //! rate limits, the track slab). The parts emit their entries in the pattern's order (the module doc of
 //! [`super`]), stage by stage.
 
-use super::{
-    a_structural, Assembled, QpInput, QpLayout, BOXED, EQ_PER_STAGE, NZ, OMEGA, S, VS, X, Y,
-};
+use super::{a_structural, Assembled, QpInput, QpLayout, EQ_PER_STAGE, NZ, OMEGA, S, VS, X, Y};
 use crate::rk4::NQ;
 
 /// Entries (row, column, value) of a sparse matrix, in the pattern's order.
@@ -166,7 +164,7 @@ impl QpLayout {
     /// Stage k's box rows (Az ≤ b) from `row` on; the next free row.
     fn box_rows(&self, k: usize, mut row: usize, a: &mut Entries, b: &mut [f64]) -> usize {
         let c = &self.scale;
-        for &j in &BOXED {
+        for &j in &self.boxed {
             a.push((row, self.stage_var(k, j), 1.0));
             b[row] = self.ub[j] / c[j];
             a.push((row + 1, self.stage_var(k, j), -1.0));
