@@ -87,7 +87,7 @@ echo "[run-local] run folder $run_dir; $actors actors + $evaluators evaluator(s)
 # starts); an expert server unless the actors solve their own relabellings (expert.placement = "in-actor"). A
 # process that dies is started again after a backoff (the learner with --resume), with a warning here and in its
 # log, and counted in the run folder's supervision.json (metrics.csv's restarts_<role>, summary.json's restarts); one
-# that keeps dying (supervision.max_restarts within supervision.window_s) stops the run with an error naming it and
+# that keeps dying (once more after supervision.max_restarts restarts within supervision.window_s) stops the run with an error naming it and
 # its log. One Ctrl-C stops them all; the run ends when the learner does, with its exit status.
 supervise=()
 [ "$verbose" = 1 ] && supervise+=(--verbose)

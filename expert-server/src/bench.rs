@@ -321,6 +321,10 @@ pub struct CandidateRow {
     pub spawn_episodes: usize,
     pub spawn_failed_steps: usize,
     pub spawn_truncated: usize,
+    /// The random-spawn episodes' steps (states off the racing line, as an actor's policy visits them): mean step
+    /// time [ms] and Clarabel iterations per step.
+    pub spawn_step_ms_mean: f64,
+    pub spawn_iterations_per_step: f64,
 }
 
 /// Measures `cands` side by side: `repeat` rounds, each timing every candidate's drive of `steps` steps in turn
@@ -380,11 +384,20 @@ pub fn compare(
         let resolves: u64 = laps.steps.iter().map(|s| u64::from(s.full_resolves)).sum();
         let n = laps.steps.len().max(1) as f64;
         let (mut failed, mut truncated) = (0, 0);
+        let (mut spawn_steps_done, mut spawn_secs, mut spawn_its) = (0usize, 0.0, 0u64);
         for q in &spawn_states {
             let r = drive_from(m, &plant, *q, &spawn_opts);
             failed += r.failures;
             truncated += usize::from(matches!(r.end, DriveEnd::Truncated(_) | DriveEnd::Error(_)));
+            spawn_steps_done += r.steps.len();
+            spawn_secs += r.steps.iter().map(|s| s.step_time).sum::<f64>();
+            spawn_its += r
+                .steps
+                .iter()
+                .map(|s| u64::from(s.qp_iterations))
+                .sum::<u64>();
         }
+        let spawn_n = spawn_steps_done.max(1) as f64;
         rows.push(CandidateRow {
             name: c.name.into(),
             change: c.change.into(),
@@ -400,6 +413,8 @@ pub fn compare(
             spawn_episodes: spawn_states.len(),
             spawn_failed_steps: failed,
             spawn_truncated: truncated,
+            spawn_step_ms_mean: spawn_secs * 1e3 / spawn_n,
+            spawn_iterations_per_step: spawn_its as f64 / spawn_n,
         });
     }
     let reference = rows.first().map_or(1.0, |r| r.step_ms_p50);
@@ -413,14 +428,15 @@ pub fn compare(
 pub fn candidates_table(rows: &[CandidateRow]) -> String {
     let mut t = String::from(
         "| candidate | change | step p50 | ratio | solve p50 | IPM it. / step | QPs / step | full re-solves / step | \
-         flying lap | failures | random spawns: failed steps, truncated |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+         flying lap | failures | random spawns: failed steps, truncated | random spawns: step mean, IPM it. / step |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let lap = r
             .flying_lap_mean_s
             .map_or("-".into(), |l| format!("{l:.3} s ({} laps)", r.flying_laps));
         t += &format!(
-            "| {} | {} | {:.3} ms | {:.2} | {:.3} ms | {:.1} | {:.2} | {:.3} | {lap} | {} | {}, {} of {} |\n",
+            "| {} | {} | {:.3} ms | {:.2} | {:.3} ms | {:.1} | {:.2} | {:.3} | {lap} | {} | {}, {} of {} | {:.3} ms, {:.1} |\n",
             r.name,
             r.change,
             r.step_ms_p50,
@@ -432,7 +448,9 @@ pub fn candidates_table(rows: &[CandidateRow]) -> String {
             r.failures,
             r.spawn_failed_steps,
             r.spawn_truncated,
-            r.spawn_episodes
+            r.spawn_episodes,
+            r.spawn_step_ms_mean,
+            r.spawn_iterations_per_step
         );
     }
     t

@@ -1,6 +1,6 @@
-//! When a dead process is started again: after a backoff that doubles with each death in the window, and never once
-//! it died `max_restarts` times within `window_s` (a crash loop, which ends the run). Pure logic, tested without
-//! processes.
+//! When a dead process is started again: after a backoff that doubles with each death in the window, at most
+//! `max_restarts` times within `window_s`; the death after those restarts (death `max_restarts + 1` in the window, OTP's
+//! restart intensity) is a crash loop, which ends the run. Pure logic, tested without processes.
 
 use cabc_proto::config::SupervisionSection;
 use std::collections::VecDeque;

@@ -406,8 +406,8 @@ fn streams_step_concurrently_like_sequentially() {
 
 /// The MPCC of a run's configuration is the construction every caller wrote out before (`Mpcc::new` on
 /// `L_track_barc`, the reference vehicle and `MpccConfig::default()`): its first steps from the fixed spawn give the
-/// same actions, bit for bit, for the reference's presets, and so does `Mpcc::reference`. The default preset's adds
-/// the lazy boxes (issue 75): the same minimisers, so the same actions to the solver's tolerance.
+/// same actions, bit for bit, for every preset, and so does `Mpcc::reference`. `expert.mpcc_lazy_boxes` (issue 75)
+/// turns on the lazy boxes: the same minimisers, so the same actions to the solver's tolerance.
 #[test]
 fn the_configured_mpcc_is_the_reference_construction() {
     let written_out = Mpcc::new(
@@ -430,32 +430,27 @@ fn the_configured_mpcc_is_the_reference_construction() {
     };
     let expected = actions(&written_out);
     assert_eq!(bits(actions(&Mpcc::reference())), bits(expected.clone()));
-    let reference = RunConfig::load("v-b-ref").unwrap();
-    let configured = Mpcc::from_config(&reference).unwrap();
-    assert_eq!(configured.config(), written_out.config());
-    assert_eq!(bits(actions(&configured)), bits(expected.clone()));
     let config = RunConfig::load(cabc_proto::config::DEFAULT_PRESET).unwrap();
     let configured = Mpcc::from_config(&config).unwrap();
     assert_eq!(configured.track().length(), written_out.track().length());
-    let lazy = MpccConfig {
-        lazy_state_boxes: true,
-        ..MpccConfig::default()
-    };
-    assert_eq!(configured.config(), &lazy);
-    let close = |a: &[[f64; 2]]| {
-        a.iter()
-            .zip(&expected)
-            .all(|(x, y)| (x[0] - y[0]).abs() < 1e-4 && (x[1] - y[1]).abs() < 1e-4)
-    };
-    assert!(
-        close(&actions(&configured)),
-        "{:?} {expected:?}",
-        actions(&configured)
-    );
+    assert_eq!(configured.config(), written_out.config());
+    assert_eq!(bits(actions(&configured)), bits(expected.clone()));
     match crate::relabel::Expert::from_config(&config).unwrap() {
-        crate::relabel::Expert::Mpcc(mpcc) => assert!(close(&actions(&mpcc))),
+        crate::relabel::Expert::Mpcc(mpcc) => {
+            assert_eq!(bits(actions(&mpcc)), bits(expected.clone()))
+        }
         crate::relabel::Expert::Pid(_) => panic!("v-b's expert is the MPCC"),
     }
+    let lazy_config = config
+        .with_overrides(&["expert.mpcc_lazy_boxes=true".into()])
+        .unwrap();
+    let lazy = Mpcc::from_config(&lazy_config).unwrap();
+    assert!(lazy.config().lazy_state_boxes && lazy.lean.is_some());
+    let close = actions(&lazy)
+        .iter()
+        .zip(&expected)
+        .all(|(x, y)| (x[0] - y[0]).abs() < 1e-4 && (x[1] - y[1]).abs() < 1e-4);
+    assert!(close, "{:?} against {expected:?}", actions(&lazy));
     let pid = RunConfig::load("v-a").unwrap();
     assert!(matches!(
         crate::relabel::Expert::from_config(&pid).unwrap(),

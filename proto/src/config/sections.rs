@@ -596,12 +596,14 @@ impl Default for BusSection {
 
 /// How `cabc supervise` (the local job's and each scale-out machine's supervisor) restarts the run's processes
 /// (issue 64): a dead actor, evaluator or expert server is started again after a backoff that doubles with each
-/// death in the window, the learner with `--resume`; a process that dies `max_restarts` times within `window_s`
-/// stops the run with an error naming it and its log.
+/// death in the window, the learner with `--resume`, at most `max_restarts` times within `window_s`; the death after
+/// those restarts (death `max_restarts + 1` in the window, OTP's restart intensity) stops the run with an error naming
+/// the process and its log.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SupervisionSection {
-    /// Deaths of one process within `window_s` that end the run (a crash loop); 0: never restarted.
+    /// Restarts of one process within `window_s`; its next death in the window ends the run (a crash loop). 0:
+    /// never restarted (its first death ends the run).
     pub max_restarts: u32,
     /// The crash loop's window, in seconds.
     pub window_s: f64,

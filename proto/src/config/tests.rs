@@ -339,7 +339,7 @@ fn the_default_is_the_recipe_and_the_term_as_the_paper_writes_it() {
 
 /// Issue 59 item 3: the main job's default (`v-b`) is `v-b-term` with the robust keys, DART in collection, the
 /// sensor noise and the early stop judged on random spawns under the noise of `cabc robust`'s test, and (issue 75)
-/// an actor per core and the MPCC's lazy boxes; nothing else differs.
+/// an actor per core; nothing else differs.
 #[test]
 fn the_default_is_the_term_with_dart_the_sensor_noise_and_the_judged_early_stop() {
     assert_eq!(DEFAULT_PRESET, "v-b");
@@ -356,13 +356,12 @@ fn the_default_is_the_term_with_dart_the_sensor_noise_and_the_judged_early_stop(
             "collection.early_stop_state_noise_std=[0.002,0.002,0.002,0.002,0.002,0.002]"
                 .to_string(),
             "actors.count=auto".to_string(),
-            "expert.mpcc_lazy_boxes=true".to_string(),
         ])
         .unwrap();
     assert_eq!(
         default.to_toml(),
         robust.to_toml(),
-        "only the robust keys and issue 75's differ"
+        "only the robust keys and issue 75's count differ"
     );
     let cores = ActorsSection::machine_cores();
     assert_eq!(
