@@ -242,7 +242,8 @@ pub fn candidates() -> Vec<Candidate> {
         f(&mut c);
         c
     };
-    vec![
+    #[allow(unused_mut)]
+    let mut all = vec![
         Candidate {
             name: "reference",
             change: "none: 2 QPs a step, gap 1e-5, feasibility 1e-6, every row",
@@ -291,7 +292,14 @@ pub fn candidates() -> Vec<Candidate> {
                 (c.tol_gap, c.tol_feas) = (1e-3, 1e-4);
             }),
         },
-    ]
+    ];
+    #[cfg(feature = "faer")]
+    all.push(Candidate {
+        name: "faer",
+        change: "faer's sparse LDLᵀ instead of QDLDL (the same KKT system)",
+        config: with(&|c| c.ldl = crate::mpcc::Ldl::Faer),
+    });
+    all
 }
 
 /// A candidate's figures: its step time side by side with the others, its laps from the fixed spawn, and its

@@ -62,6 +62,9 @@ enum Command {
         /// --repeat interleaved drives), iterations, QPs, laps from the fixed spawn, failures from random spawns.
         #[arg(long)]
         candidates: bool,
+        /// With --candidates: only these (by name, repeatable; the reference is always measured first).
+        #[arg(long = "only", value_name = "NAME")]
+        only: Vec<String>,
         /// With --candidates: random spawns (the training distribution) each candidate drives.
         #[arg(long, default_value_t = 40)]
         spawns: usize,
@@ -121,6 +124,7 @@ fn main() -> Result<()> {
             repeat,
             profile,
             candidates,
+            only,
             spawns,
             spawn_steps,
         } => {
@@ -137,14 +141,18 @@ fn main() -> Result<()> {
             }
             if candidates {
                 let track = mpcc(&config)?.track().clone();
-                let rows = bench::compare(
-                    &track,
-                    &bench::candidates(),
-                    steps,
-                    repeat,
-                    spawns,
-                    spawn_steps,
-                )?;
+                let all = bench::candidates();
+                if let Some(unknown) = only.iter().find(|n| !all.iter().any(|c| c.name == **n)) {
+                    let names: Vec<_> = all.iter().map(|c| c.name).collect();
+                    bail!("no candidate {unknown:?}; candidates: {}", names.join(", "));
+                }
+                let chosen: Vec<_> = all
+                    .into_iter()
+                    .enumerate()
+                    .filter(|(i, c)| *i == 0 || only.is_empty() || only.iter().any(|n| n == c.name))
+                    .map(|(_, c)| c)
+                    .collect();
+                let rows = bench::compare(&track, &chosen, steps, repeat, spawns, spawn_steps)?;
                 eprint!("{}", bench::candidates_table(&rows));
                 println!("{}", serde_json::to_string_pretty(&rows)?);
                 return Ok(());

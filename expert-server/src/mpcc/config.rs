@@ -11,6 +11,26 @@ use serde::{Deserialize, Serialize};
 /// and the tests). It is not a section of the run configuration: no run varies these numbers (the paper's expert is
 /// the reference's), and every recorded `config.toml` would grow by a section; a study that tunes the expert sets
 /// the fields here and builds with [`crate::Mpcc::new`], as the MPCC's own tests do.
+/// Which LDL factorisation Clarabel runs on the KKT system.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Ldl {
+    /// QDLDL, Clarabel's default.
+    Qdldl,
+    /// faer's sparse LDLᵀ.
+    Faer,
+}
+
+impl Ldl {
+    /// Clarabel's name for it (`direct_solve_method`).
+    pub fn clarabel_name(self) -> &'static str {
+        match self {
+            Ldl::Qdldl => "qdldl",
+            Ldl::Faer => "faer",
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MpccConfig {
@@ -100,6 +120,9 @@ pub struct MpccConfig {
     /// with them only when its minimiser leaves those boxes: the same minimiser (the lean QP is a relaxation of the
     /// full one), a smaller KKT system (issue 75). False: every row, always (the reference).
     pub lazy_state_boxes: bool,
+    /// The LDL factorisation of Clarabel's KKT system: QDLDL (Clarabel's own, the default) or faer's sparse LDLᵀ
+    /// (Clarabel's `faer-sparse` back end; this crate's `faer` feature).
+    pub ldl: Ldl,
     /// Reuse one Clarabel solver per stream and overwrite its data (`update_P/q/A/b`) instead of rebuilding.
     pub reuse_solver: bool,
 }
@@ -143,6 +166,7 @@ impl Default for MpccConfig {
             iterative_refinement: false,
             equilibrate: false,
             lazy_state_boxes: false,
+            ldl: Ldl::Qdldl,
             reuse_solver: true,
         }
     }

@@ -72,7 +72,7 @@ use cabc_proto::config::RunConfig;
 use cabc_sim::track::{Track, TrackError};
 use cabc_sim::vehicle::{State, VehicleParams};
 
-pub use config::MpccConfig;
+pub use config::{Ldl, MpccConfig};
 pub use contour::{ContourErrors, Slab, TrackSplines};
 pub use qp::{Linearisation, QpLayout, QpSolution, QpStatus, QpWorkspace, Stage};
 
@@ -200,6 +200,11 @@ impl Mpcc {
         if !(cfg.qp_converged_step >= 0.0 && cfg.qp_converged_step.is_finite()) {
             return Err(MpccError::Config(
                 "qp_converged_step must be a number >= 0".into(),
+            ));
+        }
+        if cfg!(not(feature = "faer")) && cfg.ldl == Ldl::Faer {
+            return Err(MpccError::Config(
+                "ldl = faer needs cabc-expert's `faer` feature (Clarabel's faer back end)".into(),
             ));
         }
         if cfg.spline_points < 4 {

@@ -329,6 +329,7 @@ impl QpLayout {
             .presolve_enable(false)
             .equilibrate_enable(self.cfg.equilibrate)
             .iterative_refinement_enable(self.cfg.iterative_refinement)
+            .direct_solve_method(self.cfg.ldl.clarabel_name().to_string())
             .build()
             .expect("valid Clarabel settings")
     }

@@ -153,6 +153,18 @@ fn lazy_boxes_give_the_full_qps_minimiser() {
     assert_eq!(laps.failures, 0);
 }
 
+/// faer's LDL needs the crate's `faer` feature: without it the controller is refused with a message saying so.
+#[test]
+#[cfg(not(feature = "faer"))]
+fn faer_without_its_feature_is_refused() {
+    let cfg = MpccConfig {
+        ldl: Ldl::Faer,
+        ..MpccConfig::default()
+    };
+    let err = Mpcc::new(Track::l_track_barc(), VehicleParams::default(), cfg).unwrap_err();
+    assert!(err.to_string().contains("faer"), "{err}");
+}
+
 /// A lean layout's check refuses a solution outside a box it left out, and an unsolved QP.
 #[test]
 fn a_minimiser_outside_a_lazy_box_is_refused() {
