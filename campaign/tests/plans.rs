@@ -44,7 +44,8 @@ fn the_plans_keep_the_bash_campaigns_slices() {
 
 #[test]
 fn the_plans_views_are_the_bash_campaigns() {
-    // Issues 45's, 46's, 58's, 59's and 65's plans came after the translation: their views are their own (below).
+    // Issues 45's, 46's, 58's, 59's, 65's and 75's plans came after the translation: their views are their own
+    // (below).
     let after = [
         "issue-45",
         "issue-46",
@@ -52,6 +53,7 @@ fn the_plans_views_are_the_bash_campaigns() {
         "issue-59",
         "issue-65",
         "issue-65-v-a",
+        "issue-75",
     ];
     let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
         .unwrap()
@@ -103,6 +105,13 @@ fn the_plans_views_are_the_bash_campaigns() {
         ["v-a-cpu-dart", "v-a-cpu-critic-on"],
         "issue-65-v-a: the recipe's group beside its test"
     );
+    // Issue 75: the default with an actor per core beside the recorded default, its count named in every slice.
+    let auto = plan("issue-75");
+    assert_eq!(auto.views[0].groups, ["v-b-judged", "v-b-auto"]);
+    assert!(auto
+        .slices
+        .iter()
+        .all(|s| s.text().contains("--set actors.count=2")));
 }
 
 /// A slice's arguments are what bash's `eval` made of its text, and its runs are named as reproduce.sh names them.

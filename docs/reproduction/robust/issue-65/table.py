@@ -42,7 +42,9 @@ def wilson(k, n, z=1.959963984540054):
 def method(run):
     # V-C's protocols apart: the reference's (v-c-ref-*ten), its variant (v-c-ref-*variant-ten) and the variant
     # with the judged early stop (v-c-ref-variant-judged).
-    if "variant-judged" in run:
+    if run.startswith("v-b-auto-"):
+        experiment = "V-B, an actor per core"
+    elif "variant-judged" in run:
         experiment = "V-C variant, judged stop"
     elif "variant" in run:
         experiment = "V-C variant"
@@ -55,7 +57,7 @@ def method(run):
     return f"{experiment}, " + ("baseline" if run.endswith("-baseline") else "proposed")
 
 
-EXPERIMENTS = ["V-B (the default)", "V-C", "V-C variant", "V-C variant, judged stop"]
+EXPERIMENTS = ["V-B (the default)", "V-B, an actor per core", "V-C", "V-C variant", "V-C variant, judged stop"]
 
 
 def order(m):
@@ -232,6 +234,29 @@ if twins:
     shifts = [shift(judged_first, t, l, twin_rng) for t in ("judge", "unseen") for l in levels]
     print(f"| {len(twins)} pairs: judged fewer / as many / more (judged / twin) | | " + " | ".join(counts) + " |")
     print(f"| {len(twins)} pairs: judged minus twin, points, mean [95 % CI] | | " + " | ".join(shifts) + " |")
+
+
+# Issue 75: the default with an actor per core (`v-b-auto-*`, two actors here) against the default with one
+# (`calm-v-b-*`), seed by seed, each method.
+actor_pairs = [(q.name, q.name.replace("v-b-auto-", "calm-v-b-")) for q in runs if q.name.startswith("v-b-auto-")]
+actor_pairs = [(a, b) for a, b in actor_pairs if (b, "judge", 0.0) in crashes]
+if actor_pairs:
+    print()
+    print("An actor per core against one actor (issue 75): each v-b-auto run beside calm-v-b's on the same seed and "
+          "method; the seeds where it crashed less, as often, more (crashes summed, an actor per core / one), then "
+          "the crash rate's difference in points, a mean over seeds with its bootstrap 95 % interval (below 0: fewer "
+          "crashes with an actor per core).")
+    print()
+    print(f"| method | seeds | {head} |")
+    print("|---|---|" + "---|" * (2 * len(levels)))
+    actor_rng = random.Random(0)
+    for kind in ("proposed", "baseline"):
+        pairs = [(a, b) for a, b in actor_pairs if a.endswith("-baseline") == (kind == "baseline")]
+        if pairs:
+            counts = [tally(pairs, t, l) for t in ("judge", "unseen") for l in levels]
+            shifts = [shift(pairs, t, l, actor_rng) for t in ("judge", "unseen") for l in levels]
+            print(f"| {kind}: fewer / as many / more | {len(pairs)} | " + " | ".join(counts) + " |")
+            print(f"| {kind}: difference, points | {len(pairs)} | " + " | ".join(shifts) + " |")
 
 
 def splice(path, name, middle):
