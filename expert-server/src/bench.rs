@@ -463,3 +463,29 @@ pub fn candidates_table(rows: &[CandidateRow]) -> String {
     }
     t
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The candidates are measured on the same drives as the reference, which comes first with ratio 1: one QP a step
+    /// solves half the QPs, the reference never solves a QP again, and the table has a row per candidate.
+    #[test]
+    fn candidates_are_measured_beside_the_reference() {
+        let chosen: Vec<Candidate> = candidates()
+            .into_iter()
+            .filter(|c| ["reference", "lazy-boxes", "one-qp"].contains(&c.name))
+            .collect();
+        let track = cabc_sim::track::Track::l_track_barc();
+        let rows = compare(&track, &chosen, 30, 1, 2, 10).unwrap();
+        let names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["reference", "lazy-boxes", "one-qp"]);
+        assert_eq!(rows[0].step_ratio, 1.0);
+        assert_eq!((rows[0].qps_per_step, rows[2].qps_per_step), (2.0, 1.0));
+        assert_eq!(rows[0].full_resolves_per_step, 0.0);
+        assert!(rows
+            .iter()
+            .all(|r| r.spawn_episodes == 2 && r.step_ms_p50 > 0.0));
+        assert_eq!(candidates_table(&rows).lines().count(), 2 + rows.len());
+    }
+}

@@ -26,6 +26,7 @@ use status::{ProcessStatus, Status};
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+#[cfg(target_os = "linux")]
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -472,8 +473,10 @@ fn spawn(spec: &Spec, args: &[String], brief: bool) -> std::io::Result<Child> {
     let mut command = Command::new(&spec.program);
     command.args(args).stdin(Stdio::null());
     // A supervisor that dies takes its processes with it (SIGINT: each ends cleanly) instead of leaving them
-    // unsupervised; its own supervisor (or the user) starts the run again with --resume.
+    // unsupervised; its own supervisor (or the user) starts the run again with --resume. PR_SET_PDEATHSIG is Linux's
+    // alone: elsewhere the processes outlive a supervisor killed with SIGKILL.
     // SAFETY: prctl(2) is async-signal-safe, as a pre_exec closure must be.
+    #[cfg(target_os = "linux")]
     unsafe {
         command.pre_exec(|| {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGINT) == -1 {

@@ -1,6 +1,9 @@
 //! The binaries start, answer --help and --version, and refuse bad configurations with a clear message.
 
+use cabc_proto::config::ActorsSection;
 use cabc_tests::bin;
+use std::os::unix::process::CommandExt;
+use std::path::PathBuf;
 use std::process::Command;
 
 fn run(binary: &str, args: &[&str]) -> (bool, String) {
@@ -57,4 +60,68 @@ fn an_unknown_preset_lists_the_presets() {
     let (ok, text) = run("actor", &["--config", "v-q"]);
     assert!(!ok);
     assert!(text.contains("v-b") && text.contains("smoke"), "{text}");
+}
+
+/// `command` pinned to the first CPU (what a scheduler's affinity or a cgroup's quota gives a process).
+fn on_one_core(command: &mut Command) -> &mut Command {
+    // SAFETY: sched_setaffinity(2) on the child itself, before exec; it touches only the set on this stack.
+    unsafe {
+        command.pre_exec(|| {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_SET(0, &mut set);
+            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Issue 75: the default's `actors.count = "auto"` is resolved by the process that reads it to the cores it may run
+/// on (one when its affinity gives it one), and the run folder's config.toml holds that number, which a reader with
+/// other cores keeps.
+#[test]
+fn the_defaults_auto_count_follows_the_cores_and_the_run_folder_keeps_it() {
+    let dir = cabc_tests::test_dir();
+    let runs = dir.path().display().to_string();
+    let prepare = |name: &str, one_core: bool| -> PathBuf {
+        let mut command = Command::new(bin("learner").unwrap());
+        command.args(["prepare", "--set", &format!("run.name={name}"), "--set"]);
+        command.arg(format!("run.runs_dir={runs}"));
+        if one_core {
+            on_one_core(&mut command);
+        }
+        let out = command.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+    };
+    let count_in = |folder: &PathBuf| -> u32 {
+        let config = std::fs::read_to_string(folder.join("config.toml")).unwrap();
+        let line = config.lines().find(|l| l.starts_with("count = ")).unwrap();
+        line["count = ".len()..].parse().unwrap()
+    };
+    let cores = std::thread::available_parallelism().unwrap().get();
+    let here = prepare("auto-here", false);
+    assert_eq!(count_in(&here), ActorsSection::auto_count(cores, 8, false));
+    let pinned = prepare("auto-one-core", true);
+    assert_eq!(count_in(&pinned), 1);
+    // The folder's number, read on one core: kept.
+    let config = here.join("config.toml").display().to_string();
+    let out = on_one_core(Command::new(bin("cabc").unwrap()).args([
+        "show",
+        "--config",
+        &config,
+        "actors.count",
+    ]))
+    .output()
+    .unwrap();
+    assert!(out.status.success());
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        count_in(&here).to_string()
+    );
 }
