@@ -52,20 +52,21 @@ fn qp_at_a_straight_line_state() {
     );
 }
 
-/// Leaving out the rate rows that can never bind (the acceleration's, after stage 1) must not change the QP's
-/// minimiser: solve the QPs of a closed-loop lap with and without them.
-#[test]
-fn pruned_rows_do_not_change_the_qp_solution() {
-    let mpcc = Mpcc::reference();
-    let mut full = mpcc.clone();
-    full.layout = QpLayout::build(mpcc.config(), mpcc.track().length(), false, false);
-    assert!(full.layout.m() > mpcc.layout.m());
+/// The QPs of the first `steps` steps of a closed-loop lap of `mpcc`, each solved by `mpcc` and by `other` from the
+/// same warm start: both must solve every one, `check` sees `other`'s solutions, and the largest scaled difference of
+/// their minimisers comes back.
+fn largest_difference_over_a_lap(
+    mpcc: &Mpcc,
+    other: &Mpcc,
+    steps: usize,
+    check: impl Fn(usize, &QpSolution),
+) -> f64 {
     let r = drive(
-        &mpcc,
+        mpcc,
         &VehicleParams::default(),
         &DriveOptions {
             laps: 1,
-            max_steps: 60,
+            max_steps: steps,
             stop_on_failure: true,
         },
     );
@@ -74,10 +75,11 @@ fn pruned_rows_do_not_change_the_qp_solution() {
     for (k, step) in r.steps.iter().enumerate() {
         let (a, b) = (
             mpcc.probe_qp(&stream, &step.state).unwrap(),
-            full.probe_qp(&stream, &step.state).unwrap(),
+            other.probe_qp(&stream, &step.state).unwrap(),
         );
         assert_eq!(a.status, QpStatus::Solved, "step {k}");
         assert_eq!(b.status, QpStatus::Solved, "step {k}");
+        check(k, &b);
         for (za, zb) in a.stages.iter().zip(&b.stages) {
             for j in 0..NZ {
                 worst = worst.max((za[j] - zb[j]).abs() / mpcc.layout.scale[j]);
@@ -85,6 +87,18 @@ fn pruned_rows_do_not_change_the_qp_solution() {
         }
         mpcc.step(&mut stream, &step.state).unwrap();
     }
+    worst
+}
+
+/// Leaving out the rate rows that can never bind (the acceleration's, after stage 1) must not change the QP's
+/// minimiser: solve the QPs of a closed-loop lap with and without them.
+#[test]
+fn pruned_rows_do_not_change_the_qp_solution() {
+    let mpcc = Mpcc::reference();
+    let mut full = mpcc.clone();
+    full.layout = QpLayout::build(mpcc.config(), mpcc.track().length(), false, false);
+    assert!(full.layout.m() > mpcc.layout.m());
+    let worst = largest_difference_over_a_lap(&mpcc, &full, 60, |_, _| ());
     // Both are interior-point solutions to 1e-5/1e-6 tolerances of the same QP.
     assert!(worst < 2e-3, "largest scaled difference {worst:e}");
     eprintln!("largest scaled difference between pruned and full QPs: {worst:e}");
@@ -110,32 +124,9 @@ fn lazy_boxes_give_the_full_qps_minimiser() {
         .as_ref()
         .expect("a lean layout under lazy_state_boxes");
     assert_eq!(lean.m() + 2 * 3 * 20, mpcc.layout.m());
-    let r = drive(
-        &mpcc,
-        &VehicleParams::default(),
-        &DriveOptions {
-            laps: 1,
-            max_steps: 120,
-            stop_on_failure: true,
-        },
-    );
-    let mut stream = mpcc.start(&r.steps[0].state).unwrap();
-    let mut worst: f64 = 0.0;
-    for (k, step) in r.steps.iter().enumerate() {
-        let (full, lazy_sol) = (
-            mpcc.probe_qp(&stream, &step.state).unwrap(),
-            lazy.probe_qp(&stream, &step.state).unwrap(),
-        );
-        assert_eq!(full.status, QpStatus::Solved, "step {k}");
-        assert_eq!(lazy_sol.status, QpStatus::Solved, "step {k}");
-        assert!(mpcc.layout.within_lazy_boxes(&lazy_sol), "step {k}");
-        for (za, zb) in full.stages.iter().zip(&lazy_sol.stages) {
-            for j in 0..NZ {
-                worst = worst.max((za[j] - zb[j]).abs() / mpcc.layout.scale[j]);
-            }
-        }
-        mpcc.step(&mut stream, &step.state).unwrap();
-    }
+    let worst = largest_difference_over_a_lap(&mpcc, &lazy, 120, |k, sol| {
+        assert!(mpcc.layout.within_lazy_boxes(sol), "step {k}");
+    });
     // Two interior-point solutions to 1e-5/1e-6 of the same QP (3.6e-3 measured over these 120 steps; the flat
     // (X, Y, s) direction of the contour residuals is where they differ most).
     assert!(worst < 1e-2, "largest scaled difference {worst:e}");
