@@ -15,6 +15,59 @@ use crate::drive::{drive, drive_from, DriveEnd, DriveOptions};
 use crate::mpcc::{phases, Mpcc, MpccConfig, MpccError};
 use crate::relabel::{Expert, Relabeller};
 
+/// `expert-server bench`'s options.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchArgs {
+    /// Closed-loop steps to time.
+    #[arg(long, default_value_t = 300)]
+    pub steps: usize,
+    /// Time the closed-loop drive this many times and report the median of the runs' medians (a shared machine's
+    /// speed drifts by ±20 % over minutes; one run is one sample of it).
+    #[arg(long, default_value_t = 1)]
+    pub repeat: usize,
+    /// Where a step's time goes instead: Clarabel's own timers per phase and the time outside Clarabel.
+    #[arg(long, conflicts_with = "candidates")]
+    pub profile: bool,
+    /// Measure the ways of cutting a step (issue 75) side by side with the reference's: step time (median of
+    /// --repeat interleaved drives), iterations, QPs, laps from the fixed spawn, failures from random spawns.
+    #[arg(long)]
+    pub candidates: bool,
+    /// With --candidates: only these (by name, repeatable; the reference is always measured first).
+    #[arg(long = "only", value_name = "NAME")]
+    pub only: Vec<String>,
+    /// With --candidates: random spawns (the training distribution) each candidate drives.
+    #[arg(long, default_value_t = 40)]
+    pub spawns: usize,
+    /// With --candidates: steps of each random-spawn episode.
+    #[arg(long, default_value_t = 100)]
+    pub spawn_steps: usize,
+}
+
+/// `expert-server bench` with `mpcc` (the run's expert): the report, the profile (`--profile`) or the candidates'
+/// rows (`--candidates`, their Markdown table on stderr), as JSON.
+pub fn run(mpcc: &Mpcc, args: &BenchArgs) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(args.steps >= 10, "--steps must be at least 10");
+    anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
+    if args.profile {
+        return Ok(profile(mpcc, args.steps)?);
+    }
+    if args.candidates {
+        let chosen = chosen(&args.only)?;
+        let (steps, spawns) = (args.steps, args.spawns);
+        let rows = compare(
+            mpcc.track(),
+            &chosen,
+            steps,
+            args.repeat,
+            spawns,
+            args.spawn_steps,
+        )?;
+        eprint!("{}", candidates_table(&rows));
+        return Ok(serde_json::to_value(rows)?);
+    }
+    report(&Arc::new(mpcc.clone()), args.steps, args.repeat)
+}
+
 /// Step-time statistics of a closed-loop run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BenchReport {
@@ -302,6 +355,22 @@ pub fn candidates() -> Vec<Candidate> {
     all
 }
 
+/// The reference and the candidates named in `only` (all of them when it is empty), in [`candidates`]' order; an
+/// unknown name is an error that lists the names.
+pub fn chosen(only: &[String]) -> anyhow::Result<Vec<Candidate>> {
+    let all = candidates();
+    if let Some(unknown) = only.iter().find(|n| !all.iter().any(|c| c.name == **n)) {
+        let names: Vec<_> = all.iter().map(|c| c.name).collect();
+        anyhow::bail!("no candidate {unknown:?}; candidates: {}", names.join(", "));
+    }
+    Ok(all
+        .into_iter()
+        .enumerate()
+        .filter(|(i, c)| *i == 0 || only.is_empty() || only.iter().any(|n| n == c.name))
+        .map(|(_, c)| c)
+        .collect())
+}
+
 /// A candidate's figures: its step time side by side with the others, its laps from the fixed spawn, and its
 /// failures from random spawns.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -472,12 +541,13 @@ mod tests {
     /// solves half the QPs, the reference never solves a QP again, and the table has a row per candidate.
     #[test]
     fn candidates_are_measured_beside_the_reference() {
-        let chosen: Vec<Candidate> = candidates()
-            .into_iter()
-            .filter(|c| ["reference", "lazy-boxes", "one-qp"].contains(&c.name))
-            .collect();
+        let picked = chosen(&["one-qp".into(), "lazy-boxes".into()]).unwrap();
+        assert!(chosen(&["nonsense".into()])
+            .unwrap_err()
+            .to_string()
+            .contains("lazy-boxes"));
         let track = cabc_sim::track::Track::l_track_barc();
-        let rows = compare(&track, &chosen, 30, 1, 2, 10).unwrap();
+        let rows = compare(&track, &picked, 30, 1, 2, 10).unwrap();
         let names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
         assert_eq!(names, ["reference", "lazy-boxes", "one-qp"]);
         assert_eq!(rows[0].step_ratio, 1.0);

@@ -3,7 +3,7 @@
 
 mod server;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use cabc_expert::bench;
 use cabc_expert::drive::{drive, DriveOptions};
 use cabc_expert::relabel::Expert;
@@ -11,7 +11,6 @@ use cabc_expert::Mpcc;
 use cabc_proto::config::RunConfig;
 use cabc_sim::vehicle::VehicleParams;
 use clap::{Parser, Subcommand};
-use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -47,31 +46,7 @@ enum Command {
         plot: Option<std::path::PathBuf>,
     },
     /// Print MPCC solves per second per core and step-time percentiles.
-    Bench {
-        /// Closed-loop steps to time.
-        #[arg(long, default_value_t = 300)]
-        steps: usize,
-        /// Time the closed-loop drive this many times and report the median of the runs' medians (a shared
-        /// machine's speed drifts by ±20 % over minutes; one run is one sample of it).
-        #[arg(long, default_value_t = 1)]
-        repeat: usize,
-        /// Where a step's time goes instead: Clarabel's own timers per phase and the time outside Clarabel.
-        #[arg(long, conflicts_with = "candidates")]
-        profile: bool,
-        /// Measure the ways of cutting a step (issue 75) side by side with the reference's: step time (median of
-        /// --repeat interleaved drives), iterations, QPs, laps from the fixed spawn, failures from random spawns.
-        #[arg(long)]
-        candidates: bool,
-        /// With --candidates: only these (by name, repeatable; the reference is always measured first).
-        #[arg(long = "only", value_name = "NAME")]
-        only: Vec<String>,
-        /// With --candidates: random spawns (the training distribution) each candidate drives.
-        #[arg(long, default_value_t = 40)]
-        spawns: usize,
-        /// With --candidates: steps of each random-spawn episode.
-        #[arg(long, default_value_t = 100)]
-        spawn_steps: usize,
-    },
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> Result<()> {
@@ -119,46 +94,9 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&report.summary())?);
             Ok(())
         }
-        Command::Bench {
-            steps,
-            repeat,
-            profile,
-            candidates,
-            only,
-            spawns,
-            spawn_steps,
-        } => {
-            if steps < 10 {
-                bail!("--steps must be at least 10");
-            }
-            if repeat == 0 {
-                bail!("--repeat must be at least 1");
-            }
-            if profile {
-                let report = bench::profile(&mpcc(&config)?, steps)?;
-                println!("{}", serde_json::to_string_pretty(&report)?);
-                return Ok(());
-            }
-            if candidates {
-                let track = mpcc(&config)?.track().clone();
-                let all = bench::candidates();
-                if let Some(unknown) = only.iter().find(|n| !all.iter().any(|c| c.name == **n)) {
-                    let names: Vec<_> = all.iter().map(|c| c.name).collect();
-                    bail!("no candidate {unknown:?}; candidates: {}", names.join(", "));
-                }
-                let chosen: Vec<_> = all
-                    .into_iter()
-                    .enumerate()
-                    .filter(|(i, c)| *i == 0 || only.is_empty() || only.iter().any(|n| n == c.name))
-                    .map(|(_, c)| c)
-                    .collect();
-                let rows = bench::compare(&track, &chosen, steps, repeat, spawns, spawn_steps)?;
-                eprint!("{}", bench::candidates_table(&rows));
-                println!("{}", serde_json::to_string_pretty(&rows)?);
-                return Ok(());
-            }
-            let report = bench::report(&Arc::new(mpcc(&config)?), steps, repeat)?;
-            println!("{}", serde_json::to_string_pretty(&report)?);
+        Command::Bench(args) => {
+            let output = bench::run(&mpcc(&config)?, &args)?;
+            println!("{}", serde_json::to_string_pretty(&output)?);
             Ok(())
         }
     }

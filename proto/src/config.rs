@@ -9,10 +9,12 @@ use crate::messages::image_bytes;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+mod actors;
 mod choices;
 mod overrides;
 mod security;
 mod validate;
+pub use actors::ActorCount;
 pub use choices::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction,

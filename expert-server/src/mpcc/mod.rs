@@ -113,9 +113,9 @@ pub struct MpccStream {
     w_ws: Vec<[f64; 3]>,
     w_prev: [f64; 3],
     steps: u64,
-    ws: QpWorkspace,
-    /// The full layout's solver under `lazy_state_boxes` (its fallback).
-    ws_full: QpWorkspace,
+    /// The QP solvers: the layout a step solves first, and the full layout's under `lazy_state_boxes` (its
+    /// fallback).
+    ws: [QpWorkspace; 2],
 }
 
 impl MpccStream {
@@ -364,13 +364,11 @@ impl Mpcc {
             self.cfg.start_qp_iters,
             self.cfg.start_damping,
         );
-        let [ws, ws_full] = ws;
         Ok(MpccStream {
             w_ws: out.iterate.iter().map(|z| [z[7], z[8], z[VS]]).collect(),
             w_prev: w0,
             steps: 0,
             ws,
-            ws_full,
         })
     }
 
@@ -379,19 +377,14 @@ impl Mpcc {
         let t0 = Instant::now();
         let n = self.cfg.horizon;
         let x0 = self.measure(q)?;
-        let mut ws = [
-            std::mem::take(&mut stream.ws),
-            std::mem::take(&mut stream.ws_full),
-        ];
         let out = self.qp_loop(
-            &mut ws,
+            &mut stream.ws,
             &x0,
             &stream.w_ws,
             stream.w_prev,
             self.cfg.qp_iters,
             self.cfg.damping,
         );
-        [stream.ws, stream.ws_full] = ws;
         let plan: Vec<[f64; 3]> = if out.success {
             out.iterate[1..]
                 .iter()
