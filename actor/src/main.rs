@@ -57,7 +57,7 @@ fn main() -> Result<()> {
     }
     // One inference thread (actors are many, cores few); subnormals flushed as in the learner.
     cabc_models::device::one_cpu_thread();
-    let interrupt = Interrupt::on_ctrl_c();
+    let interrupt = Interrupt::on_signals();
     let keys = Keys::new(&config.run.name)?;
     let evaluators = config.actors.evaluators as u64;
     let shard = cli

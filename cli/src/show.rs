@@ -26,6 +26,9 @@ pub struct ShowArgs {
     /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
     #[arg(long, short, default_value = cabc_proto::config::DEFAULT_PRESET)]
     config: String,
+    /// A configuration value applied before the key is read, `key=value` (as `learner prepare --set`); repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
     /// The configuration's key; with --gif, the run folder.
     key: String,
     /// A GIF of VERSION: `best` (the default: best-policy.safetensors evaluated anew), `final` (the final policy
@@ -90,7 +93,10 @@ pub fn run(args: &ShowArgs) -> Result<()> {
         println!("{}", shown.gif.display());
         return Ok(());
     }
-    let value = crate::load(&args.config)?.show(key);
+    let value = crate::load(&args.config)?
+        .with_overrides(&args.set)
+        .context("applying --set")?
+        .show(key);
     println!(
         "{}",
         value.with_context(|| format!("no key {key} in the configuration"))?

@@ -36,6 +36,10 @@ pub struct Args {
     /// The bus endpoints every process but the learner dials (default: bus.connect).
     #[arg(long)]
     connect: Vec<String>,
+    /// This machine's name where machines share the run folder (deploy/slurm/): without the learner, this
+    /// supervisor's record is supervision-<NODE>.json instead of supervision.json.
+    #[arg(long)]
+    node: Option<String>,
     /// The learner's full log lines on the terminal instead of its progress bar.
     #[arg(long)]
     verbose: bool,
@@ -61,6 +65,7 @@ pub fn run(args: &Args) -> Result<i32> {
         first_actor: args.first_actor,
         connect: args.connect.clone(),
         learner_args: args.learner_args.clone(),
+        node: args.node.clone(),
     };
     for program in roster.specs(&config).iter().map(|s| &s.program) {
         anyhow::ensure!(

@@ -23,7 +23,7 @@ use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.
 pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
-    let interrupt = Interrupt::on_ctrl_c();
+    let interrupt = Interrupt::on_signals();
     let keys = Keys::new(&config.run.name)?;
     let waits = Waits {
         epoch_timeout: Duration::from_secs_f64(config.bus.epoch_timeout_s),
@@ -66,7 +66,7 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
 /// the distributed run (the same streams, segment order and code; `tests/tests/local.rs`), except that every
 /// version's evaluation arrives before the next epoch, so an early stop can come a few epochs sooner.
 pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
-    let interrupt = Interrupt::on_ctrl_c();
+    let interrupt = Interrupt::on_signals();
     let expert = Expert::from_config(&config).context("building the MPCC")?;
     let expert = Background::new(Relabeller::new(
         expert,

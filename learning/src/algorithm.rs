@@ -47,6 +47,12 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         let Some(collected) = actors.gather(&update, &mut |segment| learner.store(segment))? else {
             return Ok(Ending::Interrupted);
         };
+        // Interrupted while the epoch closed (a scheduler's SIGTERM reaches the learner and the actors at once, and
+        // the actors' last markers can close the epoch short): the epoch is not kept short. The run ends at the
+        // checkpoint of the epoch before, and a resumed run collects this one whole.
+        if actors.interrupted() {
+            return Ok(Ending::Interrupted);
+        }
         // Partition D_new into D+' (laps) and D?' (failures): D+ <- D+ u D+', D? <- D? u D?'.
         learner.partition(&collected);
         // Safety auto-labelling (eq. (19)), every `autolabel_every` epochs: remove from D? every x inside the convex

@@ -445,10 +445,11 @@ impl Supervisor {
     }
 
     fn write_status(&self) -> Result<(), SuperviseError> {
+        let record = self.roster.record();
         self.status
-            .write(&self.roster.run_dir)
+            .write(&record)
             .map_err(|source| SuperviseError::Io {
-                what: format!("writing {}", Status::path(&self.roster.run_dir).display()),
+                what: format!("writing {}", record.display()),
                 source,
             })
     }

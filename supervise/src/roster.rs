@@ -3,6 +3,7 @@
 //! the evaluators (`actor`, `actor --eval`), each with its log under `<run>/logs/`; and, when asked for
 //! (`--roles router,...`), a standalone router (`zenohd`, deploy/SCALE-OUT.md §2) that every other process dials.
 
+use crate::status::Status;
 use cabc_proto::config::{ExpertPlacement, RunConfig};
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -109,9 +110,23 @@ pub struct Roster {
     pub connect: Vec<String>,
     /// The learner's own arguments (`--resume`, `--fresh`, ...).
     pub learner_args: Vec<String>,
+    /// This machine's name where several machines share the run folder (a cluster's shared filesystem): a
+    /// supervisor that runs no learner then keeps its record in `supervision-<node>.json` ([`Roster::record`]).
+    pub node: Option<String>,
 }
 
 impl Roster {
+    /// Where this supervisor keeps its record: `supervision.json` (the file the learner reads, so the learner's
+    /// machine always writes it), or `supervision-<node>.json` for another machine of a shared run folder.
+    pub fn record(&self) -> PathBuf {
+        match &self.node {
+            Some(node) if !self.roles.contains(&Role::Learner) => {
+                self.run_dir.join(format!("supervision-{node}.json"))
+            }
+            _ => Status::path(&self.run_dir),
+        }
+    }
+
     /// The processes, in the order they start: the router, the learner, the expert server, the actors, the evaluators.
     pub fn specs(&self, config: &RunConfig) -> Vec<Spec> {
         let logs = self.run_dir.join("logs");
@@ -284,7 +299,19 @@ mod tests {
             first_actor: 0,
             connect: Vec::new(),
             learner_args: vec!["--fresh".into()],
+            node: None,
         }
+    }
+
+    #[test]
+    fn a_node_of_a_shared_run_folder_keeps_its_own_record_unless_it_runs_the_learner() {
+        let mut actors = roster(vec![Role::Actor]);
+        assert_eq!(actors.record(), Path::new("/r/supervision.json"));
+        actors.node = Some("n2".into());
+        assert_eq!(actors.record(), Path::new("/r/supervision-n2.json"));
+        let mut head = roster(vec![Role::Learner, Role::Actor]);
+        head.node = Some("n1".into());
+        assert_eq!(head.record(), Path::new("/r/supervision.json"));
     }
 
     #[test]

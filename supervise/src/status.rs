@@ -56,13 +56,12 @@ impl Status {
         run_dir.join(FILE)
     }
 
-    /// Writes the file whole: a temporary beside it, renamed over it.
-    pub fn write(&self, run_dir: &Path) -> std::io::Result<()> {
-        let path = Status::path(run_dir);
+    /// Writes the file `path` whole: a temporary beside it, renamed over it.
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
         let tmp = path.with_extension("json.tmp");
         let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
         std::fs::write(&tmp, text + "\n")?;
-        std::fs::rename(&tmp, &path)
+        std::fs::rename(&tmp, path)
     }
 
     /// The file of `run_dir`, if there is one that reads (a file too large or malformed is None).
@@ -95,7 +94,7 @@ mod tests {
                 log: "logs/actor-0.log".into(),
             },
         );
-        status.write(dir.path()).unwrap();
+        status.write(&Status::path(dir.path())).unwrap();
         assert_eq!(Status::read(dir.path()), Some(status));
         std::fs::write(Status::path(dir.path()), "{not json").unwrap();
         assert_eq!(Status::read(dir.path()), None);

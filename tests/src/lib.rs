@@ -6,6 +6,7 @@
 //! network namespaces for runs over a (virtual) network.
 
 pub mod netns;
+pub mod slurm;
 
 use anyhow::{bail, Context, Result};
 use std::net::TcpListener;

@@ -1,0 +1,323 @@
+//! deploy/slurm/cabc.sbatch on real Slurm daemons (deploy/slurm/cluster.sh: slurmctld, munged and two slurmd, each
+//! node in its own network namespace with its own address, so the bus rides on the nodes' network, not on
+//! loopback): the run submitted with sbatch over two nodes reaches its end; one node's step killed mid-run, the run
+//! goes on with the other; the job requeued mid-run resumes its run folder and stores every step once.
+//! The run is the smoke preset under mutual TLS (the job's default), one actor per node, without the early stop.
+
+use cabc_tests::slurm::SlurmCluster;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// One cluster at a time: each test makes its own, and they share the machine's two cores.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+const BUDGET: u64 = 256; // smoke's collection.steps_per_epoch
+
+fn script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/slurm/cabc.sbatch")
+}
+
+fn cluster(tmp: &Path) -> SlurmCluster {
+    SlurmCluster::up(&tmp.join("slurm"), 2).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+/// Submits the smoke run over 2 nodes for `epochs` epochs; (job id, its run folder).
+fn submit(cluster: &SlurmCluster, tmp: &Path, epochs: u64) -> (u64, PathBuf) {
+    let runs = tmp.join("runs");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let bin = cabc_tests::bin_dir();
+    let (out, script) = (
+        tmp.join("job-%j.out").display().to_string(),
+        script().display().to_string(),
+    );
+    let (dir, max_epochs) = (
+        tmp.display().to_string(),
+        format!("run.max_epochs={epochs}"),
+    );
+    let job = cluster
+        .sbatch(
+            &[
+                "-N",
+                "2",
+                "-D",
+                &dir,
+                "-o",
+                &out,
+                &script,
+                "--config",
+                "smoke",
+                "--actors-per-node",
+                "1",
+                "--set",
+                &max_epochs,
+                "--set",
+                "collection.early_stop_successes=1000",
+            ],
+            &[
+                ("CABC_BIN", &bin),
+                ("CABC_ROOT", &root),
+                ("CABC_RUNS", &runs),
+            ],
+        )
+        .unwrap_or_else(|e| panic!("{e:#}"));
+    (job, runs.join(format!("smoke-job{job}")))
+}
+
+/// What a failed wait shows: the job's output and the learner's last lines.
+fn report(tmp: &Path, job: u64, run: &Path) -> String {
+    let read = |p: PathBuf| {
+        std::fs::read_to_string(&p).unwrap_or_else(|e| format!("{}: {e}", p.display()))
+    };
+    let learner = read(run.join("logs/learner.log"));
+    let tail: Vec<&str> = learner.lines().rev().take(15).collect();
+    format!(
+        "job output:\n{}\nlearner.log (last lines, newest first):\n{}",
+        read(tmp.join(format!("job-{job}.out"))),
+        tail.join("\n")
+    )
+}
+
+fn wait_done(cluster: &SlurmCluster, tmp: &Path, job: u64, run: &Path) {
+    let state = cluster
+        .wait_state(
+            job,
+            &["COMPLETED", "FAILED", "CANCELLED", "TIMEOUT", "NODE_FAIL"],
+            Duration::from_secs(240),
+        )
+        .unwrap_or_else(|e| panic!("{e:#}\n{}", report(tmp, job, run)));
+    assert_eq!(state, "COMPLETED", "{}", report(tmp, job, run));
+}
+
+/// The run's epochs recorded in metrics.csv (rows), waited for.
+fn wait_epochs(tmp: &Path, job: u64, run: &Path, n: usize) {
+    let start = Instant::now();
+    let metrics = run.join("metrics.csv");
+    while std::fs::read_to_string(&metrics).map_or(0, |t| t.lines().count().saturating_sub(1)) < n {
+        assert!(
+            start.elapsed() < Duration::from_secs(180),
+            "{n} epochs not recorded in 180 s\n{}",
+            report(tmp, job, run)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn summary(run: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
+}
+
+/// A column of seconds of metrics.csv.
+fn seconds(run: &Path, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let i = header.iter().position(|h| *h == name).unwrap();
+    lines
+        .map(|l| {
+            l.split(',')
+                .nth(i)
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(f64::NAN)
+        })
+        .collect()
+}
+
+fn column(run: &Path, name: &str) -> Vec<u64> {
+    cabc_tests::csv_column(&run.join("metrics.csv"), name)
+}
+
+/// The lines at ERROR in the run's logs.
+fn errors(run: &Path) -> Vec<String> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(run.join("logs")).unwrap() {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        found.extend(
+            text.lines()
+                .filter(|l| l.contains("ERROR"))
+                .map(|l| format!("{}: {l}", path.display())),
+        );
+    }
+    found
+}
+
+/// The learner's lines that tell an epoch's end or an interrupt, for a failed count.
+fn epoch_lines(run: &Path) -> String {
+    let log = std::fs::read_to_string(run.join("logs/learner.log")).unwrap_or_default();
+    log.lines()
+        .filter(|l| {
+            [
+                "epoch done",
+                "interrupted",
+                "resumed",
+                "run ends",
+                "left",
+                "WARN",
+            ]
+            .iter()
+            .any(|n| l.contains(n))
+        })
+        .map(|l| l.chars().take(260).collect::<String>())
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The steps an actor's log says it published over its life (its last "final metrics" line), if it ended cleanly.
+fn final_steps(run: &Path, actor: &str) -> Option<u64> {
+    let log = std::fs::read_to_string(run.join(format!("logs/{actor}.log"))).ok()?;
+    let line = log.lines().rev().find(|l| l.contains("final metrics"))?;
+    let rest = &line[line.find("\"steps\":")? + 8..];
+    rest.split(|c: char| !c.is_ascii_digit())
+        .next()?
+        .parse()
+        .ok()
+}
+
+#[test]
+fn an_sbatch_run_over_two_nodes_runs_to_its_end() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let cluster = cluster(tmp.path());
+    let (job, run) = submit(&cluster, tmp.path(), 8);
+    wait_done(&cluster, tmp.path(), job, &run);
+    let s = summary(&run);
+    assert_eq!(s["epochs"], 8, "{s:#}");
+    assert_eq!(s["ended"], "max_epochs 8 reached", "{s:#}");
+    assert_eq!(s["duplicate_segments"], 0, "{s:#}");
+    // Every epoch closed with its budget, and stored exactly what its markers said was published.
+    assert!(column(&run, "steps_taken").iter().all(|&t| t == BUDGET));
+    assert_eq!(
+        column(&run, "steps_collected"),
+        column(&run, "steps_published")
+    );
+    // The bus ran over the nodes' network: the actors dialled the first node's address, not loopback.
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(config.contains("tls/10.201."), "{config}");
+    // Both nodes collected: actor-0 on n1, actor-1 on n2, each under its node's supervisor.
+    for actor in ["actor-0", "actor-1"] {
+        let steps = final_steps(&run, actor);
+        assert!(
+            steps.is_some_and(|s| s > 0),
+            "{actor}: {steps:?}\n{}",
+            report(tmp.path(), job, &run)
+        );
+    }
+    assert!(run.join("supervision.json").is_file());
+    assert!(run.join("supervision-n2.json").is_file());
+    let errors = errors(&run);
+    assert!(errors.is_empty(), "{errors:#?}");
+    println!(
+        "slurm: job {job} over n1, n2: {} epochs, actor-0 {:?} and actor-1 {:?} steps",
+        s["epochs"],
+        final_steps(&run, "actor-0"),
+        final_steps(&run, "actor-1")
+    );
+}
+
+#[test]
+fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let cluster = cluster(tmp.path());
+    let (job, run) = submit(&cluster, tmp.path(), 24);
+    wait_epochs(tmp.path(), job, &run, 4);
+    let steps = cluster.steps(job).unwrap();
+    let (step, _) = steps
+        .iter()
+        .find(|(_, nodes)| nodes == "n2")
+        .unwrap_or_else(|| panic!("no step on n2: {steps:?}"));
+    // The node's step killed: SIGKILL to its supervisor and its actor at once, as a node that dies.
+    let struck = column(&run, "steps_taken").len();
+    cluster.run("scancel", &["--signal=KILL", step]).unwrap();
+    wait_done(&cluster, tmp.path(), job, &run);
+    let s = summary(&run);
+    assert_eq!(s["epochs"], 24, "{s:#}");
+    assert_eq!(s["ended"], "max_epochs 24 reached", "{s:#}");
+    // Every epoch, the struck one too, closed with its whole budget: actor-1's share went to actor-0.
+    let taken = column(&run, "steps_taken");
+    assert!(taken.iter().all(|&t| t == BUDGET), "{taken:?}");
+    let (stored, published) = (
+        column(&run, "steps_collected"),
+        column(&run, "steps_published"),
+    );
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    assert_eq!(
+        final_steps(&run, "actor-1"),
+        None,
+        "actor-1 was killed, it cannot have ended cleanly"
+    );
+    assert!(final_steps(&run, "actor-0").is_some_and(|s| s > 0));
+    let collect_s = seconds(&run, "collect_s");
+    println!(
+        "slurm: job {job}: n2's step ({step}) killed during epoch {struck}; the run went on to {} epochs; \
+         collection s per epoch: {collect_s:?}",
+        s["epochs"]
+    );
+}
+
+#[test]
+fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let cluster = cluster(tmp.path());
+    let (job, run) = submit(&cluster, tmp.path(), 20);
+    wait_epochs(tmp.path(), job, &run, 4);
+    let id = job.to_string();
+    cluster.run("scontrol", &["requeue", &id]).unwrap();
+    cluster
+        .wait_state(job, &["PENDING"], Duration::from_secs(60))
+        .unwrap_or_else(|e| panic!("{e:#}\n{}", report(tmp.path(), job, &run)));
+    let at_requeue = column(&run, "steps_taken").len();
+    // Slurm holds a requeued job back (its BeginTime, 120 s on); the test lets it start at once.
+    cluster
+        .run(
+            "scontrol",
+            &["update", &format!("JobId={id}"), "StartTime=now"],
+        )
+        .unwrap();
+    wait_done(&cluster, tmp.path(), job, &run);
+    let output = std::fs::read_to_string(tmp.path().join(format!("job-{job}.out"))).unwrap();
+    assert!(output.contains("(start 2)"), "{output}");
+    assert!(output.contains("resuming"), "{output}");
+    let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
+    // The learner stopped on the scheduler's SIGTERM with its checkpoint, and the requeued job went on from it.
+    assert!(
+        learner.contains("interrupted (SIGTERM)"),
+        "{}",
+        report(tmp.path(), job, &run)
+    );
+    assert!(
+        learner.contains("resumed from"),
+        "{}",
+        report(tmp.path(), job, &run)
+    );
+    let s = summary(&run);
+    assert_eq!(s["epochs"], 20, "{s:#}");
+    assert_eq!(s["ended"], "max_epochs 20 reached", "{s:#}");
+    assert_eq!(s["duplicate_segments"], 0, "{s:#}");
+    // Each epoch once, in order, across the requeue; each stored exactly the steps its markers said were published.
+    let epochs = column(&run, "epoch");
+    assert_eq!(epochs, (0..20).collect::<Vec<u64>>());
+    let (stored, published) = (
+        column(&run, "steps_collected"),
+        column(&run, "steps_published"),
+    );
+    assert_eq!(stored, published);
+    let taken = column(&run, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| t == BUDGET),
+        "every epoch with its whole budget: {taken:?}\n{}",
+        epoch_lines(&run)
+    );
+    println!(
+        "slurm: job {job} requeued after {at_requeue} recorded epochs, resumed, {} epochs in all; \
+         steps stored {} = published {}",
+        s["epochs"],
+        stored.iter().sum::<u64>(),
+        published.iter().sum::<u64>()
+    );
+}
