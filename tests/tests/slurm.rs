@@ -265,24 +265,39 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
     let tmp = cabc_tests::test_dir();
     let cluster = cluster(tmp.path());
     let (job, run) = submit(&cluster, tmp.path(), 20);
-    wait_epochs(tmp.path(), job, &run, 4);
     let id = job.to_string();
-    cluster.run("scontrol", &["requeue", &id]).unwrap();
-    cluster
-        .wait_state(job, &["PENDING"], Duration::from_secs(60))
-        .unwrap_or_else(|e| panic!("{e:#}\n{}", report(tmp.path(), job, &run)));
-    let at_requeue = column(&run, "steps_taken").len();
-    // Slurm holds a requeued job back (its BeginTime, 120 s on); the test lets it start at once.
-    cluster
-        .run(
-            "scontrol",
-            &["update", &format!("JobId={id}"), "StartTime=now"],
-        )
-        .unwrap();
+    // First `scontrol requeue` (what an operator or a preemption does), then the script's own requeue: the USR1
+    // that `#SBATCH --signal=B:USR1@120` sends its batch shell before the time limit.
+    let mut at_requeue = Vec::new();
+    for (after, how) in [(4, "scontrol requeue"), (10, "USR1 to the batch shell")] {
+        wait_epochs(tmp.path(), job, &run, after);
+        if how == "scontrol requeue" {
+            cluster.run("scontrol", &["requeue", &id]).unwrap();
+        } else {
+            cluster
+                .run("scancel", &["--batch", "--signal=USR1", &id])
+                .unwrap();
+        }
+        cluster
+            .wait_state(job, &["PENDING"], Duration::from_secs(60))
+            .unwrap_or_else(|e| panic!("{how}: {e:#}\n{}", report(tmp.path(), job, &run)));
+        at_requeue.push(column(&run, "steps_taken").len());
+        // Slurm holds a requeued job back (its BeginTime, 120 s on); the test lets it start at once.
+        cluster
+            .run(
+                "scontrol",
+                &["update", &format!("JobId={id}"), "StartTime=now"],
+            )
+            .unwrap();
+        cluster
+            .wait_state(job, &["RUNNING", "COMPLETED"], Duration::from_secs(60))
+            .unwrap_or_else(|e| panic!("{how}: {e:#}\n{}", report(tmp.path(), job, &run)));
+    }
     wait_done(&cluster, tmp.path(), job, &run);
     let output = std::fs::read_to_string(tmp.path().join(format!("job-{job}.out"))).unwrap();
-    assert!(output.contains("(start 2)"), "{output}");
+    assert!(output.contains("(start 3)"), "{output}");
     assert!(output.contains("resuming"), "{output}");
+    assert!(output.contains("requeueing job"), "{output}");
     let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
     // The learner stopped on the scheduler's SIGTERM with its checkpoint, and the requeued job went on from it.
     assert!(
@@ -290,8 +305,9 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         "{}",
         report(tmp.path(), job, &run)
     );
-    assert!(
-        learner.contains("resumed from"),
+    assert_eq!(
+        learner.matches("resumed from").count(),
+        2,
         "{}",
         report(tmp.path(), job, &run)
     );
@@ -314,7 +330,7 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         epoch_lines(&run)
     );
     println!(
-        "slurm: job {job} requeued after {at_requeue} recorded epochs, resumed, {} epochs in all; \
+        "slurm: job {job} requeued after {at_requeue:?} recorded epochs, resumed each time, {} epochs in all; \
          steps stored {} = published {}",
         s["epochs"],
         stored.iter().sum::<u64>(),
