@@ -7,7 +7,7 @@
 
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
-use cabc_actor::run::{run_actor, run_evaluator, ActorStats};
+use cabc_actor::run::{run_actor, run_evaluator, ActorError, ActorStats};
 use cabc_bus::expert::ZenohExpert;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::outbox::ZenohSegments;
@@ -17,7 +17,7 @@ use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::{ExpertPlacement, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
-use cabc_proto::ports::ExpertClient;
+use cabc_proto::ports::{ExpertClient, PortError};
 use clap::Parser;
 use std::time::Duration;
 
@@ -89,14 +89,15 @@ fn main() -> Result<()> {
     };
     if shard.is_some() {
         let mut sink = ZenohEvals::new(&bus, &cli.id);
-        run_evaluator(
+        let ran = run_evaluator(
             &cli.id,
             &config,
             &check,
             &mut source,
             &mut sink,
             &mut after_epoch,
-        )?;
+        );
+        stop_or_fail(ran, &interrupt)?;
         drop(source);
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
@@ -121,14 +122,15 @@ fn main() -> Result<()> {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_micros() as u64);
         let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
-        run_actor(
+        let ran = run_actor(
             &mut collector,
             &check,
             &mut source,
             expert.as_mut(),
             &mut sink,
             &mut after_epoch,
-        )?;
+        );
+        stop_or_fail(ran, &interrupt)?;
     }
     if let Some(value) = last {
         tracing::info!("final metrics: {value}");
@@ -136,4 +138,17 @@ fn main() -> Result<()> {
     // (The policy source, and with it its subscriptions, is gone: the bus closes.)
     bus.close_blocking()?;
     Ok(())
+}
+
+/// The end of a collector's or evaluator's loop: a stop by Ctrl-C or a scheduler's SIGTERM while the learner (or the
+/// expert server) was already gone is a stop, not a failure (what could not be sent is counted in the metrics,
+/// `segments_lost`); any other error is the process's.
+fn stop_or_fail(ran: Result<ActorStats, ActorError>, interrupt: &Interrupt) -> Result<()> {
+    match ran {
+        Err(ActorError::Port(PortError::Stopped(why))) if interrupt.is_set() => {
+            tracing::warn!("stopped while the bus was down ({why})");
+            Ok(())
+        }
+        ran => ran.map(|_| ()).map_err(Into::into),
+    }
 }

@@ -337,3 +337,78 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         published.iter().sum::<u64>()
     );
 }
+
+/// The pids a node's supervisor recorded for its processes (the supervisor's own is its step's).
+fn recorded_pids(run: &Path, record: &str) -> Vec<u32> {
+    let text = std::fs::read_to_string(run.join(record)).unwrap_or_default();
+    let status: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    status["processes"]
+        .as_object()
+        .map(|p| {
+            p.values()
+                .filter_map(|v| v["pid"].as_u64())
+                .map(|p| p as u32)
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn alive(pid: u32) -> bool {
+    Path::new(&format!("/proc/{pid}")).exists()
+        && !std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .unwrap_or_default()
+            .contains(") Z ")
+}
+
+#[test]
+fn scancel_stops_every_process_of_the_run_cleanly() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let cluster = cluster(tmp.path());
+    let (job, run) = submit(&cluster, tmp.path(), 500);
+    wait_epochs(tmp.path(), job, &run, 3);
+    let mut pids = recorded_pids(&run, "supervision.json");
+    pids.extend(recorded_pids(&run, "supervision-n2.json"));
+    // The learner, the expert server, the evaluator and actor-0 on n1, actor-1 on n2.
+    assert_eq!(pids.len(), 5, "{pids:?}");
+    cluster.run("scancel", &[&job.to_string()]).unwrap();
+    let state = cluster
+        .wait_state(job, &["CANCELLED"], Duration::from_secs(60))
+        .unwrap_or_else(|e| panic!("{e:#}\n{}", report(tmp.path(), job, &run)));
+    assert_eq!(state, "CANCELLED");
+    let start = Instant::now();
+    while pids.iter().any(|&p| alive(p)) && start.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let left: Vec<u32> = pids.iter().copied().filter(|&p| alive(p)).collect();
+    assert!(left.is_empty(), "still running after scancel: {left:?}");
+    // The learner ended on the SIGTERM, cleanly, with a checkpoint that a later `--resume` continues.
+    let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
+    assert!(
+        learner.contains("interrupted (SIGTERM)"),
+        "{}",
+        epoch_lines(&run)
+    );
+    assert!(
+        learner.contains("run ends: interrupted"),
+        "{}",
+        epoch_lines(&run)
+    );
+    assert!(run.join("checkpoint").is_dir());
+    let s = summary(&run);
+    assert_eq!(s["ended"], "interrupted", "{s:#}");
+    // The actors on both nodes and the evaluator stopped as on Ctrl-C: their last metrics, no error exit.
+    for process in ["actor-0", "actor-1", "eval"] {
+        let log = std::fs::read_to_string(run.join(format!("logs/{process}.log"))).unwrap();
+        assert!(
+            log.contains("final metrics") && !log.lines().any(|l| l.starts_with("Error:")),
+            "{process}: {}",
+            log.lines().rev().take(12).collect::<Vec<_>>().join("\n")
+        );
+    }
+    println!(
+        "slurm: job {job} cancelled after {} recorded epochs: its {} processes stopped, the learner with its checkpoint",
+        column(&run, "epoch").len(),
+        pids.len()
+    );
+}
