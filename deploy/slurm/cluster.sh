@@ -89,8 +89,12 @@ fi
 if ! command -v slurmctld >/dev/null || ! command -v slurmd >/dev/null || ! command -v sbatch >/dev/null \
    || ! command -v munged >/dev/null; then
   say "installing slurmctld slurmd slurm-client munge (apt-get)"
-  DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends slurmctld slurmd slurm-client munge \
-    > "$dir/apt.log" 2>&1 || die "apt-get install failed: $dir/apt.log"
+  install() {
+    DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends slurmctld slurmd slurm-client munge \
+      >> "$dir/apt.log" 2>&1
+  }
+  # Package lists that are missing or stale are fetched once.
+  install || { apt-get update >> "$dir/apt.log" 2>&1 && install; } || die "apt-get install failed: $dir/apt.log"
 fi
 command -v ip >/dev/null || die "no 'ip' (iproute2)"
 [ -n "$net" ] && down  # a leftover of an earlier cluster in the same folder
