@@ -48,6 +48,23 @@ pub struct Args {
     learner_args: Vec<String>,
 }
 
+/// A secured run's supervised router configuration (zenohd's, with the run's TLS and access control, as `cabc
+/// zenohd-config` writes it), listening where the others dial; None where no router runs here or the bus is plain
+/// (and where the endpoints are refused: the supervisor says why).
+fn secured_router_config(roster: &Roster, config: &RunConfig) -> Result<Option<String>> {
+    if !roster.roles.contains(&Role::Router) || !config.bus.security.enabled() {
+        return Ok(None);
+    }
+    let Ok(endpoints) = cabc_supervise::roster::router_endpoints(config, &roster.connect, true)
+    else {
+        return Ok(None);
+    };
+    let keys = cabc_proto::keys::Keys::new(&config.run.name)?;
+    let text = cabc_bus::zenohd::config(&config.bus, &keys, &endpoints)
+        .context("the supervised router's configuration")?;
+    Ok(Some(text))
+}
+
 /// Supervises the run; returns the exit status for the command.
 pub fn run(args: &Args) -> Result<i32> {
     let config = RunConfig::load(&args.config.display().to_string())
@@ -66,6 +83,11 @@ pub fn run(args: &Args) -> Result<i32> {
         connect: args.connect.clone(),
         learner_args: args.learner_args.clone(),
         node: args.node.clone(),
+        router_config: None,
+    };
+    let roster = Roster {
+        router_config: secured_router_config(&roster, &config)?,
+        ..roster
     };
     for program in roster.specs(&config).iter().map(|s| &s.program) {
         anyhow::ensure!(

@@ -124,10 +124,9 @@ impl Supervisor {
         } else {
             Vec::new()
         };
-        let router = roster
-            .roles
-            .contains(&Role::Router)
-            .then(|| roster::router_endpoints(config, &roster.connect));
+        let router = roster.roles.contains(&Role::Router).then(|| {
+            roster::router_endpoints(config, &roster.connect, roster.router_config.is_some())
+        });
         let procs = specs
             .into_iter()
             .map(|spec| Managed {
@@ -188,11 +187,14 @@ impl Supervisor {
         }
         if let Some(Ok(endpoints)) = &self.router {
             let file = self.roster.run_dir.join(roster::ROUTER_CONFIG);
-            std::fs::write(&file, roster::router_config(endpoints)).map_err(|source| {
-                SuperviseError::Io {
-                    what: format!("writing {}", file.display()),
-                    source,
-                }
+            let text = self
+                .roster
+                .router_config
+                .clone()
+                .unwrap_or_else(|| roster::router_config(endpoints));
+            std::fs::write(&file, text).map_err(|source| SuperviseError::Io {
+                what: format!("writing {}", file.display()),
+                source,
             })?;
         }
         self.write_status()?;

@@ -113,6 +113,10 @@ pub struct Roster {
     /// This machine's name where several machines share the run folder (a cluster's shared filesystem): a
     /// supervisor that runs no learner then keeps its record in `supervision-<node>.json` ([`Roster::record`]).
     pub node: Option<String>,
+    /// A secured run's router configuration: zenohd's JSON5 with the run's TLS and access control, made by the
+    /// caller from the run configuration (`cabc_bus::zenohd::config`, as `cabc zenohd-config`); None on a plain bus,
+    /// whose router is [`router_config`].
+    pub router_config: Option<String>,
 }
 
 impl Roster {
@@ -223,9 +227,13 @@ impl Roster {
 pub const ROUTER_CONFIG: &str = "router.json5";
 
 /// The endpoints a supervised router listens on: the run's `bus.connect`, which every other process dials; the
-/// learner then dials them too, so `bus.listen` must be empty, and the router has no access control, so the bus must
-/// be plain (a secured run's router is deploy/SCALE-OUT.md §2's, with its ACL).
-pub fn router_endpoints(config: &RunConfig, connect: &[String]) -> Result<Vec<String>, String> {
+/// learner then dials them too, so `bus.listen` must be empty. On a secured bus the router needs the run's access
+/// control, `secured_config` (deploy/SCALE-OUT.md §2's zenohd configuration, which `cabc supervise` makes).
+pub fn router_endpoints(
+    config: &RunConfig,
+    connect: &[String],
+    secured_config: bool,
+) -> Result<Vec<String>, String> {
     use cabc_proto::config::SecurityMode;
     if !config.bus.listen.is_empty() {
         return Err(format!(
@@ -234,10 +242,10 @@ pub fn router_endpoints(config: &RunConfig, connect: &[String]) -> Result<Vec<St
             config.bus.listen
         ));
     }
-    if config.bus.security.mode != SecurityMode::None {
+    if config.bus.security.mode != SecurityMode::None && !secured_config {
         return Err(
-            "a supervised router has no access control: a secured run's router is deploy/SCALE-OUT.md §2's zenohd \
-             with its ACL"
+            "a secured run's supervised router needs zenohd's configuration with the run's access control \
+             (cabc supervise makes it from the run configuration: cabc_bus::zenohd::config)"
                 .into(),
         );
     }
@@ -300,6 +308,7 @@ mod tests {
             connect: Vec::new(),
             learner_args: vec!["--fresh".into()],
             node: None,
+            router_config: None,
         }
     }
 
@@ -391,11 +400,11 @@ mod tests {
         assert_eq!(specs[0].args, ["-c", "/r/router.json5"]);
         assert_eq!(specs[1].name, "learner");
         // The learner listens by default: it would hold the router's port.
-        assert!(router_endpoints(&config, &[])
+        assert!(router_endpoints(&config, &[], false)
             .unwrap_err()
             .contains("bus.listen"));
         config.bus.listen.clear();
-        let endpoints = router_endpoints(&config, &[]).unwrap();
+        let endpoints = router_endpoints(&config, &[], false).unwrap();
         assert_eq!(endpoints, ["tcp/127.0.0.1:7500"]);
         assert_eq!(
             router_config(&endpoints),
@@ -404,11 +413,16 @@ mod tests {
         );
         // --connect wins over bus.connect, as for the other processes.
         let other = ["tcp/10.0.0.1:7447".to_string()];
-        assert_eq!(router_endpoints(&config, &other).unwrap(), other);
+        assert_eq!(router_endpoints(&config, &other, false).unwrap(), other);
         config.bus.security.mode = cabc_proto::config::SecurityMode::Mtls;
-        assert!(router_endpoints(&config, &[])
+        assert!(router_endpoints(&config, &[], false)
             .unwrap_err()
             .contains("access control"));
+        // With the secured configuration made, the same endpoints.
+        assert_eq!(
+            router_endpoints(&config, &[], true).unwrap(),
+            ["tcp/127.0.0.1:7500"]
+        );
     }
 
     #[test]

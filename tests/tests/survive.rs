@@ -443,3 +443,51 @@ fn a_supervised_router_killed_is_started_again_and_costs_no_step() {
     cluster.assert_each_step_stored_once();
     println!("survive: the supervised router killed after epoch 3; stored {stored:?}, published {published:?}");
 }
+
+/// Issue 74: a secured run's router under the run's supervisor. `cabc supervise --roles router,...` writes zenohd's
+/// configuration with the run's mutual TLS and access control (as `cabc zenohd-config` does), the run goes over it,
+/// and the router killed mid-run is started again and costs no step.
+#[test]
+fn a_supervised_router_under_mutual_tls_carries_the_run_and_is_started_again() {
+    let tmp = cabc_tests::test_dir();
+    let certs = tmp.path().join("certs");
+    cabc_tests::make_certs(&certs, &["--actors", "2", "--zenohd"]).unwrap();
+    let endpoint = format!("tls/127.0.0.1:{}", cabc_tests::free_port());
+    let extra = format!(
+        "[supervision]\nbackoff_s = 0.2\n\n[bus.security]\nmode = \"mtls\"\ncerts = \"{}\"\n",
+        certs.display()
+    );
+    let mut cluster = Cluster::on(tmp.path(), "secured-router", 10, "", &endpoint, &extra).unwrap();
+    let roles = ["router", "learner", "expert", "actor", "evaluator"];
+    supervise_roles(&mut cluster, &bin_dir(), &roles);
+    let run = cluster.dir.clone();
+    cluster.wait_for_epochs(3, "supervise");
+    // The router's configuration holds the run's TLS and access control.
+    let router = std::fs::read_to_string(run.join("router.json5")).unwrap();
+    for needle in [
+        "enable_mtls",
+        "access_control",
+        "zenohd.pem",
+        "traj/actor-1",
+    ] {
+        assert!(
+            router.contains(needle),
+            "router.json5 lacks {needle}: {router}"
+        );
+    }
+    kill_supervised(&run, "router");
+    let (status, _) = cluster
+        .wait("supervise", Duration::from_secs(300))
+        .unwrap_or_else(|e| panic!("{e}\n{}", cluster.log_tail("supervise")));
+    assert!(status.success(), "{}", cluster.log_tail("supervise"));
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["epochs"], 10, "{summary:#}");
+    assert_eq!(summary["restarts"]["router"], 1, "{summary:#}");
+    assert_eq!(summary["acl_denied"], serde_json::json!({}), "{summary:#}");
+    let (stored, published) = cluster.assert_nothing_lost(256);
+    cluster.assert_each_step_stored_once();
+    println!(
+        "survive: the supervised router under mutual TLS killed after epoch 3; stored {stored:?}, published {published:?}"
+    );
+}
