@@ -402,7 +402,7 @@ mod tests {
                 ..Default::default()
             },
         );
-        status.write(dir.path()).unwrap();
+        status.write(&Status::path(dir.path())).unwrap();
         let mut chaos = Chaos {
             seed: 5,
             gap_s: (1.0, 2.0),
