@@ -2,8 +2,8 @@
 //! and `summary.json`, as one [`RunRecord`].
 
 use crate::stats::median;
-use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
+use cabc_runfolder::Table;
 use std::path::{Path, PathBuf};
 
 /// A run folder that cannot be compared.
@@ -55,39 +55,6 @@ pub struct RunRecord {
     pub collection: Vec<(f64, f64)>,
 }
 
-/// A CSV with a header, as the learner writes it (no quoting).
-struct Table {
-    header: Vec<String>,
-    rows: Vec<Vec<String>>,
-}
-
-impl Table {
-    fn read(path: &Path) -> Result<Table, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
-        let mut lines = text
-            .lines()
-            .map(|l| l.split(',').map(str::to_string).collect());
-        let header = lines.next().ok_or("empty")?;
-        Ok(Table {
-            header,
-            rows: lines.collect(),
-        })
-    }
-
-    fn column(&self, name: &str) -> Result<Vec<&str>, String> {
-        let i = self
-            .header
-            .iter()
-            .position(|h| h == name)
-            .ok_or_else(|| format!("no column {name}"))?;
-        Ok(self
-            .rows
-            .iter()
-            .map(|r| r.get(i).map_or("", String::as_str))
-            .collect())
-    }
-}
-
 fn number<T: std::str::FromStr>(text: &str) -> Option<T> {
     text.parse().ok()
 }
@@ -102,7 +69,7 @@ struct Identity {
 
 impl Identity {
     fn read(dir: &Path, summary: Option<&serde_json::Value>) -> Result<Identity, String> {
-        let config_path = dir.join(RunDir::CONFIG);
+        let config_path = dir.join(cabc_runfolder::CONFIG);
         if config_path.exists() {
             let config =
                 RunConfig::load(&config_path.display().to_string()).map_err(|e| e.to_string())?;
@@ -135,8 +102,8 @@ struct Metrics {
 
 impl Metrics {
     fn read(dir: &Path) -> Result<Metrics, String> {
-        let metrics =
-            Table::read(&dir.join(RunDir::METRICS)).map_err(|e| format!("metrics.csv: {e}"))?;
+        let metrics = Table::read(&dir.join(cabc_runfolder::METRICS))
+            .map_err(|e| format!("metrics.csv: {e}"))?;
         let column = |name| {
             metrics
                 .column(name)
@@ -185,7 +152,8 @@ impl Metrics {
 
 /// The evaluations of evals.csv in version order, one per version.
 fn read_evals(dir: &Path) -> Result<Vec<Eval>, String> {
-    let table = Table::read(&dir.join(RunDir::EVALS)).map_err(|e| format!("evals.csv: {e}"))?;
+    let table =
+        Table::read(&dir.join(cabc_runfolder::EVALS)).map_err(|e| format!("evals.csv: {e}"))?;
     let column = |name| table.column(name).map_err(|e| format!("evals.csv: {e}"));
     let versions = column("version")?;
     // Older folders may lack the steps.
@@ -219,9 +187,10 @@ impl RunRecord {
             path: dir.to_path_buf(),
             why,
         };
-        let summary: Option<serde_json::Value> = std::fs::read_to_string(dir.join(RunDir::SUMMARY))
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok());
+        let summary: Option<serde_json::Value> =
+            std::fs::read_to_string(dir.join(cabc_runfolder::SUMMARY))
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok());
         let identity = Identity::read(dir, summary.as_ref()).map_err(fail)?;
         let metrics = Metrics::read(dir).map_err(fail)?;
         let evals = read_evals(dir).map_err(fail)?;

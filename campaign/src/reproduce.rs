@@ -13,7 +13,6 @@
 use crate::plan::Method;
 use crate::status::{run_state, RunState, RESULTS_DIR};
 use anyhow::{bail, Context, Result};
-use cabc_outputs::RunDir;
 use cabc_proto::run_name::RunName;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -24,10 +23,10 @@ pub const DEFAULT_EXPERIMENTS: [&str; 3] = ["v-b", "v-a-cpu", "v-c-cpu"];
 /// The files of a run folder copied to its results, and the only ones: what the figures and tables are drawn from
 /// (the run's plots and videos stay in the run folder; `cabc plots RUN` redraws the plots from these).
 pub const RESULT_FILES: [&str; 4] = [
-    RunDir::SUMMARY,
-    RunDir::METRICS,
-    RunDir::EVALS,
-    RunDir::CONFIG,
+    cabc_runfolder::SUMMARY,
+    cabc_runfolder::METRICS,
+    cabc_runfolder::EVALS,
+    cabc_runfolder::CONFIG,
 ];
 
 /// The seeds' numbers: `N` (1 to N) or `A-B`.
@@ -238,7 +237,7 @@ pub fn group_folders(results: &Path, group: &str) -> Result<Vec<PathBuf>> {
             .and_then(|n| n.to_str())
             .and_then(|n| n.parse::<RunName>().ok())
             .is_some_and(|name| name.group() == group);
-        if ours && path.join(RunDir::METRICS).is_file() {
+        if ours && path.join(cabc_runfolder::METRICS).is_file() {
             folders.push(path);
         }
     }

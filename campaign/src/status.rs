@@ -3,7 +3,6 @@
 //! `docs/reproduction/<run>/`), in progress (a checkpoint in `runs/<run>/`: reproduce.sh resumes it) or not started.
 
 use crate::plan::Plan;
-use cabc_outputs::RunDir;
 use cabc_proto::run_name::RunName;
 use std::fmt::Write;
 use std::path::Path;
@@ -23,7 +22,7 @@ pub enum RunState {
 
 /// How a run folder's run ended, if it did: its summary.json's `ended`, unless "interrupted".
 fn ended(dir: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(dir.join(RunDir::SUMMARY)).ok()?;
+    let text = std::fs::read_to_string(dir.join(cabc_runfolder::SUMMARY)).ok()?;
     let how = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
         .and_then(|v| v.get("ended").and_then(|e| e.as_str()).map(str::to_string));
@@ -43,10 +42,8 @@ pub fn run_state(root: &Path, run: &RunName) -> RunState {
     {
         return RunState::Ended(how);
     }
-    if dir.join("checkpoint").is_dir() || dir.join("checkpoint.old").is_dir() {
-        let rows = std::fs::read_to_string(dir.join(RunDir::METRICS))
-            .map(|m| m.lines().count().saturating_sub(1))
-            .unwrap_or(0);
+    if cabc_runfolder::has_checkpoint(&dir) {
+        let rows = cabc_runfolder::Table::rows_in(&dir.join(cabc_runfolder::METRICS));
         return RunState::InProgress(rows);
     }
     RunState::NotStarted
@@ -54,11 +51,12 @@ pub fn run_state(root: &Path, run: &RunName) -> RunState {
 
 /// The wall clock of a run folder's epochs in minutes (the sum of its metrics.csv's `epoch_s`); None without it.
 fn wall_minutes(dir: &Path) -> Option<f64> {
-    let text = std::fs::read_to_string(dir.join(RunDir::METRICS)).ok()?;
-    let mut lines = text.lines();
-    let column = lines.next()?.split(',').position(|h| h == "epoch_s")?;
-    let seconds: f64 = lines
-        .filter_map(|l| l.split(',').nth(column)?.parse::<f64>().ok())
+    let table = cabc_runfolder::Table::read(&dir.join(cabc_runfolder::METRICS)).ok()?;
+    let seconds: f64 = table
+        .parsed::<f64>("epoch_s")
+        .ok()?
+        .into_iter()
+        .flatten()
         .sum();
     Some(seconds / 60.0)
 }

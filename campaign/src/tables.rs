@@ -7,7 +7,6 @@
 use crate::plan::View;
 use crate::status::RESULTS_DIR;
 use anyhow::{bail, Context, Result};
-use cabc_outputs::RunDir;
 use cabc_proto::run_name::RunName;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -23,7 +22,7 @@ pub fn group_folders(root: &Path, group: &str) -> Result<Vec<PathBuf>> {
         .with_context(|| format!("reading {}", out.display()))?
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter(|n| n.parse::<RunName>().is_ok_and(|r| r.group() == group))
-        .filter(|n| out.join(n).join(RunDir::METRICS).is_file())
+        .filter(|n| out.join(n).join(cabc_runfolder::METRICS).is_file())
         .collect();
     names.sort();
     Ok(names

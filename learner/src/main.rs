@@ -26,7 +26,7 @@ fn main() -> std::process::ExitCode {
             });
             // Gave up for want of actors: not a crash, so a supervisor ends the run instead of restarting it.
             let code = if no_actors {
-                cabc_supervise::EXIT_NO_ACTORS
+                cabc_runfolder::exit::NO_ACTORS
             } else {
                 1
             };

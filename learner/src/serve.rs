@@ -18,7 +18,7 @@ use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
-use cabc_supervise::status::Status;
+use cabc_runfolder::Status;
 use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.

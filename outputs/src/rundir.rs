@@ -93,15 +93,15 @@ pub struct RunDir {
 /// The run folder's files, by name (relative to the folder).
 impl RunDir {
     /// The run's configuration, written when it starts ([`RunDir::prepare`]).
-    pub const CONFIG: &'static str = "config.toml";
+    pub const CONFIG: &'static str = cabc_runfolder::CONFIG;
     /// A row per epoch ([`RunDir::write_tables`]).
-    pub const METRICS: &'static str = "metrics.csv";
+    pub const METRICS: &'static str = cabc_runfolder::METRICS;
     /// A row per evaluation ([`EVALS_HEADER`], [`parse_evals`]).
-    pub const EVALS: &'static str = "evals.csv";
+    pub const EVALS: &'static str = cabc_runfolder::EVALS;
     /// The run's [`Summary`], written when it ends (or is interrupted).
-    pub const SUMMARY: &'static str = "summary.json";
+    pub const SUMMARY: &'static str = cabc_runfolder::SUMMARY;
     /// The plots and the evaluations' videos.
-    pub const PLOTS: &'static str = "plots";
+    pub const PLOTS: &'static str = cabc_runfolder::PLOTS;
 
     /// `best-policy.safetensors` or `final-policy.safetensors`: the kept policy's weights.
     pub fn policy_file(which: KeptPolicy) -> String {

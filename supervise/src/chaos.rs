@@ -14,10 +14,10 @@
 //! tests make (tests/tests/survive.rs); the report says which kinds ran.
 
 use crate::roster::Role;
-use crate::status::Status;
+use cabc_runfolder::{Status, Table};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
@@ -158,7 +158,7 @@ impl Chaos {
         let mut next_fault = started + self.gap(&mut draws);
         let mut faults = Vec::new();
         let mut epoch_ends: Vec<f64> = Vec::new();
-        let metrics = self.run_dir.join("metrics.csv");
+        let metrics = self.run_dir.join(cabc_runfolder::METRICS);
         // The process paused, and when it goes on.
         let mut paused: Option<(libc::pid_t, Instant)> = None;
         let exit = loop {
@@ -172,7 +172,7 @@ impl Chaos {
             if let Some(status) = child.try_wait()? {
                 break status.code();
             }
-            let rows = rows(&metrics);
+            let rows = Table::rows_in(&metrics);
             while epoch_ends.len() < rows {
                 epoch_ends.push(started.elapsed().as_secs_f64());
             }
@@ -285,16 +285,21 @@ impl Chaos {
             .iter()
             .filter(|&&d| d > self.epoch_timeout_s)
             .count();
-        let summary: serde_json::Value = std::fs::read(self.run_dir.join("summary.json"))
+        let summary: serde_json::Value = std::fs::read(self.run_dir.join(cabc_runfolder::SUMMARY))
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or_default();
         if summary.is_null() {
             stalls += 1;
         }
-        let metrics = self.run_dir.join("metrics.csv");
-        let published = column(&metrics, "steps_published");
-        let stored = column(&metrics, "steps_collected");
+        let metrics = self.run_dir.join(cabc_runfolder::METRICS);
+        let table = Table::read(&metrics).unwrap_or_default();
+        let column = |name| -> Vec<u64> {
+            let cells = table.parsed::<u64>(name).unwrap_or_default();
+            cells.into_iter().map(|c| c.unwrap_or(0)).collect()
+        };
+        let published = column("steps_published");
+        let stored = column("steps_collected");
         let mut by_role = BTreeMap::new();
         for f in &faults {
             *by_role.entry(f.role.clone()).or_insert(0) += 1;
@@ -336,33 +341,6 @@ fn signal(pid: libc::pid_t, sig: libc::c_int) -> bool {
     unsafe { libc::kill(pid, sig) == 0 }
 }
 
-/// The data rows of a CSV file (0 when it is missing).
-fn rows(path: &Path) -> usize {
-    std::fs::read_to_string(path).map_or(0, |t| t.lines().count().saturating_sub(1))
-}
-
-/// A CSV column as integers (a cell that is not one is 0).
-fn column(path: &Path, name: &str) -> Vec<u64> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Vec::new();
-    };
-    let mut lines = text.lines();
-    let Some(i) = lines
-        .next()
-        .and_then(|h| h.split(',').position(|c| c == name))
-    else {
-        return Vec::new();
-    };
-    lines
-        .map(|l| {
-            l.split(',')
-                .nth(i)
-                .and_then(|c| c.parse().ok())
-                .unwrap_or(0)
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -393,7 +371,7 @@ mod tests {
     fn a_pause_stops_the_drawn_process_for_a_drawn_while_and_a_kill_ends_it() {
         let dir = tempfile::tempdir().unwrap();
         let mut sleeper = Command::new("sleep").arg("60").spawn().unwrap();
-        let mut status = Status::new();
+        let mut status = Status::new(["actor"]);
         status.processes.insert(
             "actor-0".into(),
             crate::status::ProcessStatus {

@@ -1,6 +1,6 @@
 //! Why the supervisor could not run, or stopped, the run.
 
-use crate::EXIT_NO_ACTORS;
+use crate::exit;
 use std::path::PathBuf;
 
 /// Why the supervisor could not run, or stopped, the run.
@@ -55,7 +55,7 @@ impl SuperviseError {
     pub fn exit_code(&self) -> i32 {
         match self {
             SuperviseError::DidNotStart { code: Some(c), .. } if *c != 0 => *c,
-            SuperviseError::NoActors { .. } => EXIT_NO_ACTORS,
+            SuperviseError::NoActors { .. } => exit::NO_ACTORS,
             _ => 1,
         }
     }

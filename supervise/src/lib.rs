@@ -8,14 +8,14 @@
 //! running run runs it with `--roles actor` (deploy/SCALE-OUT.md).
 //!
 //! A process that exits 0 has finished (an actor after the learner's stop) and is not started again; the learner's
-//! exit 0 ends the run, and its [`EXIT_NO_ACTORS`] (it waited `bus.no_actor_timeout_s` with no live actor) ends it
+//! exit 0 ends the run, and its [`exit::NO_ACTORS`] (it waited `bus.no_actor_timeout_s` with no live actor) ends it
 //! with an error: restarting the learner would not bring actors back.
 
 pub mod chaos;
 mod error;
 pub mod policy;
 pub mod roster;
-pub mod status;
+pub use cabc_runfolder::{exit, status};
 
 pub use error::SuperviseError;
 
@@ -32,10 +32,6 @@ use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-
-/// The learner's exit status when it gave up for want of actors (`PortError::NoActors`: no live actor for
-/// `bus.no_actor_timeout_s`); the `learner` binary exits with it.
-pub const EXIT_NO_ACTORS: i32 = 3;
 
 /// How long the learner's bus may take to accept connections before the others start regardless.
 const BUS_WAIT: Duration = Duration::from_secs(60);
@@ -145,7 +141,7 @@ impl Supervisor {
             router,
             brief,
             procs,
-            status: Status::new(),
+            status: Status::new(Role::ALL.iter().map(|r| r.as_str())),
         }
     }
 
@@ -278,7 +274,7 @@ impl Supervisor {
         let how = describe(exited);
         let lived = now.duration_since(p.started);
         let decision = if exited.success()
-            || (role == Role::Learner && exited.code() == Some(EXIT_NO_ACTORS))
+            || (role == Role::Learner && exited.code() == Some(exit::NO_ACTORS))
             || interrupted()
         {
             None
@@ -304,7 +300,7 @@ impl Supervisor {
                     after: now.duration_since(started),
                 }))
             }
-            None if role == Role::Learner && exited.code() == Some(EXIT_NO_ACTORS) => {
+            None if role == Role::Learner && exited.code() == Some(exit::NO_ACTORS) => {
                 Err(SuperviseError::NoActors { log })
             }
             None if interrupted() => Ok(Some(Ended::Interrupted)),

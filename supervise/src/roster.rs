@@ -3,8 +3,8 @@
 //! the evaluators (`actor`, `actor --eval`), each with its log under `<run>/logs/`; and, when asked for
 //! (`--roles router,...`), a standalone router (`zenohd`, deploy/SCALE-OUT.md §2) that every other process dials.
 
-use crate::status::Status;
 use cabc_proto::config::{ExpertPlacement, RunConfig};
+use cabc_runfolder::Status;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -87,11 +87,7 @@ impl Spec {
     }
 }
 
-/// Whether a run folder holds a checkpoint that `--resume` continues (`checkpoint/`, or `checkpoint.old/` while a
-/// new one was being swapped in).
-pub fn has_checkpoint(run_dir: &Path) -> bool {
-    run_dir.join("checkpoint").exists() || run_dir.join("checkpoint.old").exists()
-}
+pub use cabc_runfolder::has_checkpoint;
 
 /// What a supervisor runs.
 #[derive(Clone, Debug)]

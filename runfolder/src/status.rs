@@ -1,9 +1,8 @@
 //! `<run>/supervision.json`: what the supervisor restarted, by role and by process, written whole and swapped in by
 //! rename after every change. The learner reads it at each epoch's end (`restarts_<role>` in `metrics.csv`, `restarts`
 //! in `summary.json`), so it says what this machine's supervisor did; another machine's supervisor keeps its own file
-//! in its own run folder.
+//! in its own run folder (or, on a cluster's shared folder, its own `supervision-<node>.json`).
 
-use crate::roster::Role;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -17,7 +16,7 @@ const MAX_BYTES: u64 = 4 << 20;
 /// The supervisor's record.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Status {
-    /// Restarts by role (`learner`, `expert`, `actor`, `evaluator`), every role present.
+    /// Restarts by role (`learner`, `expert`, `actor`, `evaluator`), every role of [`Status::new`] present.
     pub restarts: BTreeMap<String, u64>,
     /// Each process's restarts and how it last ended.
     pub processes: BTreeMap<String, ProcessStatus>,
@@ -40,13 +39,10 @@ pub struct ProcessStatus {
 }
 
 impl Status {
-    /// Every role at 0 restarts.
-    pub fn new() -> Self {
+    /// Every one of `roles` at 0 restarts.
+    pub fn new<'a>(roles: impl IntoIterator<Item = &'a str>) -> Self {
         Status {
-            restarts: Role::ALL
-                .iter()
-                .map(|r| (r.as_str().to_string(), 0))
-                .collect(),
+            restarts: roles.into_iter().map(|r| (r.to_string(), 0)).collect(),
             ..Status::default()
         }
     }
@@ -82,7 +78,7 @@ mod tests {
     fn the_status_reads_back_what_was_written() {
         let dir = tempfile::tempdir().unwrap();
         assert_eq!(Status::read(dir.path()), None);
-        let mut status = Status::new();
+        let mut status = Status::new(["actor", "learner"]);
         *status.restarts.entry("actor".into()).or_default() += 2;
         status.processes.insert(
             "actor-0".into(),
@@ -101,8 +97,8 @@ mod tests {
     }
 
     #[test]
-    fn a_new_status_has_every_role() {
-        let s = Status::new();
+    fn a_new_status_has_every_role_it_is_given() {
+        let s = Status::new(["learner", "expert", "actor", "evaluator"]);
         assert_eq!(
             s.restarts.keys().map(String::as_str).collect::<Vec<_>>(),
             ["actor", "evaluator", "expert", "learner"]
