@@ -21,7 +21,7 @@ pub use error::SuperviseError;
 
 use cabc_proto::config::SupervisionSection;
 use policy::{Deaths, Decision};
-use roster::{Role, Roster, Spec};
+use roster::{Restart, Role, Roster, Spec};
 use status::{ProcessStatus, Status};
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Write};
@@ -39,8 +39,6 @@ const BUS_WAIT: Duration = Duration::from_secs(60);
 const POLL: Duration = Duration::from_millis(100);
 /// How long the processes have after the learner's end (its stop reached them) before they are interrupted.
 const AFTER_LEARNER: Duration = Duration::from_secs(5);
-/// How long an interrupted process has before SIGTERM, and then before SIGKILL.
-const GRACE: Duration = Duration::from_secs(5);
 
 /// How a supervised run ended.
 #[derive(Clone, Debug, PartialEq)]
@@ -273,15 +271,15 @@ impl Supervisor {
         let (name, role, log) = (p.spec.name.clone(), p.spec.role, p.spec.log.clone());
         let how = describe(exited);
         let lived = now.duration_since(p.started);
-        let decision = if exited.success()
-            || (role == Role::Learner && exited.code() == Some(exit::NO_ACTORS))
-            || interrupted()
-        {
+        let child = role.child_spec();
+        let gave_up = child.gives_up.is_some() && exited.code() == child.gives_up;
+        let done = exited.success() && child.restart == Restart::Transient;
+        let decision = if done || gave_up || interrupted() {
             None
         } else {
             Some(p.deaths.died(now))
         };
-        if exited.success() && role != Role::Learner {
+        if done && !child.significant {
             p.finished = true;
         }
         if let Some(Decision::Restart(wait)) = decision {
@@ -292,7 +290,7 @@ impl Supervisor {
             entry.pid = None;
         }
         match decision {
-            None if role == Role::Learner && exited.success() => {
+            None if child.significant && exited.success() => {
                 self.write_status()?;
                 self.wind_down(AFTER_LEARNER);
                 Ok(Some(Ended::Learner {
@@ -300,9 +298,7 @@ impl Supervisor {
                     after: now.duration_since(started),
                 }))
             }
-            None if role == Role::Learner && exited.code() == Some(exit::NO_ACTORS) => {
-                Err(SuperviseError::NoActors { log })
-            }
+            None if gave_up => Err(SuperviseError::NoActors { log }),
             None if interrupted() => Ok(Some(Ended::Interrupted)),
             None => {
                 self.write_status()?;
@@ -408,23 +404,30 @@ impl Supervisor {
         }
     }
 
-    /// Stops every process still running: SIGINT (each ends cleanly: the learner keeps its checkpoint), then after
-    /// [`GRACE`] SIGTERM, then SIGKILL. `first` waits before anything is sent.
+    /// Stops every process still running, in the reverse of their start order (the evaluators and actors first,
+    /// the learner and then the router last): each gets SIGINT (it ends cleanly: the learner keeps its
+    /// checkpoint), then after its role's `shutdown` SIGTERM, then SIGKILL. `first` waits before anything is sent.
     fn stop_all(&mut self, first: Duration) {
         self.wind_down(first);
-        for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGKILL] {
-            if self.reap() == 0 {
-                return;
-            }
-            for p in &self.procs {
-                if let Some(child) = &p.child {
-                    // SAFETY: kill(2) on a child's pid that has not been reaped (reap() takes it away first).
-                    unsafe {
-                        libc::kill(child.id() as libc::pid_t, signal);
-                    }
+        for i in (0..self.procs.len()).rev() {
+            let shutdown = self.procs[i].spec.role.child_spec().shutdown;
+            for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGKILL] {
+                let p = &mut self.procs[i];
+                let Some(child) = p.child.as_mut() else { break };
+                if !matches!(child.try_wait(), Ok(None)) {
+                    p.child = None;
+                    break;
+                }
+                // SAFETY: kill(2) on a child's pid that has not been reaped (try_wait just saw it running).
+                unsafe {
+                    libc::kill(child.id() as libc::pid_t, signal);
+                }
+                let until = Instant::now() + shutdown;
+                while Instant::now() < until && matches!(child.try_wait(), Ok(None)) {
+                    std::thread::sleep(POLL / 10);
                 }
             }
-            self.wind_down(GRACE);
+            self.procs[i].child = None;
         }
     }
 
@@ -546,4 +549,97 @@ fn tee_lines(stderr: std::process::ChildStderr, log: PathBuf) {
             }
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cabc_proto::config::{ExpertPlacement, RunConfig};
+    use std::os::unix::fs::PermissionsExt;
+
+    /// A program that notes, on SIGINT, who it was (its name and arguments) in `order`, and ends.
+    fn noting_program(bin: &std::path::Path, name: &str, order: &std::path::Path) {
+        let path = bin.join(name);
+        let script = format!(
+            "#!/bin/sh\ntrap 'echo \"{name} $*\" >> {}; exit 0' INT\nwhile :; do sleep 0.02; done\n",
+            order.display()
+        );
+        std::fs::write(&path, script).unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+
+    #[test]
+    fn the_processes_stop_in_the_reverse_of_their_start_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let (bin, run_dir, order) = (
+            dir.path().join("bin"),
+            dir.path().join("run"),
+            dir.path().join("order"),
+        );
+        std::fs::create_dir_all(&bin).unwrap();
+        std::fs::create_dir_all(run_dir.join("logs")).unwrap();
+        for name in ["learner", "expert-server", "actor"] {
+            noting_program(&bin, name, &order);
+        }
+        let mut config = RunConfig::default();
+        config.actors.count = 2;
+        config.expert.placement = ExpertPlacement::Server;
+        let roster = Roster {
+            bin,
+            config_file: dir.path().join("config.toml"),
+            run_dir,
+            roles: Role::ALL.to_vec(),
+            actors: None,
+            first_actor: 0,
+            connect: Vec::new(),
+            learner_args: Vec::new(),
+            node: None,
+            router_config: None,
+        };
+        let mut supervisor = Supervisor::new(roster, &config, false);
+        assert_eq!(
+            supervisor.names(),
+            ["learner", "expert-server-0", "actor-0", "actor-1", "eval"]
+        );
+        for i in 0..supervisor.procs.len() {
+            supervisor.start(i, false).unwrap();
+        }
+        // Each has set its trap.
+        std::thread::sleep(Duration::from_millis(500));
+        supervisor.stop_all(Duration::ZERO);
+        let noted = std::fs::read_to_string(&order).unwrap();
+        let who: Vec<String> = noted
+            .lines()
+            .map(|l| {
+                let words: Vec<&str> = l.split_whitespace().collect();
+                match words[0] {
+                    "actor" if words.contains(&"--eval") => "eval".to_string(),
+                    "actor" => {
+                        let id = words.iter().position(|w| *w == "--id").unwrap();
+                        words[id + 1].to_string()
+                    }
+                    other => other.to_string(),
+                }
+            })
+            .collect();
+        assert_eq!(
+            who,
+            ["eval", "actor-1", "actor-0", "expert-server", "learner"]
+        );
+        assert!(supervisor.procs.iter().all(|p| p.child.is_none()));
+    }
+
+    #[test]
+    fn the_child_specs_say_who_restarts_and_who_ends_the_run() {
+        let learner = Role::Learner.child_spec();
+        assert!(learner.significant);
+        assert_eq!(learner.gives_up, Some(exit::NO_ACTORS));
+        assert_eq!(Role::Router.child_spec().restart, Restart::Permanent);
+        for role in [Role::Expert, Role::Actor, Role::Evaluator] {
+            let spec = role.child_spec();
+            assert_eq!(spec.restart, Restart::Transient);
+            assert!(!spec.significant && spec.gives_up.is_none());
+            assert!(spec.shutdown <= learner.shutdown);
+        }
+    }
 }

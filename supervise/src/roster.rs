@@ -7,6 +7,7 @@ use cabc_proto::config::{ExpertPlacement, RunConfig};
 use cabc_runfolder::Status;
 use std::fmt;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// A process's role in the run: what its restarts are counted under.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -32,6 +33,57 @@ impl Role {
             Role::Expert => "expert",
             Role::Actor => "actor",
             Role::Evaluator => "evaluator",
+        }
+    }
+}
+
+/// When a role's process is started again, OTP's restart kinds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Restart {
+    /// Whenever it ends, exit 0 too (the router: the run needs it as long as it goes on).
+    Permanent,
+    /// When it fails (a signal, an exit status but 0); exit 0 means it is done (an actor after the learner's stop).
+    Transient,
+}
+
+/// What the supervisor does with a role's processes, as data (OTP's child specification): when it restarts one,
+/// which of its exits end the whole run, and how long it has to stop. The supervisor starts the roles in the order
+/// of [`Roster::specs`] and stops them in the reverse order, each with its `shutdown`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChildSpec {
+    pub restart: Restart,
+    /// Its exit 0 ends the run (OTP's significant child): the learner's, at early stop or its budget.
+    pub significant: bool,
+    /// An exit status that ends the run with an error instead of a restart: the learner's `exit::NO_ACTORS` (it
+    /// waited `bus.no_actor_timeout_s` with no live actor; restarted, it would only wait again).
+    pub gives_up: Option<i32>,
+    /// How long it has after SIGINT before SIGTERM, and then before SIGKILL.
+    pub shutdown: Duration,
+}
+
+impl Role {
+    /// The role's [`ChildSpec`].
+    pub fn child_spec(self) -> ChildSpec {
+        let transient = ChildSpec {
+            restart: Restart::Transient,
+            significant: false,
+            gives_up: None,
+            shutdown: Duration::from_secs(5),
+        };
+        match self {
+            Role::Router => ChildSpec {
+                restart: Restart::Permanent,
+                ..transient
+            },
+            // The learner stops last but the router: the others' last words reach it. It may be writing its
+            // checkpoint when asked to stop, so it has longer.
+            Role::Learner => ChildSpec {
+                significant: true,
+                gives_up: Some(cabc_runfolder::exit::NO_ACTORS),
+                shutdown: Duration::from_secs(15),
+                ..transient
+            },
+            Role::Expert | Role::Actor | Role::Evaluator => transient,
         }
     }
 }

@@ -101,6 +101,9 @@ pub fn csv_column(path: &Path, name: &str) -> Vec<u64> {
         .collect()
 }
 
+/// The collecting actors of the tests' runs ([`Cluster::start_all`] with 2).
+pub const ACTORS: u64 = 2;
+
 /// A run's child processes; all are killed on drop.
 pub struct Cluster {
     pub dir: PathBuf,
@@ -375,7 +378,9 @@ impl Cluster {
     }
 
     /// The run's `metrics.csv` says nothing was lost: every epoch stored at least the steps its markers said were
-    /// published, and closed with `budget` steps taken. Returns (stored, published) per epoch.
+    /// published, and closed with `budget` steps taken: at least the budget, and over it by less than the run's
+    /// [`ACTORS`] (a share is rounded up, `cabc_bus::gate::share`, so a share of an odd number of undone steps dealt
+    /// again to two actors takes one step more). Returns (stored, published) per epoch.
     pub fn assert_nothing_lost(&self, budget: u64) -> (Vec<u64>, Vec<u64>) {
         let metrics = self.dir.join("metrics.csv");
         let stored = csv_column(&metrics, "steps_collected");
@@ -386,7 +391,7 @@ impl Cluster {
         );
         let taken = csv_column(&metrics, "steps_taken");
         assert!(
-            taken.iter().all(|&t| t == budget),
+            taken.iter().all(|&t| t >= budget && t < budget + ACTORS),
             "every epoch closed with its whole budget: {taken:?}"
         );
         (stored, published)
