@@ -65,8 +65,8 @@ fn secured_router_config(roster: &Roster, config: &RunConfig) -> Result<Option<S
     Ok(Some(text))
 }
 
-/// Supervises the run; returns the exit status for the command.
-pub fn run(args: &Args) -> Result<i32> {
+/// The supervisor of `args`'s run, and its configuration: the processes' programs checked to be built.
+fn supervisor(args: &Args) -> Result<(Supervisor, RunConfig)> {
     let config = RunConfig::load(&args.config.display().to_string())
         .with_context(|| format!("loading {}", args.config.display()))?;
     let roster = Roster {
@@ -99,7 +99,12 @@ pub fn run(args: &Args) -> Result<i32> {
     // On a terminal the learner draws its progress bar; --verbose or RUST_LOG bring its lines instead.
     let brief =
         std::io::stderr().is_terminal() && !args.verbose && std::env::var_os("RUST_LOG").is_none();
-    let mut supervisor = Supervisor::new(roster, &config, brief);
+    Ok((Supervisor::new(roster, &config, brief), config))
+}
+
+/// Supervises the run; returns the exit status for the command.
+pub fn run(args: &Args) -> Result<i32> {
+    let (mut supervisor, _) = supervisor(args)?;
     match supervisor.run() {
         Ok(Ended::Learner { code, after }) => {
             let s = after.as_secs();
@@ -116,6 +121,10 @@ pub fn run(args: &Args) -> Result<i32> {
             Ok(0)
         }
         Ok(Ended::Finished) => Ok(0),
+        Ok(Ended::Stopped(why)) => {
+            eprintln!("[run-local] stopped: {why}");
+            Ok(1)
+        }
         Err(e) => {
             eprintln!("[run-local] error: {e}");
             Ok(e.exit_code())
@@ -141,6 +150,9 @@ pub struct ChaosArgs {
     /// A pause's seconds, drawn uniformly in MIN-MAX.
     #[arg(long, default_value = "5-30")]
     pause: String,
+    /// Seconds the run may take: past them a run that has not ended is stopped and counted as a stall.
+    #[arg(long, default_value_t = 3600.0)]
+    limit: f64,
     #[command(flatten)]
     run: Args,
 }
@@ -156,27 +168,13 @@ pub fn chaos(args: &ChaosArgs) -> Result<i32> {
     };
     let (lo, hi) = seconds("every", &args.every)?;
     let pause_s = seconds("pause", &args.pause)?;
-    let config = RunConfig::load(&args.run.config.display().to_string())
-        .with_context(|| format!("loading {}", args.run.config.display()))?;
+    anyhow::ensure!(
+        args.limit.is_finite() && args.limit > 0.0,
+        "--limit {}: seconds, more than 0",
+        args.limit
+    );
+    let (mut supervisor, config) = supervisor(&args.run)?;
     let run = &args.run;
-    let mut supervise = vec![
-        std::env::current_exe()?.display().to_string(),
-        "supervise".to_string(),
-        "--config".into(),
-        run.config.display().to_string(),
-        "--run-dir".into(),
-        run.run_dir.display().to_string(),
-        "--bin".into(),
-        run.bin.display().to_string(),
-    ];
-    if run.verbose {
-        supervise.push("--verbose".into());
-    }
-    for role in &run.roles {
-        supervise.extend(["--roles".to_string(), role.as_str().to_string()]);
-    }
-    supervise.push("--".into());
-    supervise.extend(run.learner_args.iter().cloned());
     let chaos = Chaos {
         seed: args.seed,
         gap_s: (lo, hi),
@@ -189,11 +187,11 @@ pub fn chaos(args: &ChaosArgs) -> Result<i32> {
         },
         kinds: args.faults.clone(),
         pause_s,
-        supervise,
         run_dir: run.run_dir.clone(),
         epoch_timeout_s: config.bus.epoch_timeout_s,
+        limit: std::time::Duration::from_secs_f64(args.limit),
     };
-    let report = chaos.run().context("running the chaos")?;
+    let report = chaos.run(&mut supervisor).context("running the chaos")?;
     println!("{}", serde_json::to_string_pretty(&report)?);
-    Ok(report.exit.unwrap_or(1))
+    Ok(report.exit)
 }

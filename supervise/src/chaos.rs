@@ -1,24 +1,26 @@
-//! Chaos (issue 64): a supervised run under a seeded schedule of faults, and what they cost. [`Chaos::run`] starts
-//! the run's supervisor (`cabc supervise`) as a child, then, every `gap` seconds (drawn from the seed), strikes one
-//! of its live processes (drawn too, among the roles asked for) with a fault of a kind drawn among those asked for
+//! Chaos (issue 64): a supervised run under a seeded schedule of faults, and what they cost. [`Chaos::run`] runs the
+//! run's supervisor ([`Supervisor`], the same roster as `cabc supervise`) in this process, as a [`Watcher`] in its
+//! loop: every `gap` seconds (drawn from the seed) it strikes one of the processes the supervisor runs (drawn too, among the roles asked for) with a fault of a kind drawn among those asked for
 //! ([`FaultKind`]): a kill (SIGKILL; the supervisor restarts it) or a pause (SIGSTOP for a drawn 5-30 s, then SIGCONT:
 //! the process and its links go silent, and past zenoh's 10 s lease its peers drop them, as a cut link looks from
 //! the other side; a paused learner is the router of the run, so every link goes). It watches `metrics.csv` for the
 //! epochs' ends, and when the run is over writes `<run>/chaos.json`: the faults by kind and target, the restarts,
 //! the time each fault cost (the interval between the epochs around it less the median interval of the epochs
 //! without one), the stalls (an epoch that took longer than `bus.epoch_timeout_s`), the steps published, stored and
-//! short, the duplicates, and whether and where the run stopped early.
+//! short, the duplicates, and whether and where the run stopped early. A run that has not ended by the time limit
+//! is stopped and counted as a stall. A process it paused is always continued: when its pause is over, before the
+//! supervisor stops the processes (the run's end, Ctrl-C, the time limit), and when the chaos itself unwinds.
 //!
 //! A pause is not a cut from the paused process's side (it runs nothing meanwhile): a real cut, where both sides
 //! go on, and a restarted standalone router need network namespaces and a router of their own, which the end-to-end
 //! tests make (tests/tests/survive.rs); the report says which kinds ran.
 
 use crate::roster::Role;
+use crate::{Ended, Live, SuperviseError, Supervisor, Watcher};
 use cabc_runfolder::{Status, Table};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 /// A reproducible stream of draws (SplitMix64): the same seed, the same schedule.
@@ -113,8 +115,11 @@ pub struct Report {
     pub epochs: usize,
     /// The median interval between two epochs' ends without a fault in between.
     pub median_epoch_s: Option<f64>,
-    /// Epochs that took longer than `bus.epoch_timeout_s` (a stall), or the run that never ended one.
+    /// Epochs that took longer than `bus.epoch_timeout_s` (a stall), or the run that never ended one, or that had
+    /// not ended at the time limit.
     pub stalls: usize,
+    /// The run was stopped at the chaos's time limit.
+    pub timed_out: bool,
     pub max_lost_s: Option<f64>,
     /// The steps the actors said they published (their markers), and the steps the ledger stored.
     pub steps_published: u64,
@@ -124,8 +129,9 @@ pub struct Report {
     pub duplicate_segments: u64,
     pub early_stop_version: Option<u64>,
     pub ended: String,
-    /// The supervisor's exit status.
-    pub exit: Option<i32>,
+    /// How the supervised run ended (the supervisor's words), and the exit status the command gives.
+    pub supervisor: String,
+    pub exit: i32,
 }
 
 /// A chaos run's settings.
@@ -139,71 +145,134 @@ pub struct Chaos {
     pub kinds: Vec<FaultKind>,
     /// The range of a pause's seconds.
     pub pause_s: (f64, f64),
-    /// The supervisor's command (`cabc supervise ...`).
-    pub supervise: Vec<String>,
     pub run_dir: PathBuf,
     pub epoch_timeout_s: f64,
+    /// Past this, a run that has not ended is stopped and counted as a stall.
+    pub limit: Duration,
+}
+
+/// A chaos run in progress: the [`Watcher`] in the supervisor's loop.
+struct Striking<'a> {
+    chaos: &'a Chaos,
+    draws: Draws,
+    started: Instant,
+    next_fault: Instant,
+    /// The process paused, and when it goes on.
+    paused: Option<(libc::pid_t, Instant)>,
+    faults: Vec<Fault>,
+    epoch_ends: Vec<f64>,
+    timed_out: bool,
+}
+
+impl Striking<'_> {
+    fn go_on(&mut self) {
+        if let Some((pid, _)) = self.paused.take() {
+            signal(pid, libc::SIGCONT);
+        }
+    }
+}
+
+impl Watcher for Striking<'_> {
+    fn poll(&mut self, live: &[Live]) -> Option<String> {
+        let now = Instant::now();
+        if self.paused.is_some_and(|(_, until)| now >= until) {
+            self.go_on();
+            self.next_fault = now + self.chaos.gap(&mut self.draws);
+        }
+        let rows = Table::rows_in(&self.chaos.run_dir.join(cabc_runfolder::METRICS));
+        while self.epoch_ends.len() < rows {
+            self.epoch_ends.push(self.started.elapsed().as_secs_f64());
+        }
+        if self.started.elapsed() >= self.chaos.limit {
+            self.timed_out = true;
+            return Some(format!(
+                "the chaos's time limit ({} s) passed before the run ended",
+                self.chaos.limit.as_secs()
+            ));
+        }
+        if self.paused.is_none() && now >= self.next_fault {
+            if let Some((fault, pid)) = self.chaos.strike(live, &mut self.draws, self.started, rows)
+            {
+                eprintln!(
+                    "[chaos] {:.0} s: {} of {} ({}) in epoch {}{}",
+                    fault.at_s,
+                    fault.kind,
+                    fault.target,
+                    fault.role,
+                    fault.epoch,
+                    fault
+                        .paused_s
+                        .map_or(String::new(), |s| format!(" for {s:.0} s"))
+                );
+                if let Some(s) = fault.paused_s {
+                    self.paused = Some((pid, Instant::now() + Duration::from_secs_f64(s)));
+                }
+                self.faults.push(fault);
+            }
+            self.next_fault = Instant::now() + self.chaos.gap(&mut self.draws);
+        }
+        None
+    }
+
+    fn before_stop(&mut self) {
+        self.go_on();
+    }
+}
+
+impl Drop for Striking<'_> {
+    /// Even when the chaos unwinds, no process it paused stays stopped.
+    fn drop(&mut self) {
+        self.go_on();
+    }
 }
 
 impl Chaos {
-    /// Runs the supervised run under the schedule until it ends; writes and returns the report.
-    pub fn run(&self) -> std::io::Result<Report> {
-        let (program, args) = self
-            .supervise
-            .split_first()
-            .ok_or_else(|| std::io::Error::other("no supervisor command"))?;
-        let mut child: Child = Command::new(program).args(args).spawn()?;
+    /// Runs `supervisor`'s run under the schedule until it ends (or the time limit); writes and returns the report.
+    pub fn run(&self, supervisor: &mut Supervisor) -> std::io::Result<Report> {
         let started = Instant::now();
         let mut draws = Draws::new(self.seed);
-        let mut next_fault = started + self.gap(&mut draws);
-        let mut faults = Vec::new();
-        let mut epoch_ends: Vec<f64> = Vec::new();
-        let metrics = self.run_dir.join(cabc_runfolder::METRICS);
-        // The process paused, and when it goes on.
-        let mut paused: Option<(libc::pid_t, Instant)> = None;
-        let exit = loop {
-            if let Some((pid, until)) = paused {
-                if Instant::now() >= until {
-                    signal(pid, libc::SIGCONT);
-                    paused = None;
-                    next_fault = Instant::now() + self.gap(&mut draws);
-                }
-            }
-            if let Some(status) = child.try_wait()? {
-                break status.code();
-            }
-            let rows = Table::rows_in(&metrics);
-            while epoch_ends.len() < rows {
-                epoch_ends.push(started.elapsed().as_secs_f64());
-            }
-            if paused.is_none() && Instant::now() >= next_fault {
-                if let Some((fault, pid)) = self.strike(&mut draws, started, rows) {
-                    eprintln!(
-                        "[chaos] {:.0} s: {} of {} ({}) in epoch {}{}",
-                        fault.at_s,
-                        fault.kind,
-                        fault.target,
-                        fault.role,
-                        fault.epoch,
-                        fault
-                            .paused_s
-                            .map_or(String::new(), |s| format!(" for {s:.0} s"))
-                    );
-                    if let Some(s) = fault.paused_s {
-                        paused = Some((pid, Instant::now() + Duration::from_secs_f64(s)));
-                    }
-                    faults.push(fault);
-                }
-                next_fault = Instant::now() + self.gap(&mut draws);
-            }
-            std::thread::sleep(Duration::from_millis(200));
+        let next_fault = started + self.gap(&mut draws);
+        let mut striking = Striking {
+            chaos: self,
+            draws,
+            started,
+            next_fault,
+            paused: None,
+            faults: Vec::new(),
+            epoch_ends: Vec::new(),
+            timed_out: false,
         };
-        if let Some((pid, _)) = paused {
-            signal(pid, libc::SIGCONT);
+        let ended = supervisor.run_watched(&mut striking);
+        striking.go_on();
+        let supervisor = match &ended {
+            Ok(Ended::Learner { code, .. }) => format!("the learner ended (exit {code})"),
+            Ok(Ended::Interrupted) => "interrupted".into(),
+            Ok(Ended::Finished) => "finished".into(),
+            Ok(Ended::Stopped(why)) => format!("stopped: {why}"),
+            Err(e) => format!("error: {e}"),
+        };
+        let exit = match &ended {
+            Ok(Ended::Learner { code, .. }) => *code,
+            Ok(Ended::Interrupted | Ended::Finished) => 0,
+            Ok(Ended::Stopped(_)) => 1,
+            Err(e) => e.exit_code(),
+        };
+        let faults = std::mem::take(&mut striking.faults);
+        let epoch_ends = std::mem::take(&mut striking.epoch_ends);
+        let timed_out = striking.timed_out;
+        drop(striking);
+        let mut report = self.report(faults, &epoch_ends, started.elapsed().as_secs_f64());
+        report.supervisor = supervisor;
+        report.exit = exit;
+        report.timed_out = timed_out;
+        if timed_out {
+            report.stalls += 1;
         }
-        let report = self.report(faults, &epoch_ends, started.elapsed().as_secs_f64(), exit);
         let text = serde_json::to_string_pretty(&report).map_err(std::io::Error::other)?;
         std::fs::write(self.run_dir.join("chaos.json"), text + "\n")?;
+        if let Err(SuperviseError::Spawn { .. } | SuperviseError::Io { .. }) = &ended {
+            return Err(std::io::Error::other(report.supervisor.clone()));
+        }
         Ok(report)
     }
 
@@ -211,28 +280,27 @@ impl Chaos {
         Duration::from_secs_f64(draws.uniform(self.gap_s.0, self.gap_s.1).max(0.0))
     }
 
-    /// Strikes one live process of the roles asked for with a fault of a kind drawn, if any runs: the fault and the
-    /// process's pid.
+    /// Strikes one of the `live` processes of the roles asked for with a fault of a kind drawn, if any runs: the
+    /// fault and the process's pid.
     fn strike(
         &self,
+        live: &[Live],
         draws: &mut Draws,
         started: Instant,
         epoch: usize,
     ) -> Option<(Fault, libc::pid_t)> {
-        let status = Status::read(&self.run_dir)?;
-        let live: Vec<(&String, &crate::status::ProcessStatus)> = status
-            .processes
+        let live: Vec<&Live> = live
             .iter()
-            .filter(|(_, p)| p.pid.is_some() && self.roles.iter().any(|r| r.as_str() == p.role))
+            .filter(|p| self.roles.contains(&p.role))
             .collect();
         if live.is_empty() {
             return None;
         }
-        let (name, process) = live[draws.index(live.len())];
+        let process = live[draws.index(live.len())];
         let kind = *self.kinds.get(draws.index(self.kinds.len()))?;
         let paused_s =
             (kind == FaultKind::Pause).then(|| draws.uniform(self.pause_s.0, self.pause_s.1));
-        let pid = process.pid? as libc::pid_t;
+        let pid = process.pid as libc::pid_t;
         let sig = match kind {
             FaultKind::Kill => libc::SIGKILL,
             FaultKind::Pause => libc::SIGSTOP,
@@ -243,8 +311,8 @@ impl Chaos {
         let fault = Fault {
             at_s: started.elapsed().as_secs_f64(),
             kind: kind.as_str().into(),
-            target: name.clone(),
-            role: process.role.clone(),
+            target: process.name.clone(),
+            role: process.role.as_str().into(),
             epoch,
             paused_s,
             lost_s: None,
@@ -253,13 +321,7 @@ impl Chaos {
     }
 
     /// The report from the faults, the epochs' end times and the run folder's files.
-    fn report(
-        &self,
-        mut faults: Vec<Fault>,
-        epoch_ends: &[f64],
-        wall_s: f64,
-        exit: Option<i32>,
-    ) -> Report {
+    fn report(&self, mut faults: Vec<Fault>, epoch_ends: &[f64], wall_s: f64) -> Report {
         // Interval i: from the end of epoch i - 1 (or the start) to the end of epoch i.
         let intervals: Vec<f64> = epoch_ends
             .iter()
@@ -329,8 +391,8 @@ impl Chaos {
                 .as_str()
                 .unwrap_or("no summary")
                 .to_string(),
-            exit,
             faults,
+            ..Report::default()
         }
     }
 }
@@ -370,28 +432,28 @@ mod tests {
     #[test]
     fn a_pause_stops_the_drawn_process_for_a_drawn_while_and_a_kill_ends_it() {
         let dir = tempfile::tempdir().unwrap();
-        let mut sleeper = Command::new("sleep").arg("60").spawn().unwrap();
-        let mut status = Status::new(["actor"]);
-        status.processes.insert(
-            "actor-0".into(),
-            crate::status::ProcessStatus {
-                role: "actor".into(),
-                pid: Some(sleeper.id()),
-                ..Default::default()
-            },
-        );
-        status.write(&Status::path(dir.path())).unwrap();
+        let mut sleeper = std::process::Command::new("sleep")
+            .arg("60")
+            .spawn()
+            .unwrap();
+        let live = [Live {
+            name: "actor-0".into(),
+            role: Role::Actor,
+            pid: sleeper.id(),
+        }];
         let mut chaos = Chaos {
             seed: 5,
             gap_s: (1.0, 2.0),
             roles: vec![Role::Actor],
             kinds: vec![FaultKind::Pause],
             pause_s: (5.0, 30.0),
-            supervise: Vec::new(),
             run_dir: dir.path().to_path_buf(),
             epoch_timeout_s: 6.0,
+            limit: Duration::from_secs(60),
         };
-        let (fault, pid) = chaos.strike(&mut Draws::new(5), Instant::now(), 3).unwrap();
+        let (fault, pid) = chaos
+            .strike(&live, &mut Draws::new(5), Instant::now(), 3)
+            .unwrap();
         assert_eq!(
             (fault.kind.as_str(), fault.target.as_str(), fault.epoch),
             ("pause", "actor-0", 3)
@@ -408,11 +470,13 @@ mod tests {
         // A role not asked for is never struck; a kill ends the process.
         chaos.roles = vec![Role::Learner];
         assert!(chaos
-            .strike(&mut Draws::new(5), Instant::now(), 3)
+            .strike(&live, &mut Draws::new(5), Instant::now(), 3)
             .is_none());
         chaos.roles = vec![Role::Actor];
         chaos.kinds = vec![FaultKind::Kill];
-        let (fault, _) = chaos.strike(&mut Draws::new(5), Instant::now(), 3).unwrap();
+        let (fault, _) = chaos
+            .strike(&live, &mut Draws::new(5), Instant::now(), 3)
+            .unwrap();
         assert_eq!((fault.kind.as_str(), fault.paused_s), ("kill", None));
         use std::os::unix::process::ExitStatusExt;
         assert_eq!(sleeper.wait().unwrap().signal(), Some(libc::SIGKILL));
@@ -437,9 +501,9 @@ mod tests {
             roles: vec![Role::Actor],
             kinds: vec![FaultKind::Kill],
             pause_s: (5.0, 30.0),
-            supervise: Vec::new(),
             run_dir: dir.path().to_path_buf(),
             epoch_timeout_s: 6.0,
+            limit: Duration::from_secs(60),
         };
         let fault = Fault {
             at_s: 3.0,
@@ -451,7 +515,7 @@ mod tests {
             lost_s: None,
         };
         // Epoch ends at 2, 4, 11, 13 s: intervals 2, 2, 7, 2; the fault struck epoch 2.
-        let report = chaos.report(vec![fault], &[2.0, 4.0, 11.0, 13.0], 14.0, Some(0));
+        let report = chaos.report(vec![fault], &[2.0, 4.0, 11.0, 13.0], 14.0);
         assert_eq!(report.median_epoch_s, Some(2.0));
         assert_eq!(report.faults[0].lost_s, Some(5.0));
         assert_eq!(report.stalls, 1, "7 s > the 6 s timeout");
@@ -459,5 +523,60 @@ mod tests {
         assert_eq!(report.steps_published, 40);
         assert_eq!(report.steps_stored, 41);
         assert_eq!(report.early_stop_version, Some(3));
+    }
+
+    #[test]
+    fn a_paused_process_goes_on_when_the_chaos_stops_and_the_time_limit_stops_the_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut sleeper = std::process::Command::new("sleep")
+            .arg("60")
+            .spawn()
+            .unwrap();
+        let live = [Live {
+            name: "actor-0".into(),
+            role: Role::Actor,
+            pid: sleeper.id(),
+        }];
+        let chaos = Chaos {
+            seed: 2,
+            gap_s: (0.001, 0.002),
+            roles: vec![Role::Actor],
+            kinds: vec![FaultKind::Pause],
+            pause_s: (600.0, 600.0),
+            run_dir: dir.path().to_path_buf(),
+            epoch_timeout_s: 6.0,
+            limit: Duration::from_millis(300),
+        };
+        let started = Instant::now();
+        let mut striking = Striking {
+            chaos: &chaos,
+            draws: Draws::new(2),
+            started,
+            next_fault: started,
+            paused: None,
+            faults: Vec::new(),
+            epoch_ends: Vec::new(),
+            timed_out: false,
+        };
+        assert_eq!(striking.poll(&live), None);
+        assert_eq!(striking.faults.len(), 1, "the pause struck at once");
+        let began = Instant::now();
+        while state(sleeper.id()) != 'T' && began.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(state(sleeper.id()), 'T');
+        // Past the limit the watcher stops the run, and a stall is counted by the run.
+        std::thread::sleep(Duration::from_millis(350));
+        assert!(striking.poll(&live).unwrap().contains("time limit"));
+        assert!(striking.timed_out);
+        // Dropped (the chaos ends, or unwinds) with its pause of 600 s not over: the process goes on.
+        drop(striking);
+        let began = Instant::now();
+        while state(sleeper.id()) == 'T' && began.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_ne!(state(sleeper.id()), 'T');
+        sleeper.kill().unwrap();
+        sleeper.wait().unwrap();
     }
 }

@@ -49,6 +49,35 @@ pub enum Ended {
     Interrupted,
     /// No learner here, and every process finished (the learner's stop reached them).
     Finished,
+    /// Its [`Watcher`] stopped it, for this reason (the chaos's time limit).
+    Stopped(String),
+}
+
+/// A running process as a [`Watcher`] sees it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Live {
+    pub name: String,
+    pub role: Role,
+    pub pid: u32,
+}
+
+/// What runs in the supervisor's loop beside it (the chaos of [`chaos`]): it sees the running processes at every
+/// poll, from the supervisor itself, and may end the run.
+pub trait Watcher {
+    /// At each poll, the processes running now; `Some(why)` stops the run as an interrupt does
+    /// ([`Ended::Stopped`]).
+    fn poll(&mut self, live: &[Live]) -> Option<String>;
+    /// Once, before the processes are stopped, however the run ends (a process it paused is continued here).
+    fn before_stop(&mut self) {}
+}
+
+/// The watcher of a plain supervised run: none.
+struct Unwatched;
+
+impl Watcher for Unwatched {
+    fn poll(&mut self, _: &[Live]) -> Option<String> {
+        None
+    }
 }
 
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
@@ -150,6 +179,11 @@ impl Supervisor {
 
     /// Starts the run's processes and supervises them until the run ends.
     pub fn run(&mut self) -> Result<Ended, SuperviseError> {
+        self.run_watched(&mut Unwatched)
+    }
+
+    /// [`Supervisor::run`] with `watcher` in its loop.
+    pub fn run_watched(&mut self, watcher: &mut dyn Watcher) -> Result<Ended, SuperviseError> {
         catch_signals();
         let router = match &self.router {
             Some(Ok(endpoints)) => roster::listen_addresses(endpoints),
@@ -193,7 +227,8 @@ impl Supervisor {
         }
         self.write_status()?;
         let started = Instant::now();
-        let result = self.start_and_watch(started, &router);
+        let result = self.start_and_watch(started, &router, watcher);
+        watcher.before_stop();
         self.stop_all(Duration::ZERO);
         for entry in self.status.processes.values_mut() {
             entry.pid = None;
@@ -211,6 +246,7 @@ impl Supervisor {
         &mut self,
         started: Instant,
         router: &[(String, u16)],
+        watcher: &mut dyn Watcher,
     ) -> Result<Ended, SuperviseError> {
         let position = |role| self.procs.iter().position(|p| p.spec.role == role);
         let (first, learner) = (position(Role::Router), position(Role::Learner));
@@ -239,8 +275,25 @@ impl Supervisor {
             if learner.is_none() && self.procs.iter().all(|p| p.finished) {
                 return Ok(Ended::Finished);
             }
+            if let Some(why) = watcher.poll(&self.live()) {
+                return Ok(Ended::Stopped(why));
+            }
             std::thread::sleep(POLL);
         }
+    }
+
+    /// The processes running now.
+    pub fn live(&self) -> Vec<Live> {
+        self.procs
+            .iter()
+            .filter_map(|p| {
+                Some(Live {
+                    name: p.spec.name.clone(),
+                    role: p.spec.role,
+                    pid: p.child.as_ref()?.id(),
+                })
+            })
+            .collect()
     }
 
     /// Process `i`: handles its death (a restart planned, or the run's end), or starts it again when due.
