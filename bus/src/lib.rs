@@ -82,6 +82,14 @@ fn zerr(e: impl std::fmt::Display) -> BusError {
 /// The largest zenoh message a process reassembles: a codec header and the largest body the codec decodes.
 pub const MAX_MESSAGE: usize = codec::HEADER_LEN + codec::MAX_BODY;
 
+/// How long a reliable put (segments, markers, the policy: `CongestionControl::Block`) may wait for room on a link
+/// before zenoh closes that link, in microseconds. zenoh's default, 5 s, turns a consumer that is alive but slower
+/// than its publishers (a learner at saturation, and a standalone router in front of it) into a closed link: what was
+/// in flight is dropped and comes again only as the outboxes' copies, after the epoch may have closed (`cabc
+/// bench-bus`, issue 73: 595 of 2,752 camera segments missing at the end with 64 actors through zenohd). A minute
+/// keeps backpressure as backpressure; a peer that is dead or paused is still dropped by zenoh's lease (10 s).
+pub const BLOCK_BEFORE_CLOSE_US: u64 = 60_000_000;
+
 /// Whether the router listening on `listen` would dial itself through the connect endpoint `endpoint`: one of its
 /// listeners, or the same protocol and port as a listener (a connect address is the name the other machines use for
 /// this one, `tls/<host-A>:7447`, while the listener is `tls/0.0.0.0:7447`). A standalone router on another machine
@@ -182,6 +190,11 @@ pub fn settings(
     config.push((
         "transport/link/rx/max_message_size",
         MAX_MESSAGE.to_string(),
+    ));
+    // Backpressure, not a closed link, while a consumer is slower than its publishers.
+    config.push((
+        "transport/link/tx/queue/congestion_control/block/wait_before_close",
+        BLOCK_BEFORE_CLOSE_US.to_string(),
     ));
 
     if bus.security.enabled() {
@@ -483,6 +496,18 @@ mod tests {
                 .get_json("transport/link/rx/max_message_size")
                 .unwrap();
             assert_eq!(json, MAX_MESSAGE.to_string());
+        }
+    }
+
+    #[test]
+    fn a_slow_consumer_holds_its_publishers_back_rather_than_losing_its_link() {
+        for role in [Role::Listen, Role::Connect] {
+            let keys = Keys::new("r").unwrap();
+            let config = zenoh_config(&BusSection::default(), role, &keys, "learner").unwrap();
+            let json = config
+                .get_json("transport/link/tx/queue/congestion_control/block/wait_before_close")
+                .unwrap();
+            assert_eq!(json, BLOCK_BEFORE_CLOSE_US.to_string());
         }
     }
 

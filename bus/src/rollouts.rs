@@ -207,6 +207,11 @@ impl ZenohActors {
         })
     }
 
+    /// Where the subscription to `traj/*` spent its time so far ([`crate::receipts::ReceiptClock`]).
+    pub fn receipt_times(&self) -> crate::receipts::ReceiptTimes {
+        self.traj.clock.read()
+    }
+
     /// The bus, to close it at the end.
     pub fn into_bus(self) -> Bus {
         self.bus

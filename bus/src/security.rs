@@ -162,6 +162,14 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
             "egress",
             &k(policy),
         ),
+        // The learner puts the receipts from a publisher declared per actor (`receipts::Acknowledger`): a router that
+        // is not the learner (zenohd, §2) tells it who subscribes to `ack/*`, which the publisher routes by.
+        rule(
+            "learner-ack-subscribers",
+            &["declare_subscriber"],
+            "egress",
+            &k(keys.ack_all()),
+        ),
         rule("learner-sub", &["declare_subscriber"], "ingress", &data),
         rule("learner-recv", &["put"], "egress", &data),
         rule(
@@ -239,7 +247,7 @@ pub fn access_control(keys: &Keys, who: &SecuritySection) -> Value {
     subjects.push(subject("learner", vec!["learner".into()]));
     policies.push(
         json!({"subjects": ["learner"], "rules": ["learner-put", "learner-alive",
-        "learner-serve-policy", "learner-recv-policy-query", "learner-sub", "learner-recv",
+        "learner-serve-policy", "learner-recv-policy-query", "learner-sub", "learner-recv", "learner-ack-subscribers",
         "learner-alive-sub", "learner-alive-recv"]}),
     );
     json!({

@@ -66,6 +66,14 @@ enum Command {
     /// auto-labelling, a collection step's parts) against its floor (FLOPs at this core's GEMM rate; the expert's
     /// step); prints JSON.
     BenchEpoch(tools::BenchEpochArgs),
+    /// One learner's capacity (issue 73): N synthetic actors (a child process) publish real-shaped segments at full
+    /// speed through the real intake (zenoh, codec, receipts, ledger, replay) on the embedded router or a standalone
+    /// zenohd; steps/s and MB/s absorbed, the learner's CPU per step by stage, the receipts' round trip, the policy's
+    /// broadcast to N, and the books (fails when anything was lost). A Markdown table on stdout; --json for all.
+    BenchBus(cabc_bench::capacity::BusBenchOptions),
+    /// bench-bus's actors (its child process).
+    #[command(hide = true)]
+    BenchBusActors(cabc_bench::capacity::actors::ActorsArgs),
     /// zenohd's configuration for a run (deploy/SCALE-OUT.md §2), JSON5 on stdout: the links, TLS and access control
     /// of its `[bus.security]` under the router's certificate `<certs>/zenohd.pem` (make-certs.sh --zenohd).
     ZenohdConfig(tools::ZenohdConfigArgs),
@@ -109,6 +117,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(args) => tools::bench(&args),
         Command::BenchVision(options) => tools::bench_vision(&options),
         Command::BenchEpoch(args) => tools::bench_epoch(&args),
+        Command::BenchBus(options) => tools::bench_bus(&options),
+        Command::BenchBusActors(args) => tools::bench_bus_actors(&args),
         Command::ZenohdConfig(args) => tools::zenohd_config(&args),
         Command::AclDenials(args) => tools::acl_denials(&args),
         Command::Campaign(args) => campaign::run(&args),

@@ -1,5 +1,5 @@
 //! The subcommands that hand their arguments to a library whole: `cabc compare` (cabc-analysis), `cabc plots`
-//! (cabc-outputs), `cabc demo`, `cabc bench` and `cabc bench-vision` (cabc-bench), and a secure deployment's
+//! (cabc-outputs), `cabc demo`, `cabc bench`, `cabc bench-vision` and `cabc bench-bus` (cabc-bench), and a secure deployment's
 //! `cabc zenohd-config` and `cabc acl-denials` (cabc-bus, deploy/SCALE-OUT.md §2).
 
 use anyhow::Context;
@@ -103,6 +103,32 @@ pub fn bench_epoch(args: &BenchEpochArgs) -> anyhow::Result<()> {
         .context("applying --set")?;
     let report = cabc_bench::epoch::run(&config, &args.options).context("bench-epoch")?;
     crate::print_json(&report)
+}
+
+/// `cabc bench-bus`: one learner's intake under N synthetic actors; the table on stdout, every figure in `--json`;
+/// fails when a segment was lost.
+pub fn bench_bus(options: &cabc_bench::capacity::BusBenchOptions) -> anyhow::Result<()> {
+    let exe =
+        std::env::current_exe().context("this executable's path (the actors run as its child)")?;
+    let report = cabc_bench::capacity::run(options, &exe).context("bench-bus")?;
+    print!("{}", report.table());
+    if let Some(path) = &options.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    match report.lost() {
+        0 => Ok(()),
+        lost => anyhow::bail!(
+            "{lost} segments (or their steps) published and not stored: see the books in the JSON"
+        ),
+    }
+}
+
+/// `cabc bench-bus-actors`: the synthetic actors of `cabc bench-bus` (its child process); their report on stdout.
+pub fn bench_bus_actors(args: &cabc_bench::capacity::actors::ActorsArgs) -> anyhow::Result<()> {
+    let report = cabc_bench::capacity::actors::serve(args).context("bench-bus's actors")?;
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
 }
 
 #[derive(clap::Args)]

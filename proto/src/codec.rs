@@ -267,6 +267,38 @@ impl Message for Ack {
 mod tests {
     use super::*;
 
+    /// An image's bytes encode as a `Vec<u8>`'s did (schema 6 unchanged), in bincode and in JSON, and decode back.
+    #[test]
+    fn image_bytes_keep_the_encoding_of_a_vec() {
+        #[derive(serde::Serialize, serde::Deserialize, PartialEq, Debug)]
+        struct Plain {
+            width: u16,
+            height: u16,
+            rgb: Vec<u8>,
+        }
+        let rgb: Vec<u8> = (0..=255u8).cycle().take(image_bytes(64, 64)).collect();
+        let image = Image {
+            width: 64,
+            height: 64,
+            rgb: rgb.clone(),
+        };
+        let plain = Plain {
+            width: 64,
+            height: 64,
+            rgb,
+        };
+        let c = config();
+        let ours = bincode::serde::encode_to_vec(&image, c).unwrap();
+        assert_eq!(ours, bincode::serde::encode_to_vec(&plain, c).unwrap());
+        let (back, _): (Image, usize) = bincode::serde::decode_from_slice(&ours, c).unwrap();
+        assert_eq!(back, image);
+        let (plain_back, _): (Plain, usize) = bincode::serde::decode_from_slice(&ours, c).unwrap();
+        assert_eq!(plain_back, plain);
+        let json = serde_json::to_string(&image).unwrap();
+        assert_eq!(json, serde_json::to_string(&plain).unwrap());
+        assert_eq!(serde_json::from_str::<Image>(&json).unwrap(), image);
+    }
+
     pub(crate) fn step(x: f32) -> Step {
         Step {
             state: [1.0, 0.1, 0.2, x, 0.3, -0.1],

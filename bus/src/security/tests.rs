@@ -43,8 +43,8 @@ fn the_access_control_is_the_verified_router_file() {
         assert_eq!(a.len(), b.len(), "{list}");
     }
     assert_eq!(generated, reference);
-    // Size: 22 + 2 n + 2 a rules, 5 + n subjects and 6 + n policies for n = 4 processes of which a = 2 actors.
-    assert_eq!(ours["rules"].as_array().unwrap().len(), 34);
+    // Size: 23 + 2 n + 2 a rules, 5 + n subjects and 6 + n policies for n = 4 processes of which a = 2 actors.
+    assert_eq!(ours["rules"].as_array().unwrap().len(), 35);
     assert_eq!(ours["subjects"].as_array().unwrap().len(), 9);
     assert_eq!(ours["policies"].as_array().unwrap().len(), 10);
 }
