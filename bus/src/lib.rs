@@ -15,6 +15,7 @@
 pub mod expert;
 pub mod gate;
 pub mod interrupt;
+pub mod membership;
 pub mod outbox;
 pub mod ports;
 mod publications;

@@ -24,6 +24,7 @@
 
 use crate::gate::{share, undone, Closed, EpochGate};
 use crate::interrupt::Interrupt;
+use crate::membership::Membership;
 use crate::publications::Publications;
 use crate::receipts::Receipts;
 pub use crate::receipts::TRAJ_QUEUE;
@@ -82,21 +83,13 @@ pub struct ZenohActors {
     /// The encoded publications of the last versions (the queryable's answers): the latest for late joiners, any
     /// held version for an evaluator that missed it (`policy?version=<v>`).
     published: Publications,
-    live: BTreeSet<String>,
-    /// Actors that left and did not come back.
-    left: BTreeSet<String>,
-    /// The run's actors (`actors.count`): the first epoch this learner gathers waits for this many markers, less those
-    /// that left, for [`JOIN_GRACE`] at most; later epochs follow the live set. 0 once the first epoch closed.
-    expected: usize,
+    /// Who the epochs are dealt to (the first epoch this learner gathers waits for `actors.count` markers, less
+    /// those that left, for [`JOIN_GRACE`] at most; later epochs follow the live set).
+    membership: Membership,
     /// The evaluators alive.
     evaluators: BTreeSet<String>,
     /// The run's evaluators (`actors.evaluators`): none alive is warned about once they could have joined.
     evaluators_expected: usize,
-    /// The actors an epoch's steps were last dealt over while some were alive.
-    last_members: usize,
-    /// The actors alive last while some were: a publication made while none is (a router restarting, a cut) is dealt
-    /// to them, and its round waits for them as they come back.
-    last_live: BTreeSet<String>,
     /// The share of the last publication (a change is logged).
     last_share: Option<u64>,
     /// Whether the learner has said that no evaluator is alive (said once until one is back).
@@ -148,6 +141,33 @@ struct RoundClosed {
     lost: Vec<String>,
 }
 
+impl RoundClosed {
+    /// What `gate` holds as it closed (`closed`), the round's `share` and the steps `heard` from each actor.
+    fn of(gate: &EpochGate, closed: Closed, share: u64, heard: &BTreeMap<String, u64>) -> Self {
+        let (missing, timed_out) = match closed {
+            Closed::AllDone => (Vec::new(), false),
+            Closed::Timeout { missing } => {
+                tracing::warn!(
+                    epoch = gate.version(),
+                    ?missing,
+                    done = gate.markers().count(),
+                    "epoch closed by the timeout"
+                );
+                (missing, true)
+            }
+        };
+        let lost: Vec<String> = gate.lost().map(str::to_string).collect();
+        RoundClosed {
+            markers: gate.markers().cloned().collect(),
+            missing,
+            timed_out,
+            undone: undone(lost.iter().map(String::as_str), share, heard),
+            delivered_by_lost: lost.iter().filter_map(|a| heard.get(a)).sum(),
+            lost,
+        }
+    }
+}
+
 impl ZenohActors {
     /// Subscribes to the actors' keys of `bus`'s run. An epoch closes when every live actor, and at least `expected`
     /// actors (less those that left), said they are done; or after `epoch_timeout` with at least one marker.
@@ -190,15 +210,11 @@ impl ZenohActors {
             alive,
             evaluators_alive,
             published,
-            live: BTreeSet::new(),
-            left: BTreeSet::new(),
-            expected,
+            membership: Membership::new(expected),
             evaluators: BTreeSet::new(),
             evaluators_expected: config.actors.evaluators as usize,
             warned_no_evaluator: false,
             last_share: None,
-            last_members: 0,
-            last_live: BTreeSet::new(),
             budget,
             epoch_timeout: waits.epoch_timeout,
             no_actor_timeout: waits.no_actor_timeout,
@@ -229,23 +245,18 @@ impl ZenohActors {
                     if let Some(g) = gate.as_deref_mut() {
                         g.alive(&actor);
                     }
-                    self.left.remove(&actor);
-                    self.live.insert(actor);
+                    self.membership.joined(&actor);
                 }
                 SampleKind::Delete => {
                     tracing::warn!(actor, "actor left");
                     if let Some(g) = gate.as_deref_mut() {
                         g.gone(&actor, Instant::now());
                     }
-                    self.live.remove(&actor);
-                    self.left.insert(actor);
+                    self.membership.left(&actor);
                 }
             }
         }
-        // Actors that left at once (their tokens' deletions arrive together) stay the last live set.
-        if !self.live.is_empty() {
-            self.last_live = self.live.clone();
-        }
+        self.membership.settled();
     }
 
     /// Applies the evaluators' liveliness changes; warns (once, until one is back) while none of the run's evaluators
@@ -281,20 +292,6 @@ impl ZenohActors {
         }
     }
 
-    /// How many actors an epoch's steps are dealt over now: the live ones, or, in the first epoch this learner
-    /// gathers, the run's `actors.count` less those that left while some have not been seen yet. With none alive (a
-    /// router restarting, a link cut: they all left at once and will come back), as many as were alive last.
-    fn members(&mut self) -> usize {
-        let now = self
-            .live
-            .len()
-            .max(self.expected.saturating_sub(self.left.len()));
-        if now > 0 {
-            self.last_members = now;
-        }
-        self.last_members.max(1)
-    }
-
     /// Publishes `encoded` (version `version`), holds it for the queryable, and remembers it as the round to gather.
     fn put_publication(
         &mut self,
@@ -313,13 +310,29 @@ impl ZenohActors {
             at: Instant::now(),
             published_unix_ms,
             share,
-            members: if self.live.is_empty() {
-                self.last_live.clone()
-            } else {
-                self.live.clone()
-            },
+            members: self.membership.dealt_to(),
         });
         Ok(())
+    }
+
+    /// The gate of `round`: its members, those of them not alive now lost until they come back (they left before
+    /// the publication, or since it), and who left or joined since the publication (the learner trained meanwhile
+    /// under `collection.overlap`).
+    fn open_gate(&mut self, round: &Publication, expecting: usize) -> EpochGate {
+        let mut gate = EpochGate::open(
+            round.version,
+            self.epoch_timeout,
+            round.members.iter().cloned(),
+            round.at,
+        )
+        .expecting(expecting, JOIN_GRACE.min(self.epoch_timeout))
+        .answering(round.published_unix_ms);
+        let live = self.membership.live();
+        for member in round.members.iter().filter(|m| !live.contains(*m)) {
+            gate.gone(member, Instant::now());
+        }
+        self.follow_liveliness(Some(&mut gate));
+        gate
     }
 
     /// One round of epoch `version`'s collection: from `round`'s publication until every live actor answered it (or
@@ -331,20 +344,7 @@ impl ZenohActors {
         store: &mut dyn FnMut(Segment),
     ) -> Result<Option<RoundClosed>, PortError> {
         let version = round.version;
-        let mut gate = EpochGate::open(
-            version,
-            self.epoch_timeout,
-            round.members.iter().cloned(),
-            round.at,
-        )
-        .expecting(expecting, JOIN_GRACE.min(self.epoch_timeout))
-        .answering(round.published_unix_ms);
-        // Members not alive now (they left before the publication, or since it) are lost until they come back.
-        for member in round.members.iter().filter(|m| !self.live.contains(*m)) {
-            gate.gone(member, Instant::now());
-        }
-        // Who left or joined since the publication (the learner trained meanwhile under `collection.overlap`).
-        self.follow_liveliness(Some(&mut gate));
+        let mut gate = self.open_gate(round, expecting);
         let mut last_wait_log = Instant::now();
         let mut last_publish = round.at;
         let mut republish_after = REPUBLISH;
@@ -367,7 +367,7 @@ impl ZenohActors {
                 }
             }
             if last_publish.elapsed() >= republish_after
-                && self.live.iter().any(|a| {
+                && self.membership.live().iter().any(|a| {
                     !heard.contains_key(a) || gate.quiet_without_marker(a, Instant::now(), QUIET)
                 })
             {
@@ -388,7 +388,7 @@ impl ZenohActors {
             if let Some(closed) = gate.closed(now) {
                 break closed;
             }
-            if self.live.is_empty() && gate.markers().next().is_none() {
+            if self.membership.live().is_empty() && gate.markers().next().is_none() {
                 if !warned_nobody {
                     warned_nobody = true;
                     tracing::warn!(
@@ -403,13 +403,13 @@ impl ZenohActors {
                         waited_s: self.no_actor_timeout.as_secs_f64(),
                     });
                 }
-            } else if warned_nobody && !self.live.is_empty() {
+            } else if warned_nobody && !self.membership.live().is_empty() {
                 warned_nobody = false;
-                tracing::warn!(epoch = version, live = ?self.live, "an actor is back");
+                tracing::warn!(epoch = version, live = ?self.membership.live(), "an actor is back");
             }
             if last_wait_log.elapsed() > Duration::from_secs(30) {
                 last_wait_log = Instant::now();
-                tracing::info!(epoch = version, live = ?self.live, missing = ?gate.missing(), "waiting for actors");
+                tracing::info!(epoch = version, live = ?self.membership.live(), missing = ?gate.missing(), "waiting for actors");
             }
         };
         // What already arrived goes with this epoch: an actor that left may have sent its last segments just before
@@ -417,27 +417,7 @@ impl ZenohActors {
         while let Ok(arrival) = self.traj.arrivals.try_recv() {
             arrival.take_in(version, &mut gate, &mut heard, store);
         }
-        let (missing, timed_out) = match closed {
-            Closed::AllDone => (Vec::new(), false),
-            Closed::Timeout { missing } => {
-                tracing::warn!(
-                    epoch = version,
-                    ?missing,
-                    done = gate.markers().count(),
-                    "epoch closed by the timeout"
-                );
-                (missing, true)
-            }
-        };
-        let lost: Vec<String> = gate.lost().map(str::to_string).collect();
-        Ok(Some(RoundClosed {
-            markers: gate.markers().cloned().collect(),
-            missing,
-            timed_out,
-            undone: undone(lost.iter().map(String::as_str), round.share, &heard),
-            delivered_by_lost: lost.iter().filter_map(|a| heard.get(a)).sum(),
-            lost,
-        }))
+        Ok(Some(RoundClosed::of(&gate, closed, round.share, &heard)))
     }
 }
 
@@ -446,12 +426,12 @@ impl Rollouts for ZenohActors {
         self.follow_liveliness(None);
         self.follow_evaluators(update.version);
         // The epoch's steps dealt over the actors there are now (the learner's update assumes `actors.count`).
-        let share = share((self.budget)(update.version), self.members());
+        let share = share((self.budget)(update.version), self.membership.members());
         if self.last_share != Some(share) {
             self.last_share = Some(share);
             tracing::info!(
                 epoch = update.version,
-                live = ?self.live,
+                live = ?self.membership.live(),
                 share,
                 "the epoch's steps dealt over the live actors"
             );
@@ -483,9 +463,8 @@ impl Rollouts for ZenohActors {
                     update.version
                 ))
             })?;
-        let mut expecting = self.expected.saturating_sub(self.left.len());
         // After this epoch the live set alone says who collects.
-        self.expected = 0;
+        let mut expecting = self.membership.take_expected();
         let mut markers = Vec::new();
         let mut delivered_by_lost = 0;
         let mut missing;
@@ -505,17 +484,13 @@ impl Rollouts for ZenohActors {
             // (a new publication time, which their markers answer). With none alive (a router restarting, a cut:
             // they all left at once, one after its marker), to as many as were alive last, whom the round waits for
             // as they come back (or, with none back for `bus.no_actor_timeout_s`, the run ends).
-            let members = if self.live.is_empty() {
-                self.members()
-            } else {
-                self.live.len()
-            };
+            let members = self.membership.dealt_again();
             let again = share(closed.undone, members);
             tracing::warn!(
                 epoch = update.version,
                 lost = ?closed.lost,
                 undone = closed.undone,
-                live = ?self.live,
+                live = ?self.membership.live(),
                 share = again,
                 "actors left before their share was collected: the rest dealt to the live actors"
             );
@@ -540,7 +515,7 @@ impl Rollouts for ZenohActors {
             steps_shielded: markers.iter().map(|m| m.shielded).sum(),
             missing,
             timed_out,
-            live: self.live.iter().cloned().collect(),
+            live: self.membership.live().iter().cloned().collect(),
             times: None,
         }))
     }
@@ -578,11 +553,11 @@ impl Rollouts for ZenohActors {
             self.follow_liveliness(None);
             // Epoch 0: the evaluators are followed, not warned about.
             self.follow_evaluators(0);
-            let heard = self.live.is_empty() && self.evaluators.is_empty();
+            let heard = self.membership.live().is_empty() && self.evaluators.is_empty();
             if heard || self.interrupt.is_set() || Instant::now() >= until {
                 if !heard {
                     tracing::warn!(
-                        actors = ?self.live,
+                        actors = ?self.membership.live(),
                         evaluators = ?self.evaluators,
                         "stopped the run; these were still alive when the learner stopped saying so"
                     );
