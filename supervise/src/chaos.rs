@@ -422,6 +422,34 @@ mod tests {
             .all(|&(g, i)| (10.0..30.0).contains(&g) && i < 5));
     }
 
+    /// A `sleep 60` process, and it as the live actor-0.
+    fn sleeping_actor() -> (std::process::Child, [Live; 1]) {
+        let sleeper = std::process::Command::new("sleep")
+            .arg("60")
+            .spawn()
+            .unwrap();
+        let live = [Live {
+            name: "actor-0".into(),
+            role: Role::Actor,
+            pid: sleeper.id(),
+        }];
+        (sleeper, live)
+    }
+
+    /// Chaos among the actors of `dir`'s run with faults of `kind`.
+    fn actor_chaos(dir: &std::path::Path, seed: u64, kind: FaultKind) -> Chaos {
+        Chaos {
+            seed,
+            gap_s: (1.0, 2.0),
+            roles: vec![Role::Actor],
+            kinds: vec![kind],
+            pause_s: (5.0, 30.0),
+            run_dir: dir.to_path_buf(),
+            epoch_timeout_s: 6.0,
+            limit: Duration::from_secs(60),
+        }
+    }
+
     /// The state letter of /proc/<pid>/stat ('T' stopped, 'S' sleeping, ...).
     fn state(pid: u32) -> char {
         let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
@@ -432,25 +460,8 @@ mod tests {
     #[test]
     fn a_pause_stops_the_drawn_process_for_a_drawn_while_and_a_kill_ends_it() {
         let dir = tempfile::tempdir().unwrap();
-        let mut sleeper = std::process::Command::new("sleep")
-            .arg("60")
-            .spawn()
-            .unwrap();
-        let live = [Live {
-            name: "actor-0".into(),
-            role: Role::Actor,
-            pid: sleeper.id(),
-        }];
-        let mut chaos = Chaos {
-            seed: 5,
-            gap_s: (1.0, 2.0),
-            roles: vec![Role::Actor],
-            kinds: vec![FaultKind::Pause],
-            pause_s: (5.0, 30.0),
-            run_dir: dir.path().to_path_buf(),
-            epoch_timeout_s: 6.0,
-            limit: Duration::from_secs(60),
-        };
+        let (mut sleeper, live) = sleeping_actor();
+        let mut chaos = actor_chaos(dir.path(), 5, FaultKind::Pause);
         let (fault, pid) = chaos
             .strike(&live, &mut Draws::new(5), Instant::now(), 3)
             .unwrap();
@@ -495,16 +506,7 @@ mod tests {
             r#"{"steps_stored": 41, "duplicate_segments": 0, "early_stop_version": 3, "ended": "early stop"}"#,
         )
         .unwrap();
-        let chaos = Chaos {
-            seed: 1,
-            gap_s: (1.0, 2.0),
-            roles: vec![Role::Actor],
-            kinds: vec![FaultKind::Kill],
-            pause_s: (5.0, 30.0),
-            run_dir: dir.path().to_path_buf(),
-            epoch_timeout_s: 6.0,
-            limit: Duration::from_secs(60),
-        };
+        let chaos = actor_chaos(dir.path(), 1, FaultKind::Kill);
         let fault = Fault {
             at_s: 3.0,
             kind: "kill".into(),
@@ -528,24 +530,12 @@ mod tests {
     #[test]
     fn a_paused_process_goes_on_when_the_chaos_stops_and_the_time_limit_stops_the_run() {
         let dir = tempfile::tempdir().unwrap();
-        let mut sleeper = std::process::Command::new("sleep")
-            .arg("60")
-            .spawn()
-            .unwrap();
-        let live = [Live {
-            name: "actor-0".into(),
-            role: Role::Actor,
-            pid: sleeper.id(),
-        }];
+        let (mut sleeper, live) = sleeping_actor();
         let chaos = Chaos {
-            seed: 2,
             gap_s: (0.001, 0.002),
-            roles: vec![Role::Actor],
-            kinds: vec![FaultKind::Pause],
             pause_s: (600.0, 600.0),
-            run_dir: dir.path().to_path_buf(),
-            epoch_timeout_s: 6.0,
             limit: Duration::from_millis(300),
+            ..actor_chaos(dir.path(), 2, FaultKind::Pause)
         };
         let started = Instant::now();
         let mut striking = Striking {
