@@ -175,7 +175,8 @@ host=$(hostname -s)
 # slurmd initialises a cgroup plugin even under proctrack/linuxproc; name the hierarchy this machine mounts (its
 # autodetection takes a tmpfs /sys/fs/cgroup with v1 controllers under it for none).
 if [ -d /sys/fs/cgroup/unified ] || [ -d /sys/fs/cgroup/cpu ]; then cgroup=cgroup/v1; else cgroup=autodetect; fi
-printf 'CgroupPlugin=%s\nCgroupMountpoint=/sys/fs/cgroup\n' "$cgroup" > "$dir/cgroup.conf"
+# Without systemd (a container, a CI machine) the cgroup/v2 plugin must not ask it for a scope.
+printf 'CgroupPlugin=%s\nCgroupMountpoint=/sys/fs/cgroup\nIgnoreSystemd=yes\n' "$cgroup" > "$dir/cgroup.conf"
 
 slurmctld -f "$dir/slurm.conf" -i >> "$dir/log/slurmctld.out" 2>&1 || die "slurmctld did not start: $dir/log/slurmctld.log"
 for k in $(seq "$nodes"); do
