@@ -108,6 +108,25 @@ impl SlurmCluster {
         }
     }
 
+    /// Cuts node `n<k>`'s link to the others (its end of the bridge down: no packet passes, and the connections over
+    /// it stay open until their own timeouts, zenoh's lease, end them), or mends it.
+    pub fn set_node_link(&self, k: u32, up: bool) -> Result<()> {
+        let tag = std::fs::read_to_string(self.dir.join("tag")).context("the cluster's tag")?;
+        let link = format!("c{}n{k}h", tag.trim());
+        let state = if up { "up" } else { "down" };
+        let out = Command::new("ip")
+            .args(["link", "set", &link, state])
+            .output()
+            .context("running ip")?;
+        if !out.status.success() {
+            bail!(
+                "ip link set {link} {state}: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            );
+        }
+        Ok(())
+    }
+
     /// The running steps of `job`: (step id `<job>.<n>`, node list), the batch step left out.
     pub fn steps(&self, job: u64) -> Result<Vec<(String, String)>> {
         let text = self.run(

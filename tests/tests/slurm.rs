@@ -259,6 +259,56 @@ fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
     );
 }
 
+/// A node that vanishes without closing its links (its link cut for longer than zenoh's 10 s lease, then mended):
+/// the learner waits the lease, deals the node's share to the other, and the run goes on; the node's actor comes
+/// back when the link does.
+#[test]
+fn a_node_cut_off_mid_run_costs_the_lease_and_the_run_goes_on() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = cabc_tests::test_dir();
+    let cluster = cluster(tmp.path());
+    let (job, run) = submit(&cluster, tmp.path(), 40);
+    wait_epochs(tmp.path(), job, &run, 4);
+    let struck = column(&run, "steps_taken").len();
+    cluster.set_node_link(2, false).unwrap();
+    std::thread::sleep(Duration::from_secs(14));
+    cluster.set_node_link(2, true).unwrap();
+    wait_done(&cluster, tmp.path(), job, &run);
+    let s = summary(&run);
+    assert_eq!(s["epochs"], 40, "{s:#}");
+    assert_eq!(s["ended"], "max_epochs 40 reached", "{s:#}");
+    // Every epoch closed with its budget (a share dealt again rounds up by less than the actors' number).
+    let taken = column(&run, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| (BUDGET..BUDGET + 2).contains(&t)),
+        "{taken:?}\n{}",
+        epoch_lines(&run)
+    );
+    let (stored, published) = (
+        column(&run, "steps_collected"),
+        column(&run, "steps_published"),
+    );
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
+    // actor-1 left with the lease and came back with the link, and ended with the run.
+    let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
+    let joined = learner
+        .lines()
+        .filter(|l| l.contains("actor joined") && l.contains("actor-1"))
+        .count();
+    assert!(learner.contains("actor left"), "{}", epoch_lines(&run));
+    assert_eq!(joined, 2, "{}", epoch_lines(&run));
+    assert!(final_steps(&run, "actor-1").is_some_and(|s| s > 0));
+    let collect_s = seconds(&run, "collect_s");
+    println!(
+        "slurm: job {job}: n2's link cut for 14 s during epoch {struck}; the run went on to {} epochs; \
+         collection s per epoch: {collect_s:?}",
+        s["epochs"]
+    );
+}
+
 #[test]
 fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
