@@ -7,7 +7,7 @@
 
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
-use cabc_actor::run::{run_actor, run_evaluator, ActorError, ActorStats};
+use cabc_actor::run::{run_actor, run_evaluator, stop_or_fail, ActorStats};
 use cabc_bus::expert::ZenohExpert;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::outbox::ZenohSegments;
@@ -17,7 +17,7 @@ use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::{ExpertPlacement, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
-use cabc_proto::ports::{ExpertClient, PortError};
+use cabc_proto::ports::ExpertClient;
 use clap::Parser;
 use std::time::Duration;
 
@@ -97,7 +97,7 @@ fn main() -> Result<()> {
             &mut sink,
             &mut after_epoch,
         );
-        stop_or_fail(ran, &interrupt)?;
+        stop_or_fail(ran, interrupt.is_set())?;
         drop(source);
     } else {
         let timeout = Duration::from_secs_f64(config.expert.timeout_s);
@@ -130,7 +130,7 @@ fn main() -> Result<()> {
             &mut sink,
             &mut after_epoch,
         );
-        stop_or_fail(ran, &interrupt)?;
+        stop_or_fail(ran, interrupt.is_set())?;
     }
     if let Some(value) = last {
         tracing::info!("final metrics: {value}");
@@ -138,17 +138,4 @@ fn main() -> Result<()> {
     // (The policy source, and with it its subscriptions, is gone: the bus closes.)
     bus.close_blocking()?;
     Ok(())
-}
-
-/// The end of a collector's or evaluator's loop: a stop by Ctrl-C or a scheduler's SIGTERM while the learner (or the
-/// expert server) was already gone is a stop, not a failure (what could not be sent is counted in the metrics,
-/// `segments_lost`); any other error is the process's.
-fn stop_or_fail(ran: Result<ActorStats, ActorError>, interrupt: &Interrupt) -> Result<()> {
-    match ran {
-        Err(ActorError::Port(PortError::Stopped(why))) if interrupt.is_set() => {
-            tracing::warn!("stopped while the bus was down ({why})");
-            Ok(())
-        }
-        ran => ran.map(|_| ()).map_err(Into::into),
-    }
 }

@@ -315,6 +315,22 @@ pub fn run_evaluator(
     Ok(stats)
 }
 
+/// The end of a collector's or evaluator's loop: a stop by Ctrl-C or a scheduler's SIGTERM (`interrupted`) while the
+/// learner (or the expert server) was already gone is a stop, not a failure (what could not be sent is counted in the
+/// metrics, `segments_lost`); any other error is the process's.
+pub fn stop_or_fail(
+    ran: Result<ActorStats, ActorError>,
+    interrupted: bool,
+) -> Result<(), ActorError> {
+    match ran {
+        Err(ActorError::Port(PortError::Stopped(why))) if interrupted => {
+            tracing::warn!("stopped while the bus was down ({why})");
+            Ok(())
+        }
+        ran => ran.map(|_| ()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::{far_ahead, FAR_AHEAD};

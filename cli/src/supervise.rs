@@ -105,7 +105,8 @@ fn supervisor(args: &Args) -> Result<(Supervisor, RunConfig)> {
 /// Supervises the run; returns the exit status for the command.
 pub fn run(args: &Args) -> Result<i32> {
     let (mut supervisor, _) = supervisor(args)?;
-    match supervisor.run() {
+    let ended = supervisor.run();
+    match &ended {
         Ok(Ended::Learner { code, after }) => {
             let s = after.as_secs();
             eprintln!(
@@ -114,22 +115,13 @@ pub fn run(args: &Args) -> Result<i32> {
                 s % 60,
                 args.run_dir.join(cabc_outputs::RunDir::SUMMARY).display()
             );
-            Ok(code)
         }
-        Ok(Ended::Interrupted) => {
-            eprintln!("[run-local] stopped");
-            Ok(0)
-        }
-        Ok(Ended::Finished) => Ok(0),
-        Ok(Ended::Stopped(why)) => {
-            eprintln!("[run-local] stopped: {why}");
-            Ok(1)
-        }
-        Err(e) => {
-            eprintln!("[run-local] error: {e}");
-            Ok(e.exit_code())
-        }
+        Ok(Ended::Interrupted) => eprintln!("[run-local] stopped"),
+        Ok(Ended::Finished) => {}
+        Ok(Ended::Stopped(why)) => eprintln!("[run-local] stopped: {why}"),
+        Err(e) => eprintln!("[run-local] error: {e}"),
     }
+    Ok(cabc_supervise::exit_code(&ended))
 }
 
 #[derive(clap::Args)]

@@ -251,12 +251,7 @@ impl Chaos {
             Ok(Ended::Stopped(why)) => format!("stopped: {why}"),
             Err(e) => format!("error: {e}"),
         };
-        let exit = match &ended {
-            Ok(Ended::Learner { code, .. }) => *code,
-            Ok(Ended::Interrupted | Ended::Finished) => 0,
-            Ok(Ended::Stopped(_)) => 1,
-            Err(e) => e.exit_code(),
-        };
+        let exit = crate::exit_code(&ended);
         let faults = std::mem::take(&mut striking.faults);
         let epoch_ends = std::mem::take(&mut striking.epoch_ends);
         let timed_out = striking.timed_out;

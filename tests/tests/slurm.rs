@@ -4,6 +4,7 @@
 //! goes on with the other; the job requeued mid-run resumes its run folder and stores every step once.
 //! The run is the smoke preset under mutual TLS (the job's default), one actor per node, without the early stop.
 
+use cabc_runfolder::Table;
 use cabc_tests::slurm::SlurmCluster;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -109,18 +110,29 @@ fn summary(run: &Path) -> serde_json::Value {
 
 /// A column of seconds of metrics.csv.
 fn seconds(run: &Path, name: &str) -> Vec<f64> {
-    let text = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let i = header.iter().position(|h| *h == name).unwrap();
-    lines
-        .map(|l| {
-            l.split(',')
-                .nth(i)
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(f64::NAN)
-        })
-        .collect()
+    let table = Table::read(&run.join(cabc_runfolder::METRICS)).unwrap();
+    let cells = table.parsed::<f64>(name).unwrap();
+    cells.into_iter().map(|c| c.unwrap_or(f64::NAN)).collect()
+}
+
+/// The run's summary, once it says the run ran its `epochs` to its end (`run.max_epochs`).
+fn ran_to(run: &Path, epochs: u64) -> serde_json::Value {
+    let s = summary(run);
+    assert_eq!(s["epochs"], epochs, "{s:#}");
+    assert_eq!(s["ended"], format!("max_epochs {epochs} reached"), "{s:#}");
+    s
+}
+
+/// Every epoch stored at least the steps its markers said were published.
+fn assert_stored_at_least_published(run: &Path) {
+    let (stored, published) = (
+        column(run, "steps_collected"),
+        column(run, "steps_published"),
+    );
+    assert!(
+        stored.iter().zip(&published).all(|(s, p)| s >= p),
+        "{stored:?} vs {published:?}"
+    );
 }
 
 fn column(run: &Path, name: &str) -> Vec<u64> {
@@ -181,9 +193,7 @@ fn an_sbatch_run_over_two_nodes_runs_to_its_end() {
     let cluster = cluster(tmp.path());
     let (job, run) = submit(&cluster, tmp.path(), 8);
     wait_done(&cluster, tmp.path(), job, &run);
-    let s = summary(&run);
-    assert_eq!(s["epochs"], 8, "{s:#}");
-    assert_eq!(s["ended"], "max_epochs 8 reached", "{s:#}");
+    let s = ran_to(&run, 8);
     assert_eq!(s["duplicate_segments"], 0, "{s:#}");
     // Every epoch closed with its budget, and stored exactly what its markers said was published.
     assert!(column(&run, "steps_taken").iter().all(|&t| t == BUDGET));
@@ -231,9 +241,7 @@ fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
     let struck = column(&run, "steps_taken").len();
     cluster.run("scancel", &["--signal=KILL", step]).unwrap();
     wait_done(&cluster, tmp.path(), job, &run);
-    let s = summary(&run);
-    assert_eq!(s["epochs"], 24, "{s:#}");
-    assert_eq!(s["ended"], "max_epochs 24 reached", "{s:#}");
+    let s = ran_to(&run, 24);
     // Every epoch, the struck one too, closed with its whole budget: actor-1's share went to actor-0. (At least the
     // budget: the struck epoch once counted 308 of 256, a surplus of the steps-taken sum when the killed actor's
     // last segments and the share dealt again overlap, which issue 74's per-segment audit is to account for.)
@@ -243,14 +251,7 @@ fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
         "{taken:?}\n{}",
         epoch_lines(&run)
     );
-    let (stored, published) = (
-        column(&run, "steps_collected"),
-        column(&run, "steps_published"),
-    );
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
+    assert_stored_at_least_published(&run);
     assert_eq!(
         final_steps(&run, "actor-1"),
         None,
@@ -280,9 +281,7 @@ fn a_node_cut_off_mid_run_costs_the_lease_and_the_run_goes_on() {
     std::thread::sleep(Duration::from_secs(14));
     cluster.set_node_link(2, true).unwrap();
     wait_done(&cluster, tmp.path(), job, &run);
-    let s = summary(&run);
-    assert_eq!(s["epochs"], 40, "{s:#}");
-    assert_eq!(s["ended"], "max_epochs 40 reached", "{s:#}");
+    let s = ran_to(&run, 40);
     // Every epoch closed with its budget (a share dealt again rounds up by less than the actors' number).
     let taken = column(&run, "steps_taken");
     assert!(
@@ -290,14 +289,7 @@ fn a_node_cut_off_mid_run_costs_the_lease_and_the_run_goes_on() {
         "{taken:?}\n{}",
         epoch_lines(&run)
     );
-    let (stored, published) = (
-        column(&run, "steps_collected"),
-        column(&run, "steps_published"),
-    );
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
+    assert_stored_at_least_published(&run);
     // actor-1 left with the lease and came back with the link, and ended with the run.
     let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
     let joined = learner
@@ -367,9 +359,7 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         "{}",
         report(tmp.path(), job, &run)
     );
-    let s = summary(&run);
-    assert_eq!(s["epochs"], 20, "{s:#}");
-    assert_eq!(s["ended"], "max_epochs 20 reached", "{s:#}");
+    let s = ran_to(&run, 20);
     assert_eq!(s["duplicate_segments"], 0, "{s:#}");
     // Each epoch once, in order, across the requeue; each stored exactly the steps its markers said were published.
     let epochs = column(&run, "epoch");
