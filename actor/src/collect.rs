@@ -93,6 +93,9 @@ pub struct Collector {
     action_noise: ActionNoise,
     /// Steps taken in the current epoch.
     taken: u64,
+    /// Steps taken since the collector began, told to `tally` after each batch ([`Collector::with_tally`]).
+    taken_total: u64,
+    tally: Option<Box<dyn FnMut(u64) + Send>>,
     /// `collection.shield`: its settings, the current version's networks, and the steps it gave the expert this epoch.
     shield_config: ShieldConfig,
     shield: Option<Shield>,
@@ -148,6 +151,8 @@ impl Collector {
                 k,
             ),
             taken: 0,
+            taken_total: 0,
+            tally: None,
             shield_config: ShieldConfig::of(config),
             shield: None,
             shielded: 0,
@@ -181,6 +186,13 @@ impl Collector {
     /// from duplicates.
     pub fn with_incarnation(mut self, incarnation: u64) -> Self {
         self.set_incarnation(incarnation);
+        self
+    }
+
+    /// Tells `tally` the steps taken since the collector began after each batch of steps, before any segment of the
+    /// batch is published (the actor's journal: what a process killed took and never published).
+    pub fn with_tally(mut self, tally: impl FnMut(u64) + Send + 'static) -> Self {
+        self.tally = Some(Box::new(tally));
         self
     }
 
@@ -305,7 +317,12 @@ impl Collector {
         let solved: Vec<bool> = answers.iter().map(expert_ok).collect();
         self.mix(first, answers, &solved, policy, beta);
         self.shield_overrules(answers, &solved);
+        let before = self.taken;
         self.advance(first, answers, &solved, version, out);
+        self.taken_total += self.taken - before;
+        if let Some(tally) = &mut self.tally {
+            tally(self.taken_total);
+        }
     }
 
     /// pi_collect's actions for environments `first..first + answers.len()`: the mixture of the expert's and the

@@ -8,6 +8,7 @@ mod dart;
 pub mod evaluate;
 pub mod expert;
 pub mod eyes;
+pub mod journal;
 pub mod local;
 pub mod run;
 pub mod segment;

@@ -7,6 +7,7 @@
 
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
+use cabc_actor::journal::Journaled;
 use cabc_actor::run::{run_actor, run_evaluator, stop_or_fail, ActorStats};
 use cabc_bus::expert::ZenohExpert;
 use cabc_bus::interrupt::Interrupt;
@@ -17,8 +18,10 @@ use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::{ExpertPlacement, RunConfig};
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
-use cabc_proto::ports::ExpertClient;
+use cabc_proto::ports::{ExpertClient, SegmentSink};
+use cabc_runfolder::journal::{ActorEvent, ActorJournal};
 use clap::Parser;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Parser)]
@@ -43,6 +46,10 @@ struct Cli {
     /// Zenoh endpoints to connect to, overriding the configuration's `bus.connect`.
     #[arg(long)]
     connect: Vec<String>,
+    /// The run's journal folder (`<run>/journal`, which `cabc supervise` passes): this process writes what it
+    /// publishes, what the learner acknowledged and the steps it took there, for `cabc audit`.
+    #[arg(long)]
+    journal: Option<std::path::PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -112,8 +119,6 @@ fn main() -> Result<()> {
             )?),
             ExpertPlacement::InActor => Box::new(cabc_actor::expert::in_actor(&config)?),
         };
-        let mut sink = ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone())?;
-        let mut source = source.echoing(sink.echo());
         let index = cli
             .index
             .unwrap_or_else(|| cabc_proto::keys::trailing_number(&cli.id));
@@ -121,15 +126,48 @@ fn main() -> Result<()> {
         let incarnation = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_micros() as u64);
+        let journal = cli
+            .journal
+            .as_ref()
+            .map(|dir| ActorJournal::begin(dir, &cli.id, incarnation).map(Arc::new))
+            .transpose()
+            .context("beginning the actor's journal")?;
+        let mut sink = match &journal {
+            Some(journal) => {
+                ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?
+            }
+            None => ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone())?,
+        };
+        let mut source = source.echoing(sink.echo());
         let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
+        if let Some(journal) = &journal {
+            let journal = journal.clone();
+            collector = collector.with_tally(move |taken| journal.taken(taken));
+        }
+        let mut journaled;
+        let out: &mut dyn SegmentSink = match &journal {
+            Some(journal) => {
+                journaled = Journaled::new(&mut sink, journal.clone());
+                &mut journaled
+            }
+            None => &mut sink,
+        };
         let ran = run_actor(
             &mut collector,
             &check,
             &mut source,
             expert.as_mut(),
-            &mut sink,
+            out,
             &mut after_epoch,
         );
+        if let Some(journal) = &journal {
+            let reason = match &ran {
+                Ok(_) if interrupt.is_set() => "interrupted".to_string(),
+                Ok(_) => cabc_runfolder::journal::STOPPED.to_string(),
+                Err(e) => format!("failed: {e}"),
+            };
+            journal.record(&ActorEvent::Ended { reason });
+        }
         stop_or_fail(ran, interrupt.is_set())?;
     }
     if let Some(value) = last {

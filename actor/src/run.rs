@@ -230,6 +230,19 @@ pub fn collect_epoch(
     let mut out = Vec::new();
     collector.end_epoch(update.version, &mut out);
     published += publish(&mut out, sink)?;
+    // Stopped before its share was whole (its own SIGTERM: a scheduler stops every process at once; or the learner's
+    // stop): no marker, as the actor is not done. A short marker would close the learner's epoch short when the
+    // learner's own signal comes a moment later; without it the learner sees the actor leave and deals the rest of
+    // its share again, or stops.
+    if matches!(interrupted, Some(Next::Stop(_))) && collector.taken() < budget {
+        tracing::info!(
+            version = update.version,
+            taken = collector.taken(),
+            budget,
+            "stopped inside the epoch: no marker"
+        );
+        return Ok((published, interrupted));
+    }
     sink.put(TrajMessage::EpochDone(EpochDone {
         actor: collector.actor().to_string(),
         version: update.version,

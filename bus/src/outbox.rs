@@ -18,6 +18,7 @@ use bytes::Bytes;
 use cabc_proto::codec;
 use cabc_proto::messages::{Ack, EpochDone, TrajMessage};
 use cabc_proto::ports::{PortError, SegmentSink};
+use cabc_runfolder::journal::{ActorEvent, ActorJournal};
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -66,7 +67,7 @@ struct Unacked {
 }
 
 impl Held {
-    fn hold(&mut self, incarnation: u64, seq: u64, encoded: Bytes) -> u64 {
+    fn hold(&mut self, incarnation: u64, seq: u64, encoded: Bytes) -> Vec<u64> {
         self.incarnation = Some(incarnation);
         self.bytes += encoded.len();
         let sent = Instant::now();
@@ -78,13 +79,13 @@ impl Held {
         if let Some(old) = self.segments.insert(seq, unacked) {
             self.bytes -= old.encoded.len();
         }
-        let mut dropped = 0;
+        let mut dropped = Vec::new();
         while self.bytes > MAX_OUTBOX_BYTES && self.segments.len() > 1 {
             let Some((seq, oldest)) = self.segments.pop_first() else {
                 break;
             };
             self.bytes -= oldest.encoded.len();
-            dropped += 1;
+            dropped.push(seq);
             tracing::warn!(
                 seq,
                 "outbox full (the learner acknowledges nothing): the oldest segment dropped unacknowledged"
@@ -146,6 +147,7 @@ impl Held {
 pub struct Outbox {
     held: Arc<Mutex<Held>>,
     stats: SharedStats,
+    journal: Option<Arc<ActorJournal>>,
     _acks: Subscriber<()>,
     stop: Arc<AtomicBool>,
     resender: Option<JoinHandle<()>>,
@@ -157,15 +159,18 @@ fn lock(held: &Mutex<Held>) -> std::sync::MutexGuard<'_, Held> {
 
 impl Outbox {
     /// `actor`'s outbox on `bus`: it hears the learner's receipts on `ack/<actor>` and publishes again on
-    /// `traj/<actor>` what stays unacknowledged for `resend_after` ([`RESEND_AFTER`] in a run).
+    /// `traj/<actor>` what stays unacknowledged for `resend_after` ([`RESEND_AFTER`] in a run). With a `journal`, each
+    /// receipt and each segment dropped unacknowledged goes in it.
     pub fn open(
         bus: &Bus,
         actor: &str,
         stats: SharedStats,
         resend_after: Duration,
+        journal: Option<Arc<ActorJournal>>,
     ) -> Result<Outbox, PortError> {
         let held: Arc<Mutex<Held>> = Arc::default();
         let (on_ack, rejects) = (held.clone(), bus.rejects.clone());
+        let ack_journal = journal.clone();
         let acks = bus
             .session
             .declare_subscriber(bus.keys.ack(actor))
@@ -175,6 +180,12 @@ impl Outbox {
                     decode_sample::<Ack>(sample.key_expr().as_str(), &bytes, &rejects)
                 {
                     lock(&on_ack).acknowledged(&ack);
+                    if let Some(journal) = &ack_journal {
+                        journal.record(&ActorEvent::Acknowledged {
+                            learner: ack.learner,
+                            seqs: ack.seqs,
+                        });
+                    }
                 }
             })
             .wait()
@@ -191,6 +202,7 @@ impl Outbox {
         Ok(Outbox {
             held,
             stats,
+            journal,
             _acks: acks,
             stop,
             resender: Some(resender),
@@ -200,8 +212,14 @@ impl Outbox {
     /// Holds segment `seq` of `incarnation` (as published: `encoded`) until the learner acknowledges it.
     pub fn hold(&self, incarnation: u64, seq: u64, encoded: Bytes) {
         let dropped = lock(&self.held).hold(incarnation, seq, encoded);
-        if dropped > 0 {
-            with_stats(&self.stats, |s| s.segments_lost += dropped);
+        if !dropped.is_empty() {
+            with_stats(&self.stats, |s| s.segments_lost += dropped.len() as u64);
+        }
+        if let Some(journal) = &self.journal {
+            for seq in dropped {
+                let why = "the outbox was full: dropped unacknowledged".to_string();
+                journal.record(&ActorEvent::Unsent { seq, why });
+            }
         }
     }
 
@@ -325,11 +343,34 @@ impl<'a> ZenohSegments<'a> {
         stats: SharedStats,
         after: Duration,
     ) -> Result<Self, PortError> {
+        Self::open(bus, actor, interrupt, stats, after, None)
+    }
+
+    /// As [`ZenohSegments::new`], with the actor's journal: the outbox writes the learner's receipts in it (the
+    /// actor's `Journaled` sink writes what it publishes).
+    pub fn journaled(
+        bus: &'a Bus,
+        actor: &str,
+        interrupt: &Interrupt,
+        stats: SharedStats,
+        journal: Arc<ActorJournal>,
+    ) -> Result<Self, PortError> {
+        Self::open(bus, actor, interrupt, stats, RESEND_AFTER, Some(journal))
+    }
+
+    fn open(
+        bus: &'a Bus,
+        actor: &str,
+        interrupt: &Interrupt,
+        stats: SharedStats,
+        after: Duration,
+        journal: Option<Arc<ActorJournal>>,
+    ) -> Result<Self, PortError> {
         Ok(ZenohSegments {
             bus,
             key: bus.keys.traj(actor),
             interrupt: interrupt.clone(),
-            outbox: Outbox::open(bus, actor, stats.clone(), after)?,
+            outbox: Outbox::open(bus, actor, stats.clone(), after, journal)?,
             stats,
             last_marker: Arc::default(),
         })
@@ -399,6 +440,7 @@ mod tests {
         Ack {
             incarnation,
             seqs: seqs.to_vec(),
+            learner: 1,
         }
     }
 
@@ -457,9 +499,9 @@ mod tests {
     fn a_full_outbox_drops_its_oldest_segments_and_counts_them() {
         let mut held = Held::default();
         let big = MAX_OUTBOX_BYTES / 2;
-        assert_eq!(held.hold(1, 0, Bytes::from(vec![0u8; big])), 0);
-        assert_eq!(held.hold(1, 1, Bytes::from(vec![0u8; big])), 0);
-        assert_eq!(held.hold(1, 2, Bytes::from(vec![0u8; big])), 1);
+        assert!(held.hold(1, 0, Bytes::from(vec![0u8; big])).is_empty());
+        assert!(held.hold(1, 1, Bytes::from(vec![0u8; big])).is_empty());
+        assert_eq!(held.hold(1, 2, Bytes::from(vec![0u8; big])), vec![0]);
         assert_eq!(held.segments.keys().copied().collect::<Vec<_>>(), [1, 2]);
     }
 }

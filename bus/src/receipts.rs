@@ -69,6 +69,8 @@ pub struct Receipts {
     pub arrivals: Receiver<Arrival>,
     /// Where the subscription's callback spent its time so far.
     pub clock: Arc<ReceiptClock>,
+    /// This learner process's incarnation (the time it subscribed, in microseconds), in every receipt it puts.
+    pub learner: u64,
 }
 
 /// The subscription callback's counts and times since it was declared (nanoseconds; zenoh's threads run it, so its
@@ -135,7 +137,10 @@ impl Receipts {
     pub fn subscribe(bus: &Bus) -> Result<Receipts, PortError> {
         let (to_gather, arrivals) = sync_channel(TRAJ_QUEUE);
         let rejects = bus.rejects.clone();
-        let receipts = Acknowledger::new(bus.session.clone(), bus.keys.clone());
+        let learner = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64);
+        let receipts = Acknowledger::new(bus.session.clone(), bus.keys.clone(), learner);
         let clock = Arc::new(ReceiptClock::default());
         let times = clock.clone();
         let subscriber = bus
@@ -168,6 +173,7 @@ impl Receipts {
             _subscriber: subscriber,
             arrivals,
             clock,
+            learner,
         })
     }
 }
@@ -178,6 +184,7 @@ impl Receipts {
 struct Acknowledger {
     session: Session,
     keys: Keys,
+    learner: u64,
     publishers: Mutex<HashMap<String, Arc<Publisher<'static>>>>,
 }
 
@@ -186,10 +193,11 @@ struct Acknowledger {
 const ACK_PUBLISHERS: usize = 4096;
 
 impl Acknowledger {
-    fn new(session: Session, keys: Keys) -> Self {
+    fn new(session: Session, keys: Keys, learner: u64) -> Self {
         Acknowledger {
             session,
             keys,
+            learner,
             publishers: Mutex::default(),
         }
     }
@@ -226,11 +234,19 @@ impl Acknowledger {
             }
         };
         let Some(publisher) = publisher else {
-            return acknowledge(&self.session, &self.keys, actor, incarnation, seq);
+            return acknowledge(
+                &self.session,
+                &self.keys,
+                actor,
+                incarnation,
+                seq,
+                self.learner,
+            );
         };
         let ack = Ack {
             incarnation,
             seqs: vec![seq],
+            learner: self.learner,
         };
         if let Err(e) = publisher.put(codec::encode(&ack)).wait() {
             tracing::debug!(actor, seq, "acknowledging a segment: {e}");
@@ -238,16 +254,24 @@ impl Acknowledger {
     }
 }
 
-/// Puts the receipt of `actor`'s segment `seq` of `incarnation`; a receipt lost under congestion or a failure costs a
+/// Puts learner `learner`'s receipt of `actor`'s segment `seq` of `incarnation`; a receipt lost under congestion or a failure costs a
 /// copy of the segment later, never the segment, so it is dropped rather than waited for. It goes at a priority of its
 /// own ([`Priority::DataHigh`]): this runs on the zenoh thread that reads the link, and zenoh queues a link's messages
 /// per priority behind one lock, which a reliable put waiting for room (the policy, at `Data`) holds; a receipt
 /// queued behind it stopped the learner reading, and through a standalone router at saturation the router and the
 /// learner then waited on each other until zenoh closed the link (issue 73, `cabc bench-bus`).
-pub fn acknowledge(session: &Session, keys: &Keys, actor: &str, incarnation: u64, seq: u64) {
+pub fn acknowledge(
+    session: &Session,
+    keys: &Keys,
+    actor: &str,
+    incarnation: u64,
+    seq: u64,
+    learner: u64,
+) {
     let ack = Ack {
         incarnation,
         seqs: vec![seq],
+        learner,
     };
     let put = session
         .put(keys.ack(actor), codec::encode(&ack))

@@ -229,6 +229,11 @@ impl ZenohActors {
     }
 
     /// The bus, to close it at the end.
+    /// This learner process's incarnation, which its receipts carry.
+    pub fn incarnation(&self) -> u64 {
+        self.traj.learner
+    }
+
     pub fn into_bus(self) -> Bus {
         self.bus
     }

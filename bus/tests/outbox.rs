@@ -109,7 +109,7 @@ fn segments_lost_on_their_first_delivery_are_published_again_until_acknowledged(
                 let n = seen.entry(s.seq).or_default();
                 *n += 1;
                 if s.seq % 2 == 1 || *n > 1 {
-                    acknowledge(&session, &keys, "actor-0", s.incarnation, s.seq);
+                    acknowledge(&session, &keys, "actor-0", s.incarnation, s.seq, 1);
                 }
             }
         })

@@ -100,6 +100,11 @@ enum Command {
     /// restarts, the time each cost, the stalls, the steps published and stored, the duplicates and the early stop.
     /// deploy/chaos.sh runs it on the main job.
     Chaos(supervise::ChaosArgs),
+    /// Every segment of a run accounted for (issue 74): each one an actor journalled (<run>/journal/, written by the
+    /// actors under `cabc supervise`) is stored once in the learner's final ledger, refused, never sent, in flight at
+    /// its actor's end, held by a learner that stopped before its checkpoint, after the run's end, or lost; and the
+    /// steps taken and never published. Exits 1 on a lost segment or a ledger that disagrees with the journals.
+    Audit(tools::AuditArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -129,6 +134,10 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Chaos(args) => {
             let code = supervise::chaos(&args)?;
+            std::process::exit(code)
+        }
+        Command::Audit(args) => {
+            let code = tools::audit(&args)?;
             std::process::exit(code)
         }
     }

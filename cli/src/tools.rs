@@ -172,6 +172,28 @@ pub fn acl_denials(args: &AclDenialsArgs) -> anyhow::Result<()> {
     crate::print_json(&cabc_proto::telemetry::acl_denials_in_log(&text))
 }
 
+#[derive(clap::Args)]
+pub struct AuditArgs {
+    /// The run folder (its journal/ and its checkpoint).
+    run: PathBuf,
+    /// The audit as JSON on stdout instead of the report.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `cabc audit RUN`: every segment the actors journalled, accounted for against the learner's final ledger. Exits 1
+/// when a segment is lost or the ledger and the journals disagree.
+pub fn audit(args: &AuditArgs) -> anyhow::Result<i32> {
+    let audit = cabc_runfolder::audit::Audit::of(&args.run)
+        .with_context(|| format!("auditing {}", args.run.display()))?;
+    if args.json {
+        crate::print_json(&audit)?;
+    } else {
+        print!("{audit}");
+    }
+    Ok(if audit.ok() { 0 } else { 1 })
+}
+
 /// The configuration `name` (a preset or a TOML file) resolved.
 pub fn load(name: &str) -> anyhow::Result<RunConfig> {
     RunConfig::load_variant(name, false).with_context(|| format!("loading configuration {name}"))

@@ -18,6 +18,7 @@ use cabc_outputs::RunDir;
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
+use cabc_runfolder::journal::{self, LearnerEvent, LearnerJournal};
 use cabc_runfolder::Status;
 use std::time::Duration;
 
@@ -44,6 +45,21 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     let acl_denials = Box::new(cabc_proto::telemetry::acl_denials);
     let folder = run_dir.path().to_path_buf();
     let mut learner = cabc_outputs::learner_on_bus(config, run_dir, resume, metrics, acl_denials)?;
+    // The run's journal (`cabc audit`): this process's start, the segments it refused, its end.
+    let journal = std::rc::Rc::new(
+        LearnerJournal::open(&folder.join(journal::JOURNAL))
+            .context("opening the learner's journal")?,
+    );
+    journal.record(&LearnerJournal::began(actors.incarnation(), resume));
+    let refusals = journal.clone();
+    learner = learner.with_refusals(Box::new(move |actor, incarnation, seq, why| {
+        refusals.record(&LearnerEvent::Refused {
+            actor: actor.to_string(),
+            incarnation,
+            seq,
+            why: why.to_string(),
+        })
+    }));
     // Under a supervisor (`cabc supervise`, which writes supervision.json before it starts the learner): its restarts
     // by role, read at each epoch's end.
     if Status::read(&folder).is_some() {
@@ -53,7 +69,8 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
                 .unwrap_or_default()
         }));
     }
-    run_to_the_end(&mut learner, &mut actors)?;
+    let reason = run_to_the_end(&mut learner, &mut actors)?;
+    journal.record(&LearnerEvent::Ended { reason });
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));
     actors.into_bus().close_blocking()?;
@@ -84,11 +101,11 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
     let mut actors = LocalActors::new(learner.config(), expert, true)
         .on_device(learner.device())
         .with_interrupt(interrupt);
-    run_to_the_end(&mut learner, &mut actors)
+    run_to_the_end(&mut learner, &mut actors).map(drop)
 }
 
-/// Algorithm 1 until it ends, then the stop, the final outputs and the summary (printed).
-fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<()> {
+/// Algorithm 1 until it ends, then the stop, the final outputs and the summary (printed); the reason it ended.
+fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<String> {
     let ending = algorithm::run(learner, actors)?;
     let reason = match &ending {
         Ending::Interrupted => "interrupted".to_string(),
@@ -104,5 +121,5 @@ fn run_to_the_end(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<()
     }
     let summary = learner.finish(&reason, interrupted, actors.rejected())?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
-    Ok(())
+    Ok(reason)
 }

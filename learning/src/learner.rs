@@ -51,6 +51,9 @@ pub enum LearnerError {
 /// warning and the summary's. In process there is no bus, and nothing refused: `Box::new(BTreeMap::new)`.
 pub type AclDenials = Box<dyn Fn() -> BTreeMap<String, u64>>;
 
+/// Told each segment the learner refuses: its (actor, incarnation, seq) and why.
+pub type Refusals = Box<dyn FnMut(&str, u64, u64, &str)>;
+
 /// The epoch in progress, from [`Learner::begin_epoch`] to [`Learner::end_epoch`]: its record and its counts.
 struct Epoch {
     record: Record,
@@ -90,6 +93,8 @@ pub struct Learner {
     sink: Box<dyn Sink>,
     acl_denials: AclDenials,
     restarts: Option<Restarts>,
+    /// Told each segment refused and why ([`Learner::with_refusals`]).
+    refusals: Option<Refusals>,
     /// The segments of the epoch being collected, until [`Learner::partition`].
     d_new: Vec<Checked>,
     epoch: Epoch,
@@ -132,6 +137,7 @@ impl Learner {
             sink,
             acl_denials,
             restarts: None,
+            refusals: None,
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
             half_width: Track::half_width_of(config.sim.track),
@@ -191,6 +197,12 @@ impl Learner {
             parts.path().display()
         );
         Ok(())
+    }
+
+    /// Tells `refusals` each segment [`Learner::store`] refuses, and why (the run's journal, for `cabc audit`).
+    pub fn with_refusals(mut self, refusals: Refusals) -> Self {
+        self.refusals = Some(refusals);
+        self
     }
 
     /// Reads the supervisor's restarts at each epoch's end (a run under `cabc supervise`).
@@ -279,13 +291,18 @@ impl Learner {
                 published = ?published,
                 "segment of a policy version not published: refused"
             );
+            self.refused(&segment, "a policy version this learner has not published");
             return;
         }
+        let (incarnation, steps) = (segment.incarnation, segment.steps.len());
         let checked = match self.replay.checked(segment) {
             Ok(checked) => checked,
             Err(e) => {
                 self.state.segments_not_stored += 1;
-                tracing::warn!(actor, seq, "segment refused: {e}");
+                tracing::warn!(actor, seq, steps, "segment refused: {e}");
+                if let Some(refusals) = &mut self.refusals {
+                    refusals(&actor, incarnation, seq, &e.to_string());
+                }
                 return;
             }
         };
@@ -295,6 +312,12 @@ impl Learner {
         }
         self.state.ledger.admit(checked.segment());
         self.d_new.push(checked);
+    }
+
+    fn refused(&mut self, segment: &Segment, why: &str) {
+        if let Some(refusals) = &mut self.refusals {
+            refusals(&segment.actor, segment.incarnation, segment.seq, why);
+        }
     }
 
     /// Partitions D_new, as the actors closed its collection (`collected`), into D+' (laps) and D?' (failures;

@@ -314,11 +314,14 @@ pub struct EvalReport {
 /// The learner's receipt of an actor's segments, on `ack/<actor>` (issue 64): it holds the segments `seqs` of the
 /// actor's incarnation `incarnation`. An actor keeps each segment it published in its outbox until this comes (at
 /// least once on the wire; the learner's ledger makes it exactly once in the replay), and publishes again what stays
-/// unacknowledged (`cabc_bus::outbox`).
+/// unacknowledged (`cabc_bus::outbox`). `learner` is the incarnation of the learner process that holds them (chosen at
+/// its start): the actor's journal keeps it, and the run's audit tells a segment held by a learner killed before its
+/// checkpoint from one the last learner lost (`cabc audit`, issue 74).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Ack {
     pub incarnation: u64,
     pub seqs: Vec<u64>,
+    pub learner: u64,
 }
 
 /// The learner ends the run.

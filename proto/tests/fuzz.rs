@@ -214,6 +214,7 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
             codec::encode(&Ack {
                 incarnation: 7,
                 seqs: vec![0, 1, 5],
+                learner: 9,
             }),
         ),
     ]

@@ -3,6 +3,8 @@
 //! ([`exit`]). The learner writes the folder (`cabc_outputs::RunDir`, whose names are these); `cabc supervise`,
 //! `cabc chaos`, `cabc campaign` and the analysis read it through this crate, so none of them links libtorch for it.
 
+pub mod audit;
+pub mod journal;
 pub mod status;
 mod table;
 

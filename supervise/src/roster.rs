@@ -237,11 +237,15 @@ impl Roster {
             let count = self.actors.unwrap_or(config.actors.count);
             for i in self.first_actor..self.first_actor + count {
                 let id = format!("actor-{i}");
+                // Each actor journals what it publishes into the run folder (`cabc audit`).
+                let journal = self.run_dir.join(cabc_runfolder::journal::JOURNAL);
                 let mut args = vec![
                     "--config".to_string(),
                     config_file.clone(),
                     "--id".into(),
                     id.clone(),
+                    "--journal".into(),
+                    journal.display().to_string(),
                 ];
                 args.extend(connect.iter().cloned());
                 specs.push(spec(id, Role::Actor, "actor", args));

@@ -22,6 +22,7 @@ fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Valu
 /// After a learner restart with the actors up: no epoch stored less than the actors published, and every epoch
 /// closed with both actors' markers (its full budget). Returns (stored, published) per epoch.
 fn assert_nothing_lost(cluster: &Cluster) -> (Vec<u64>, Vec<u64>) {
+    print!("{}", cluster.audit());
     cluster.assert_nothing_lost(256)
 }
 
@@ -71,7 +72,15 @@ fn an_actor_and_the_expert_server_restarted_mid_run_lose_nothing() {
         &[256, 256],
         "both actors publish their share at the end"
     );
+    // One by one: the killed actor's segments the learner did not have are in flight at its end, nothing is lost.
+    let audit = cluster.audit();
+    assert_eq!(
+        audit.actors.iter().filter(|a| a.ended.is_none()).count(),
+        1,
+        "{audit}"
+    );
     println!("faults: actor-1 and expert-server killed (SIGKILL) and restarted; stored {stored:?}, published {published:?}");
+    print!("{audit}");
 }
 
 /// The learner is killed with SIGKILL mid-run and resumed from its checkpoint while the actors, the evaluator and

@@ -4,6 +4,7 @@
 //! goes on with the other; the job requeued mid-run resumes its run folder and stores every step once.
 //! The run is the smoke preset under mutual TLS (the job's default), one actor per node, without the early stop.
 
+use cabc_runfolder::audit::Audit;
 use cabc_runfolder::Table;
 use cabc_tests::slurm::SlurmCluster;
 use std::path::{Path, PathBuf};
@@ -72,8 +73,29 @@ fn report(tmp: &Path, job: u64, run: &Path) -> String {
     };
     let learner = read(run.join("logs/learner.log"));
     let tail: Vec<&str> = learner.lines().rev().take(15).collect();
+    // The controller's and the nodes' daemons on this job: why a launch failed, a requeue held, a node drained.
+    let mut daemons = String::new();
+    let logs = std::fs::read_dir(tmp.join("slurm/log")).map_or(Vec::new(), |d| {
+        let mut logs: Vec<PathBuf> = d.filter_map(|e| Some(e.ok()?.path())).collect();
+        logs.sort();
+        logs
+    });
+    let (needle, id) = (format!("JobId={job}"), format!("job {job}"));
+    for log in logs {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        let lines: Vec<&str> = text
+            .lines()
+            .filter(|l| l.contains(&needle) || l.contains(&id) || l.contains("error"))
+            .collect();
+        let from = lines.len().saturating_sub(25);
+        daemons.push_str(&format!(
+            "[{}]\n{}\n",
+            log.display(),
+            lines[from..].join("\n")
+        ));
+    }
     format!(
-        "job output:\n{}\nlearner.log (last lines, newest first):\n{}",
+        "job output:\n{}\nlearner.log (last lines, newest first):\n{}\nSlurm's logs on the job:\n{daemons}",
         read(tmp.join(format!("job-{job}.out"))),
         tail.join("\n")
     )
@@ -123,16 +145,12 @@ fn ran_to(run: &Path, epochs: u64) -> serde_json::Value {
     s
 }
 
-/// Every epoch stored at least the steps its markers said were published.
-fn assert_stored_at_least_published(run: &Path) {
-    let (stored, published) = (
-        column(run, "steps_collected"),
-        column(run, "steps_published"),
-    );
-    assert!(
-        stored.iter().zip(&published).all(|(s, p)| s >= p),
-        "{stored:?} vs {published:?}"
-    );
+/// The run's audit (`cabc audit`): every segment the actors journalled accounted for, one by one; its report on
+/// failure.
+fn audited(run: &Path) -> Audit {
+    let audit = Audit::of(run).unwrap_or_else(|e| panic!("auditing {}: {e}", run.display()));
+    assert!(audit.ok(), "{audit}\n{}", epoch_lines(run));
+    audit
 }
 
 fn column(run: &Path, name: &str) -> Vec<u64> {
@@ -243,15 +261,16 @@ fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
     wait_done(&cluster, tmp.path(), job, &run);
     let s = ran_to(&run, 24);
     // Every epoch, the struck one too, closed with its whole budget: actor-1's share went to actor-0. (At least the
-    // budget: the struck epoch once counted 308 of 256, a surplus of the steps-taken sum when the killed actor's
-    // last segments and the share dealt again overlap, which issue 74's per-segment audit is to account for.)
+    // budget: a lost actor counts with the steps of the segments it was heard to deliver, and a segment carries the
+    // staged steps of earlier epochs' unfinished laps too, so the struck epoch's sum once came to 308 of 256. The
+    // audit below accounts per segment.)
     let taken = column(&run, "steps_taken");
     assert!(
         taken.iter().all(|&t| t >= BUDGET),
         "{taken:?}\n{}",
         epoch_lines(&run)
     );
-    assert_stored_at_least_published(&run);
+    print!("{}", audited(&run));
     assert_eq!(
         final_steps(&run, "actor-1"),
         None,
@@ -282,14 +301,14 @@ fn a_node_cut_off_mid_run_costs_the_lease_and_the_run_goes_on() {
     cluster.set_node_link(2, true).unwrap();
     wait_done(&cluster, tmp.path(), job, &run);
     let s = ran_to(&run, 40);
-    // Every epoch closed with its budget (a share dealt again rounds up by less than the actors' number).
+    // Every epoch closed with its budget (at least: a lost actor's delivered segments carry earlier epochs' steps too).
     let taken = column(&run, "steps_taken");
     assert!(
-        taken.iter().all(|&t| (BUDGET..BUDGET + 2).contains(&t)),
+        taken.iter().all(|&t| t >= BUDGET),
         "{taken:?}\n{}",
         epoch_lines(&run)
     );
-    assert_stored_at_least_published(&run);
+    print!("{}", audited(&run));
     // actor-1 left with the lease and came back with the link, and ended with the run.
     let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
     let joined = learner
@@ -371,7 +390,7 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
     assert_eq!(stored, published);
     let taken = column(&run, "steps_taken");
     assert!(
-        taken.iter().all(|&t| t == BUDGET),
+        taken.iter().all(|&t| t >= BUDGET),
         "every epoch with its whole budget: {taken:?}\n{}",
         epoch_lines(&run)
     );
@@ -382,6 +401,8 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         stored.iter().sum::<u64>(),
         published.iter().sum::<u64>()
     );
+    // One by one: what the stopped jobs' learners held unsaved is counted apart, nothing else is missing.
+    print!("{}", audited(&run));
 }
 
 /// The pids a node's supervisor recorded for its processes (the supervisor's own is its step's).

@@ -374,6 +374,7 @@ fn a_restarted_router_costs_its_time_and_no_step() {
     let (stored, published) = cluster.assert_nothing_lost(256);
     cluster.assert_each_step_stored_once();
     println!("survive: zenohd restarted after 3 s; stored {stored:?}, published {published:?}, {duplicates} segments came twice");
+    print!("{}", cluster.audit());
 }
 
 /// The standalone router paused (SIGSTOP) past zenoh's 10 s lease, as `cabc chaos` pauses it: every link drops with
