@@ -7,7 +7,8 @@
 //! epochs' ends, and when the run is over writes `<run>/chaos.json`: the faults by kind and target, the restarts,
 //! the time each fault cost (the interval between the epochs around it less the median interval of the epochs
 //! without one), the stalls (an epoch that took longer than `bus.epoch_timeout_s`), the steps published, stored and
-//! short, the duplicates, and whether and where the run stopped early. A run that has not ended by the time limit
+//! short, the duplicates, the run's audit (every published segment's fate, `cabc audit`; a problem in it fails the
+//! command), and whether and where the run stopped early. A run that has not ended by the time limit
 //! is stopped and counted as a stall. A process it paused is always continued: when its pause is over, before the
 //! supervisor stops the processes (the run's end, Ctrl-C, the time limit), and when the chaos itself unwinds.
 //!
@@ -17,6 +18,7 @@
 
 use crate::roster::Role;
 use crate::{Ended, Live, SuperviseError, Supervisor, Watcher};
+use cabc_runfolder::audit::{Audit, Count, Fate};
 use cabc_runfolder::{Status, Table};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -127,11 +129,41 @@ pub struct Report {
     /// Epochs that stored fewer steps than their markers said were published (a published step lost): 0 expected.
     pub epochs_short: usize,
     pub duplicate_segments: u64,
+    /// The run's audit, segment by segment (`cabc audit`, issue 74): what became of each published segment, the
+    /// steps taken and never published, and what does not add up (`audit_problems`: none expected; the exit status
+    /// is 1 on one).
+    pub audit: Option<AuditFigures>,
+    pub audit_problems: Vec<String>,
     pub early_stop_version: Option<u64>,
     pub ended: String,
     /// How the supervised run ended (the supervisor's words), and the exit status the command gives.
     pub supervisor: String,
     pub exit: i32,
+}
+
+/// The audit's figures in the report.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct AuditFigures {
+    /// Segments (and steps) by fate.
+    pub fates: BTreeMap<Fate, Count>,
+    /// Steps taken and never published: staged at the run's end, and in flight at an actor's kill or interrupt.
+    pub never_published_staged: u64,
+    pub never_published_in_flight: u64,
+    pub actor_processes: usize,
+    pub learner_processes: usize,
+}
+
+impl AuditFigures {
+    fn of(audit: &Audit) -> Self {
+        let (staged, in_flight) = audit.never_published();
+        AuditFigures {
+            fates: audit.fates.clone(),
+            never_published_staged: staged,
+            never_published_in_flight: in_flight,
+            actor_processes: audit.actors.len(),
+            learner_processes: audit.learners.len(),
+        }
+    }
 }
 
 /// A chaos run's settings.
@@ -258,7 +290,19 @@ impl Chaos {
         drop(striking);
         let mut report = self.report(faults, &epoch_ends, started.elapsed().as_secs_f64());
         report.supervisor = supervisor;
-        report.exit = exit;
+        match Audit::of(&self.run_dir) {
+            Ok(audit) => {
+                report.audit = Some(AuditFigures::of(&audit));
+                report.audit_problems = audit.problems.clone();
+            }
+            Err(e) => report.audit_problems = vec![format!("no audit: {e}")],
+        }
+        // A run that ended well with a segment unaccounted for fails the chaos all the same.
+        report.exit = if exit == 0 && !report.audit_problems.is_empty() {
+            1
+        } else {
+            exit
+        };
         report.timed_out = timed_out;
         if timed_out {
             report.stalls += 1;
