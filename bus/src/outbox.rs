@@ -51,19 +51,25 @@ fn has_router(session: &Session) -> bool {
     session.info().routers_zid().wait().next().is_some()
 }
 
-/// The segments of one incarnation not acknowledged yet, by seq.
+/// The segments of one incarnation not committed yet, by seq.
 #[derive(Default)]
 struct Held {
     incarnation: Option<u64>,
     segments: BTreeMap<u64, Unacked>,
     bytes: usize,
+    /// The learner process whose receipts came last.
+    learner: Option<u64>,
 }
 
 struct Unacked {
     encoded: Bytes,
     sent: Instant,
-    /// Published before the router was lost (in flight then, or dropped): it goes out again before the next marker.
+    /// Published before the router was lost (in flight then, or dropped), or received by a learner process that is
+    /// gone: it goes out again before the next marker.
     stranded: bool,
+    /// The learner process that received it (its receipt on arrival), until it commits it: not published again
+    /// unless another learner process takes over.
+    received_by: Option<u64>,
 }
 
 impl Held {
@@ -75,6 +81,7 @@ impl Held {
             encoded,
             sent,
             stranded: false,
+            received_by: None,
         };
         if let Some(old) = self.segments.insert(seq, unacked) {
             self.bytes -= old.encoded.len();
@@ -94,24 +101,42 @@ impl Held {
         dropped
     }
 
+    /// A receipt: on arrival, the segments are received (not published again while their learner lives); committed,
+    /// they are forgotten. A receipt from another learner process than the last (a learner killed and resumed from
+    /// its checkpoint) releases what the last one received and never committed: it is published again.
     fn acknowledged(&mut self, ack: &Ack) {
         if self.incarnation != Some(ack.incarnation) {
             return;
         }
+        if self.learner.is_some_and(|last| last != ack.learner) {
+            for unacked in self.segments.values_mut() {
+                if unacked.received_by.is_some_and(|by| by != ack.learner) {
+                    unacked.received_by = None;
+                    unacked.stranded = true;
+                }
+            }
+        }
+        self.learner = Some(ack.learner);
         for seq in &ack.seqs {
-            if let Some(gone) = self.segments.remove(seq) {
-                self.bytes -= gone.encoded.len();
+            if ack.committed {
+                if let Some(gone) = self.segments.remove(seq) {
+                    self.bytes -= gone.encoded.len();
+                }
+            } else if let Some(unacked) = self.segments.get_mut(seq) {
+                unacked.received_by = Some(ack.learner);
+                unacked.stranded = false;
             }
         }
     }
 
-    /// The segments to publish again now: all of them (`all`), or those unacknowledged for `after`. A stranded one
-    /// stays stranded: published again just after the router is back, it may reach the router before the learner's
-    /// subscription does and be dropped there, so it still goes again before the next marker.
+    /// The segments not received to publish again now: all of them (`all`), or those unacknowledged for `after`. A
+    /// stranded one stays stranded: published again just after the router is back, it may reach the router before
+    /// the learner's subscription does and be dropped there, so it still goes again before the next marker.
     fn due(&mut self, all: bool, after: Duration) -> Vec<Bytes> {
         let now = Instant::now();
         self.segments
             .values_mut()
+            .filter(|u| u.received_by.is_none())
             .filter(|u| all || now.duration_since(u.sent) >= after)
             .map(|u| {
                 u.sent = now;
@@ -120,10 +145,10 @@ impl Held {
             .collect()
     }
 
-    /// The router is lost: what is held now was published before, and may never have arrived.
+    /// The router is lost: what is held now and not received was published before, and may never have arrived.
     fn strand(&mut self) {
         for unacked in self.segments.values_mut() {
-            unacked.stranded = true;
+            unacked.stranded |= unacked.received_by.is_none();
         }
     }
 
@@ -184,6 +209,7 @@ impl Outbox {
                         journal.record(&ActorEvent::Acknowledged {
                             learner: ack.learner,
                             seqs: ack.seqs,
+                            committed: ack.committed,
                         });
                     }
                 }
@@ -223,8 +249,17 @@ impl Outbox {
         }
     }
 
-    /// Segments published and not acknowledged yet.
+    /// Segments published and not received by the learner yet.
     pub fn unacknowledged(&self) -> usize {
+        let held = lock(&self.held);
+        held.segments
+            .values()
+            .filter(|u| u.received_by.is_none())
+            .count()
+    }
+
+    /// Segments published and not committed by the learner yet (received or not).
+    pub fn uncommitted(&self) -> usize {
         lock(&self.held).segments.len()
     }
 
@@ -387,9 +422,14 @@ impl<'a> ZenohSegments<'a> {
         )
     }
 
-    /// Segments published and not acknowledged by the learner yet.
+    /// Segments published and not received by the learner yet.
     pub fn unacknowledged(&self) -> usize {
         self.outbox.unacknowledged()
+    }
+
+    /// Segments published and not committed by the learner yet.
+    pub fn uncommitted(&self) -> usize {
+        self.outbox.uncommitted()
     }
 }
 
@@ -436,12 +476,53 @@ impl SegmentSink for ZenohSegments<'_> {
 mod tests {
     use super::*;
 
+    /// Learner process 1's receipt of a checkpoint: the segments are committed.
     fn ack(incarnation: u64, seqs: &[u64]) -> Ack {
         Ack {
             incarnation,
             seqs: seqs.to_vec(),
             learner: 1,
+            committed: true,
         }
+    }
+
+    /// Learner process `learner`'s receipt on arrival.
+    fn received(incarnation: u64, seqs: &[u64], learner: u64) -> Ack {
+        Ack {
+            incarnation,
+            seqs: seqs.to_vec(),
+            learner,
+            committed: false,
+        }
+    }
+
+    #[test]
+    fn a_received_segment_waits_for_its_commit_and_goes_again_when_another_learner_takes_over() {
+        let mut held = Held::default();
+        for seq in 0..3 {
+            held.hold(9, seq, Bytes::from(vec![0u8; 10]));
+        }
+        held.acknowledged(&received(9, &[0, 1], 5));
+        // Received: kept, and not published again, on the timer or after a reconnection, nor stranded.
+        assert_eq!(held.segments.len(), 3);
+        assert_eq!(held.due(true, Duration::ZERO).len(), 1, "seq 2 only");
+        held.strand();
+        assert_eq!(held.stranded().len(), 1, "seq 2 only");
+        // Learner 5 commits seq 0, then dies; learner 6 (resumed from its checkpoint) receives seq 2: seq 1, which 5
+        // received and never committed, goes again before the next marker.
+        held.acknowledged(&Ack {
+            committed: true,
+            ..received(9, &[0], 5)
+        });
+        held.acknowledged(&received(9, &[2], 6));
+        assert_eq!(held.segments.keys().copied().collect::<Vec<_>>(), [1, 2]);
+        assert_eq!(held.stranded().len(), 1, "seq 1, released");
+        assert_eq!(held.due(false, Duration::ZERO).len(), 1);
+        held.acknowledged(&Ack {
+            committed: true,
+            ..received(9, &[1, 2], 6)
+        });
+        assert!(held.segments.is_empty());
     }
 
     #[test]

@@ -13,7 +13,7 @@ use crate::senders::{check_traj, traj_sender};
 use crate::{decode_sample, encoding_of, Bus};
 use cabc_proto::codec;
 use cabc_proto::keys::Keys;
-use cabc_proto::messages::{Ack, Segment, TrajMessage};
+use cabc_proto::messages::{Ack, Segment, SegmentId, TrajMessage};
 use cabc_proto::ports::PortError;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -71,6 +71,7 @@ pub struct Receipts {
     pub clock: Arc<ReceiptClock>,
     /// This learner process's incarnation (the time it subscribed, in microseconds), in every receipt it puts.
     pub learner: u64,
+    acknowledger: Arc<Acknowledger>,
 }
 
 /// The subscription callback's counts and times since it was declared (nanoseconds; zenoh's threads run it, so its
@@ -140,7 +141,12 @@ impl Receipts {
         let learner = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_micros() as u64);
-        let receipts = Acknowledger::new(bus.session.clone(), bus.keys.clone(), learner);
+        let acknowledger = Arc::new(Acknowledger::new(
+            bus.session.clone(),
+            bus.keys.clone(),
+            learner,
+        ));
+        let receipts = acknowledger.clone();
         let clock = Arc::new(ReceiptClock::default());
         let times = clock.clone();
         let subscriber = bus
@@ -160,7 +166,7 @@ impl Receipts {
                 let sender = traj_sender(key).map(str::to_string);
                 let decoded = ReceiptClock::add(&times.decode_ns, started);
                 if let (Some(actor), Some(TrajMessage::Segment(segment))) = (&sender, &message) {
-                    receipts.acknowledge(actor, segment.incarnation, segment.seq);
+                    receipts.acknowledge(actor, segment.incarnation, &[segment.seq], false);
                 }
                 let acknowledged = ReceiptClock::add(&times.ack_ns, decoded);
                 // The receiver is gone only when the learner is closing.
@@ -174,7 +180,20 @@ impl Receipts {
             arrivals,
             clock,
             learner,
+            acknowledger,
         })
+    }
+
+    /// The committed receipts of `segments` (the checkpoint holds them), one message per actor's incarnation.
+    pub fn commit(&self, segments: &[SegmentId]) {
+        let mut by: BTreeMap<(&str, u64), Vec<u64>> = BTreeMap::new();
+        for s in segments {
+            by.entry((&s.actor, s.incarnation)).or_default().push(s.seq);
+        }
+        for ((actor, incarnation), seqs) in by {
+            self.acknowledger
+                .acknowledge(actor, incarnation, &seqs, true);
+        }
     }
 }
 
@@ -203,7 +222,7 @@ impl Acknowledger {
     }
 
     /// [`acknowledge`], through `actor`'s publisher (declared now if it is not yet).
-    fn acknowledge(&self, actor: &str, incarnation: u64, seq: u64) {
+    fn acknowledge(&self, actor: &str, incarnation: u64, seqs: &[u64], committed: bool) {
         let publisher = {
             let mut publishers = self.publishers.lock().unwrap_or_else(|e| e.into_inner());
             match publishers.get(actor) {
@@ -233,23 +252,17 @@ impl Acknowledger {
                 }
             }
         };
-        let Some(publisher) = publisher else {
-            return acknowledge(
-                &self.session,
-                &self.keys,
-                actor,
-                incarnation,
-                seq,
-                self.learner,
-            );
-        };
         let ack = Ack {
             incarnation,
-            seqs: vec![seq],
+            seqs: seqs.to_vec(),
             learner: self.learner,
+            committed,
+        };
+        let Some(publisher) = publisher else {
+            return put_ack(&self.session, &self.keys, actor, &ack);
         };
         if let Err(e) = publisher.put(codec::encode(&ack)).wait() {
-            tracing::debug!(actor, seq, "acknowledging a segment: {e}");
+            tracing::debug!(actor, ?seqs, "acknowledging segments: {e}");
         }
     }
 }
@@ -272,14 +285,19 @@ pub fn acknowledge(
         incarnation,
         seqs: vec![seq],
         learner,
+        committed: false,
     };
+    put_ack(session, keys, actor, &ack)
+}
+
+fn put_ack(session: &Session, keys: &Keys, actor: &str, ack: &Ack) {
     let put = session
-        .put(keys.ack(actor), codec::encode(&ack))
+        .put(keys.ack(actor), codec::encode(ack))
         .encoding(encoding_of::<Ack>())
         .congestion_control(CongestionControl::Drop)
         .priority(Priority::DataHigh)
         .wait();
     if let Err(e) = put {
-        tracing::debug!(actor, seq, "acknowledging a segment: {e}");
+        tracing::debug!(actor, seqs = ?ack.seqs, "acknowledging segments: {e}");
     }
 }

@@ -34,7 +34,7 @@ pub use crate::senders::{
 use crate::{decode_sample, Bus};
 use bytes::Bytes;
 use cabc_proto::codec;
-use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment};
+use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, SegmentId, TrajMessage};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::mpsc::RecvTimeoutError;
@@ -232,6 +232,17 @@ impl ZenohActors {
     /// This learner process's incarnation, which its receipts carry.
     pub fn incarnation(&self) -> u64 {
         self.traj.learner
+    }
+
+    /// The segments that arrived after the last epoch closed (the run is over): received, never stored.
+    pub fn unstored(&mut self) -> Vec<SegmentId> {
+        let mut unstored = Vec::new();
+        while let Ok(arrival) = self.traj.arrivals.try_recv() {
+            if let Some(TrajMessage::Segment(segment)) = arrival.message {
+                unstored.push(SegmentId::of(&segment));
+            }
+        }
+        unstored
     }
 
     pub fn into_bus(self) -> Bus {
@@ -523,6 +534,10 @@ impl Rollouts for ZenohActors {
             live: self.membership.live().iter().cloned().collect(),
             times: None,
         }))
+    }
+
+    fn commit(&mut self, segments: &[SegmentId]) {
+        self.traj.commit(segments);
     }
 
     fn evaluations(&mut self) -> Vec<EvalReport> {

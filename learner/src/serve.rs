@@ -20,6 +20,7 @@ use cabc_proto::keys::Keys;
 use cabc_proto::ports::Rollouts;
 use cabc_runfolder::journal::{self, LearnerEvent, LearnerJournal};
 use cabc_runfolder::Status;
+use std::collections::BTreeMap;
 use std::time::Duration;
 
 /// Runs (or resumes) the run in `run_dir` until early stop, `max_epochs` or Ctrl-C.
@@ -70,6 +71,20 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
         }));
     }
     let reason = run_to_the_end(&mut learner, &mut actors)?;
+    let mut unstored: BTreeMap<(String, u64), Vec<u64>> = BTreeMap::new();
+    for id in actors.unstored() {
+        unstored
+            .entry((id.actor, id.incarnation))
+            .or_default()
+            .push(id.seq);
+    }
+    for ((actor, incarnation), seqs) in unstored {
+        journal.record(&LearnerEvent::Unstored {
+            actor,
+            incarnation,
+            seqs,
+        });
+    }
     journal.record(&LearnerEvent::Ended { reason });
     // Give the stop a moment to reach everyone before the router goes away.
     std::thread::sleep(Duration::from_millis(300));

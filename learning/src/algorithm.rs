@@ -68,8 +68,10 @@ pub fn run(learner: &mut Learner, actors: &mut dyn Rollouts) -> Result<Ending, L
         for report in actors.evaluations() {
             learner.on_eval(report);
         }
-        // The epoch's record: to the checkpoint and the learner's sinks (metrics.csv, TensorBoard, the bus, ...).
+        // The epoch's record: to the checkpoint and the learner's sinks (metrics.csv, TensorBoard, the bus, ...). The
+        // checkpoint holds the epoch's segments now: their actors may forget them.
         learner.end_epoch()?;
+        actors.commit(&learner.settled());
         if actors.interrupted() {
             return Ok(Ending::Interrupted);
         }

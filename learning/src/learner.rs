@@ -21,7 +21,7 @@ use crate::train::{TrainError, Trainer};
 use cabc_models::device::parse_device;
 use cabc_models::Network;
 use cabc_proto::config::RunConfig;
-use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, ShieldNets};
+use cabc_proto::messages::{EvalReport, Outcome, PolicyUpdate, Segment, SegmentId, ShieldNets};
 use cabc_proto::ports::{Collected, PortError};
 use cabc_sim::track::Track;
 use std::collections::{BTreeMap, HashSet};
@@ -97,6 +97,9 @@ pub struct Learner {
     refusals: Option<Refusals>,
     /// The segments of the epoch being collected, until [`Learner::partition`].
     d_new: Vec<Checked>,
+    /// Every segment offered this epoch (stored, a copy, refused): the epoch's checkpoint settles them, and their
+    /// actors may forget them ([`Learner::settled`]).
+    settled: Vec<SegmentId>,
     epoch: Epoch,
     expert_streams: HashSet<(String, u32, u64)>,
     /// The track's half-width (off-track spawns in [`Provenance`]).
@@ -138,6 +141,7 @@ impl Learner {
             acl_denials,
             restarts: None,
             refusals: None,
+            settled: Vec::new(),
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
             half_width: Track::half_width_of(config.sim.track),
@@ -281,6 +285,7 @@ impl Learner {
     /// of a segment: it waits in D_new as [`Checked`], and [`Learner::partition`] stores it and counts it stored.
     pub fn store(&mut self, segment: Segment) {
         let (actor, seq) = (segment.actor.clone(), segment.seq);
+        self.settled.push(SegmentId::of(&segment));
         let published = self.state.evaluations.published();
         if published.is_none_or(|published| segment.policy_version > published) {
             self.state.segments_not_stored += 1;
@@ -517,6 +522,11 @@ impl Learner {
         let mut files = self.trainer.to_checkpoint();
         files.push(self.state.part()?);
         Ok(self.checkpointer.save(files, &mut self.replay)?)
+    }
+
+    /// The segments the last checkpoint settled (since the last call): what the actors may forget.
+    pub fn settled(&mut self) -> Vec<SegmentId> {
+        std::mem::take(&mut self.settled)
     }
 
     /// Ends the run: the final outputs (unless interrupted) and the summary, written through the sink and returned.

@@ -311,17 +311,37 @@ pub struct EvalReport {
     pub spawn_crashes: u32,
 }
 
-/// The learner's receipt of an actor's segments, on `ack/<actor>` (issue 64): it holds the segments `seqs` of the
-/// actor's incarnation `incarnation`. An actor keeps each segment it published in its outbox until this comes (at
-/// least once on the wire; the learner's ledger makes it exactly once in the replay), and publishes again what stays
-/// unacknowledged (`cabc_bus::outbox`). `learner` is the incarnation of the learner process that holds them (chosen at
-/// its start): the actor's journal keeps it, and the run's audit tells a segment held by a learner killed before its
-/// checkpoint from one the last learner lost (`cabc audit`, issue 74).
+/// The learner's receipt of an actor's segments, on `ack/<actor>` (issue 64): the learner process `learner` (its
+/// incarnation, chosen at its start) has the segments `seqs` of the actor's incarnation `incarnation`. Two kinds
+/// (issue 74): on arrival (`committed` false), so the actor stops publishing them again; and after the checkpoint
+/// that holds them (`committed` true: stored, or refused or dropped as copies for good), so the actor forgets them.
+/// Until then the actor's outbox keeps each segment (at least once on the wire; the learner's ledger makes it
+/// exactly once in the replay), and when a receipt comes from another learner process (a learner killed and resumed
+/// from its checkpoint) it publishes again what the old one received and never committed (`cabc_bus::outbox`).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Ack {
     pub incarnation: u64,
     pub seqs: Vec<u64>,
     pub learner: u64,
+    pub committed: bool,
+}
+
+/// A segment's identity: (actor, incarnation, seq), as the learner's ledger keys it.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct SegmentId {
+    pub actor: String,
+    pub incarnation: u64,
+    pub seq: u64,
+}
+
+impl SegmentId {
+    pub fn of(segment: &Segment) -> Self {
+        SegmentId {
+            actor: segment.actor.clone(),
+            incarnation: segment.incarnation,
+            seq: segment.seq,
+        }
+    }
 }
 
 /// The learner ends the run.

@@ -8,7 +8,9 @@
 //! The same algorithm code runs over the in-process implementations (a test, one process: `cabc_actor::local`,
 //! `cabc_expert::relabel::Relabeller`) and over zenoh (`cabc_bus::ports`). This module knows nothing of either.
 
-use crate::messages::{EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, TrajMessage};
+use crate::messages::{
+    EvalReport, ExpertAnswer, ExpertQuery, PolicyUpdate, Segment, SegmentId, TrajMessage,
+};
 
 /// A port that could not do its job.
 #[derive(Debug, thiserror::Error)]
@@ -162,6 +164,8 @@ pub trait Rollouts {
     ) -> Result<Option<Collected>, PortError>;
     /// Evaluation reports received since the last call.
     fn evaluations(&mut self) -> Vec<EvalReport>;
+    /// The checkpoint holds these segments (stored, or settled as refused or copies): their actors may forget them.
+    fn commit(&mut self, _segments: &[SegmentId]) {}
     /// Whether the run was interrupted (Ctrl-C) since the last collection.
     fn interrupted(&self) -> bool {
         false

@@ -215,6 +215,7 @@ fn corpus() -> Vec<(&'static str, Vec<u8>)> {
                 incarnation: 7,
                 seqs: vec![0, 1, 5],
                 learner: 9,
+                committed: true,
             }),
         ),
     ]

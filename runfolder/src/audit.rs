@@ -8,13 +8,16 @@
 //!   of the wrong size);
 //! * **never sent**: the actor journalled it and did not put it on the wire (stopped with no router up, or its full
 //!   outbox dropped it unacknowledged);
-//! * **in flight at its actor's end**: not acknowledged, and its actor ended without the learner's stop (killed: no
-//!   last line; or interrupted by a signal), its outbox with it;
-//! * **held by a learner that stopped**: acknowledged only by learner processes that ended before the last one
-//!   began (killed, or interrupted), before a checkpoint took it: the learner acknowledges a segment on arrival, and
-//!   a learner that stops takes what it received since its checkpoint with it;
+//! * **in flight at its actor's end**: not received by any learner, and its actor ended without the learner's stop
+//!   (killed: no last line; or interrupted by a signal), its outbox with it;
+//! * **held by a learner that stopped**: received only by learner processes that ended before the last one began
+//!   (killed, or interrupted), never committed, and its actor ended without the learner's stop too: a learner
+//!   receives a segment on arrival and commits it with the checkpoint that holds it; the actor keeps it until then,
+//!   and publishes it again to the next learner process, unless the actor is gone as well (a job's requeue stops
+//!   every process at once);
 //! * **after the run's end**: the last learner says it held it unstored when its last epoch closed;
-//! * **lost**: none of these. A run that lost nothing has none; the audit fails on one.
+//! * **lost**: none of these (a segment committed, or received by the last learner, or whose actor lived to the
+//!   run's end, and not stored). A run that lost nothing has none; the audit fails on one.
 //!
 //! Beside the segments: the steps each actor took and never published (the unfinished laps staged at its end, or
 //! what was in flight at a kill), from its `.taken` tally.
@@ -237,9 +240,19 @@ fn learners_of(dir: &Path, problems: &mut Vec<String>) -> Result<Learners, Audit
 /// One actor process's journal, read.
 struct Journalled {
     process: ActorProcess,
-    /// seq -> (steps, the learners that acknowledged it), in publication order.
-    published: BTreeMap<u64, (u64, BTreeSet<u64>)>,
+    /// seq -> its steps and receipts.
+    published: BTreeMap<u64, Receipts>,
     unsent: HashSet<u64>,
+}
+
+/// A published segment's steps and receipts, as its actor journalled them.
+#[derive(Default)]
+struct Receipts {
+    steps: u64,
+    /// The learner processes that received it.
+    received_by: BTreeSet<u64>,
+    /// Whether a learner's checkpoint holds it (a committed receipt).
+    committed: bool,
 }
 
 fn actor_of(jsonl: &Path) -> Result<Option<Journalled>, AuditError> {
@@ -252,21 +265,30 @@ fn actor_of(jsonl: &Path) -> Result<Option<Journalled>, AuditError> {
     else {
         return Ok(None);
     };
-    let mut published: BTreeMap<u64, (u64, BTreeSet<u64>)> = BTreeMap::new();
+    let mut published: BTreeMap<u64, Receipts> = BTreeMap::new();
     let (mut unsent, mut ended, mut published_steps) = (HashSet::new(), None, 0);
     for event in events {
         match event {
             ActorEvent::Published { seq, steps, .. } => {
                 published_steps += steps;
-                published.insert(seq, (steps, BTreeSet::new()));
+                let receipts = Receipts {
+                    steps,
+                    ..Receipts::default()
+                };
+                published.insert(seq, receipts);
             }
             ActorEvent::Unsent { seq, .. } => {
                 unsent.insert(seq);
             }
-            ActorEvent::Acknowledged { learner, seqs } => {
+            ActorEvent::Acknowledged {
+                learner,
+                seqs,
+                committed,
+            } => {
                 for seq in seqs {
-                    if let Some((_, by)) = published.get_mut(&seq) {
-                        by.insert(learner);
+                    if let Some(receipts) = published.get_mut(&seq) {
+                        receipts.received_by.insert(learner);
+                        receipts.committed |= committed;
                     }
                 }
             }
@@ -336,8 +358,13 @@ impl Audit {
             if let Some(damaged) = &j.process.damaged {
                 problems.push(format!("a damaged journal: {damaged}"));
             }
-            for (&seq, (steps, acknowledged_by)) in &j.published {
+            // An actor that ended on the learner's stop lived through every learner: what a learner received and
+            // never committed it published again to the next one, so nothing of it may be missing.
+            let lived = j.process.ended.as_deref() == Some(journal::STOPPED);
+            for (&seq, receipts) in &j.published {
+                let steps = &receipts.steps;
                 let id = (j.process.actor.clone(), j.process.incarnation, seq);
+                let received_by_last = last.is_some_and(|l| receipts.received_by.contains(&l));
                 let fate = if stored.is_some_and(|s| s.contains(&seq)) {
                     journal_steps += steps;
                     Fate::Stored
@@ -347,14 +374,10 @@ impl Audit {
                     Fate::NeverSent
                 } else if learners.unstored.contains(&id) {
                     Fate::AfterTheRunsEnd
-                } else if !acknowledged_by.is_empty() {
-                    if last.is_some_and(|l| acknowledged_by.contains(&l)) {
-                        Fate::Lost
-                    } else {
-                        Fate::HeldByALearnerThatStopped
-                    }
-                } else if j.process.ended.as_deref() == Some(journal::STOPPED) {
+                } else if receipts.committed || received_by_last || lived {
                     Fate::Lost
+                } else if !receipts.received_by.is_empty() {
+                    Fate::HeldByALearnerThatStopped
                 } else {
                     Fate::InFlightAtItsActorsEnd
                 };
@@ -547,5 +570,145 @@ impl std::fmt::Display for Audit {
             }
             Ok(())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::journal::{ActorJournal, LearnerJournal};
+
+    fn published(journal: &ActorJournal, seq: u64, steps: u64) {
+        journal.record(&ActorEvent::Published {
+            seq,
+            version: 0,
+            steps,
+        });
+    }
+
+    fn receipt(journal: &ActorJournal, learner: u64, seqs: &[u64], committed: bool) {
+        journal.record(&ActorEvent::Acknowledged {
+            learner,
+            seqs: seqs.to_vec(),
+            committed,
+        });
+    }
+
+    /// A run of two learner processes (1 killed, 2 resumed) and three actor processes, with the final ledger
+    /// holding `stored` ("actor/incarnation" -> seqs) and counting `steps` stored.
+    fn run(stored: &[(&str, &[u64])], steps: u64) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let journal = dir.path().join(journal::JOURNAL);
+        let learner = LearnerJournal::open(&journal).unwrap();
+        learner.record(&LearnerJournal::began(1, false));
+        learner.record(&LearnerJournal::began(2, true));
+        learner.record(&LearnerEvent::Refused {
+            actor: "actor-0".into(),
+            incarnation: 10,
+            seq: 3,
+            why: "a policy version this learner has not published".into(),
+        });
+        learner.record(&LearnerEvent::Ended {
+            reason: "max_epochs".into(),
+        });
+        // actor-0 lived to the end: seq 0 and 1 stored, 2 received by the killed learner and published again to
+        // the resumed one (stored), 3 refused.
+        let a = ActorJournal::begin(&journal, "actor-0", 10).unwrap();
+        for seq in 0..4 {
+            published(&a, seq, 10);
+        }
+        receipt(&a, 1, &[0, 1, 2], false);
+        receipt(&a, 1, &[0, 1], true);
+        receipt(&a, 2, &[2, 3], false);
+        a.taken(45);
+        a.record(&ActorEvent::Ended {
+            reason: journal::STOPPED.into(),
+        });
+        // actor-1, killed: seq 0 stored, 1 received by the killed learner only, 2 never received.
+        let b = ActorJournal::begin(&journal, "actor-1", 20).unwrap();
+        for seq in 0..3 {
+            published(&b, seq, 5);
+        }
+        receipt(&b, 1, &[0, 1], false);
+        receipt(&b, 1, &[0], true);
+        b.taken(19);
+        let mut seen = serde_json::Map::new();
+        let mut count = 0;
+        for (key, seqs) in stored {
+            count += seqs.len();
+            seen.insert(key.to_string(), serde_json::json!(seqs));
+        }
+        let state = serde_json::json!({"ledger": {
+            "seen": seen, "duplicates": 1, "stored_segments": count, "stored_steps": steps,
+        }});
+        std::fs::create_dir_all(dir.path().join(CHECKPOINT)).unwrap();
+        std::fs::write(
+            dir.path().join(CHECKPOINT).join("state.json"),
+            state.to_string(),
+        )
+        .unwrap();
+        dir
+    }
+
+    #[test]
+    fn each_published_segment_gets_its_fate() {
+        let dir = run(&[("actor-0/10", &[0, 1, 2]), ("actor-1/20", &[0])], 35);
+        let audit = Audit::of(dir.path()).unwrap();
+        assert!(audit.ok(), "{audit}");
+        let c = |fate| audit.count(fate);
+        assert_eq!(
+            c(Fate::Stored),
+            Count {
+                segments: 4,
+                steps: 35
+            }
+        );
+        assert_eq!(
+            c(Fate::Refused),
+            Count {
+                segments: 1,
+                steps: 10
+            }
+        );
+        assert_eq!(c(Fate::HeldByALearnerThatStopped).segments, 1);
+        assert_eq!(c(Fate::InFlightAtItsActorsEnd).segments, 1);
+        assert_eq!(c(Fate::Lost).segments, 0);
+        assert_eq!(
+            audit.published(),
+            Count {
+                segments: 7,
+                steps: 55
+            }
+        );
+        // actor-0 took 45 and published 40: 5 staged at its end; actor-1 took 19, published 15: 4 in flight.
+        assert_eq!(audit.never_published(), (5, 4));
+    }
+
+    #[test]
+    fn a_segment_missing_from_the_ledger_is_lost_and_fails_the_audit() {
+        // actor-0's seq 2 went again to the resumed learner, which received it and never stored it: lost.
+        let dir = run(&[("actor-0/10", &[0, 1]), ("actor-1/20", &[0])], 25);
+        let audit = Audit::of(dir.path()).unwrap();
+        assert!(!audit.ok());
+        assert_eq!(audit.count(Fate::Lost).segments, 1);
+        let actor = audit.actors.iter().find(|a| a.actor == "actor-0").unwrap();
+        assert_eq!(actor.lost, [2]);
+        assert!(audit
+            .to_string()
+            .contains("PROBLEM: 1 segments (10 steps) lost"));
+    }
+
+    #[test]
+    fn a_ledger_that_counts_other_steps_than_the_journals_fails_the_audit() {
+        let dir = run(&[("actor-0/10", &[0, 1, 2]), ("actor-1/20", &[0])], 45);
+        let audit = Audit::of(dir.path()).unwrap();
+        assert!(!audit.ok());
+        assert!(
+            audit
+                .problems
+                .iter()
+                .any(|p| p.contains("45 steps stored, the journals 35")),
+            "{audit}"
+        );
     }
 }

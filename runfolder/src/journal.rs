@@ -45,8 +45,14 @@ pub enum ActorEvent {
     /// Not published after all: the process was stopped while it held it (no router up), or its outbox, full,
     /// dropped it unacknowledged.
     Unsent { seq: u64, why: String },
-    /// The learner incarnation `learner` acknowledged these segments (it holds them).
-    Acknowledged { learner: u64, seqs: Vec<u64> },
+    /// The learner incarnation `learner` acknowledged these segments: it received them, or (`committed`) its
+    /// checkpoint holds them.
+    Acknowledged {
+        learner: u64,
+        seqs: Vec<u64>,
+        #[serde(default)]
+        committed: bool,
+    },
     /// The "done with `version`" marker: the steps published, taken and still staged (unfinished laps) in it.
     Done {
         version: u64,
@@ -276,6 +282,7 @@ mod tests {
         journal.record(&ActorEvent::Acknowledged {
             learner: 5,
             seqs: vec![0],
+            committed: false,
         });
         drop(journal);
         let (events, cut) = read::<ActorEvent>(&dir.path().join("actor-1-42.jsonl")).unwrap();
@@ -288,7 +295,8 @@ mod tests {
             events[2],
             ActorEvent::Acknowledged {
                 learner: 5,
-                seqs: vec![0]
+                seqs: vec![0],
+                committed: false
             }
         );
         // The tally is rewritten in place: the last value, not the largest.

@@ -415,10 +415,10 @@ impl Cluster {
         audit
     }
 
-    /// Over a run whose learner never stopped, every segment the actors published was stored once (the audit): none
-    /// lost on the wire (an actor's outbox publishes again what the learner did not acknowledge), none twice (the
-    /// ledger drops the copies), none in flight at an actor's end. (A learner killed takes with it what it received
-    /// since its checkpoint, which the audit counts apart.)
+    /// Over a run whose actors lived to its end, every segment they published was stored once (the audit): none
+    /// lost on the wire (an actor's outbox publishes again what the learner did not receive), none with a learner
+    /// killed (what it received and never committed in a checkpoint goes again to the resumed one), none twice (the
+    /// ledger drops the copies).
     pub fn assert_each_step_stored_once(&self) {
         let audit = self.audit();
         assert_eq!(

@@ -23,6 +23,9 @@ fn finish(cluster: &mut Cluster, learner: &str, epochs: u64) -> serde_json::Valu
 /// closed with both actors' markers (its full budget). Returns (stored, published) per epoch.
 fn assert_nothing_lost(cluster: &Cluster) -> (Vec<u64>, Vec<u64>) {
     print!("{}", cluster.audit());
+    // The actors lived through every learner: what a killed learner received and never committed they published
+    // again to the resumed one, so every segment they published is stored, once.
+    cluster.assert_each_step_stored_once();
     cluster.assert_nothing_lost(256)
 }
 
@@ -100,7 +103,8 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
         - 1;
     cluster.start_learner("learner-resumed", true).unwrap();
     let summary = finish(&mut cluster, "learner-resumed", 10);
-    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    // Copies may come (a learner killed between its checkpoint and its committed receipts: the actors publish again
+    // what its checkpoint already holds); the ledger drops them, and the audit checks each segment stored once.
     let (stored, published) = assert_nothing_lost(&cluster);
     println!(
         "faults: learner killed (SIGKILL) after {checkpointed} recorded epochs and resumed with actors up; \
@@ -146,11 +150,12 @@ fn the_learner_killed_again_and_again_resumes_from_what_it_committed() {
         cluster.start_learner(&label, true).unwrap();
     }
     let summary = finish(&mut cluster, &label, 14);
-    assert_eq!(summary["duplicate_segments"], 0, "{summary:#}");
+    // Copies may come (a kill between a checkpoint and its committed receipts); the audit checks each stored once.
     let (stored, published) = assert_nothing_lost(&cluster);
     println!(
         "faults: learner killed 5 times (SIGKILL), {during_commit} of them during a checkpoint commit; \
-         stored {stored:?}, published {published:?}"
+         stored {stored:?}, published {published:?}; {} copies dropped",
+        summary["duplicate_segments"]
     );
 }
 
