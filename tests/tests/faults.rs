@@ -108,7 +108,8 @@ fn the_learner_killed_and_resumed_while_actors_run_loses_nothing() {
     let (stored, published) = assert_nothing_lost(&cluster);
     println!(
         "faults: learner killed (SIGKILL) after {checkpointed} recorded epochs and resumed with actors up; \
-         stored {stored:?}, published {published:?}"
+         stored {stored:?}, published {published:?}; {} copies dropped",
+        summary["duplicate_segments"]
     );
 }
 
