@@ -108,6 +108,25 @@ impl SlurmCluster {
         }
     }
 
+    /// Waits until every node is idle (a requeued job's last run cleaned up on them: its steps ended, its epilog
+    /// done); the nodes' states on timeout.
+    pub fn wait_idle(&self, timeout: Duration) -> Result<()> {
+        let start = Instant::now();
+        loop {
+            let states = self.run("sinfo", &["-h", "-N", "-o", "%N %T"])?;
+            if states.lines().all(|l| l.trim().ends_with(" idle")) {
+                return Ok(());
+            }
+            if start.elapsed() > timeout {
+                bail!(
+                    "the nodes are not idle after {timeout:?}: {}",
+                    states.trim()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
     /// Cuts node `n<k>`'s link to the others (its end of the bridge down: no packet passes, and the connections over
     /// it stay open until their own timeouts, zenoh's lease, end them), or mends it.
     pub fn set_node_link(&self, k: u32, up: bool) -> Result<()> {

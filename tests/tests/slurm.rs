@@ -349,7 +349,13 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
             .wait_state(job, &["PENDING"], Duration::from_secs(60))
             .unwrap_or_else(|e| panic!("{how}: {e:#}\n{}", report(tmp.path(), job, &run)));
         at_requeue.push(column(&run, "steps_taken").len());
-        // Slurm holds a requeued job back (its BeginTime, 120 s on); the test lets it start at once.
+        // Slurm holds a requeued job back (its BeginTime, 120 s on), which gives its last run time to end on the
+        // nodes; the test lets it start as soon as the nodes are idle. (Started at once, the job once went from
+        // PENDING to FAILED without starting, in CI, while srun still waited up to 32 s for the last run's steps
+        // to end: likely the new launch meeting the old one on a node; the report now holds Slurm's own logs.)
+        cluster
+            .wait_idle(Duration::from_secs(90))
+            .unwrap_or_else(|e| panic!("{how}: {e:#}\n{}", report(tmp.path(), job, &run)));
         cluster
             .run(
                 "scontrol",
