@@ -72,3 +72,26 @@ for report_path in reports:
 print()
 print("Median epoch interval without a fault (s): " + ", ".join(
     f"{p.parent.name} {json.loads(p.read_text())['median_epoch_s']:.1f}" for p in reports))
+
+# The audit (issue 74): the runs whose actors kept a journal, each published segment's fate (`cabc audit`).
+audited = [(p, json.loads(p.read_text())) for p in reports]
+audited = [(p, r) for p, r in audited if r.get("audit")]
+if audited:
+    FATES = ["stored", "refused", "never_sent", "in_flight_at_its_actors_end", "held_by_a_learner_that_stopped",
+             "after_the_runs_end", "lost"]
+    print()
+    print("| run | bus | actor / learner processes | segments published | " + " | ".join(
+        f.replace("_", " ") for f in FATES) + " | copies dropped | steps never published: staged / in flight | problems |")
+    print("|---|---|---|---|" + "---|" * len(FATES) + "---|---|---|")
+    for p, r in audited:
+        a = r["audit"]
+        fates = a["fates"]
+        total = sum(c["segments"] for c in fates.values())
+        steps = sum(c["steps"] for c in fates.values())
+        cells = [str(fates.get(f, {}).get("segments", 0)) for f in FATES]
+        config = (p.parent / "config.toml").read_text() if (p.parent / "config.toml").exists() else ""
+        bus = "mutual TLS" if 'mode = "mtls"' in config else "plain"
+        print(f"| {p.parent.name} | {bus} | {a['actor_processes']} / {a['learner_processes']} | {total} ({steps} steps) | "
+              + " | ".join(cells)
+              + f" | {r['duplicate_segments']} | {a['never_published_staged']} / {a['never_published_in_flight']} | "
+              + f"{len(r.get('audit_problems', []))} |")
