@@ -166,7 +166,7 @@ impl Receipts {
                 let sender = traj_sender(key).map(str::to_string);
                 let decoded = ReceiptClock::add(&times.decode_ns, started);
                 if let (Some(actor), Some(TrajMessage::Segment(segment))) = (&sender, &message) {
-                    receipts.acknowledge(actor, segment.incarnation, &[segment.seq], false);
+                    receipts.acknowledge(actor, segment.incarnation, segment.seq);
                 }
                 let acknowledged = ReceiptClock::add(&times.ack_ns, decoded);
                 // The receiver is gone only when the learner is closing.
@@ -191,8 +191,7 @@ impl Receipts {
             by.entry((&s.actor, s.incarnation)).or_default().push(s.seq);
         }
         for ((actor, incarnation), seqs) in by {
-            self.acknowledger
-                .acknowledge(actor, incarnation, &seqs, true);
+            self.acknowledger.commit(actor, incarnation, seqs);
         }
     }
 }
@@ -222,7 +221,7 @@ impl Acknowledger {
     }
 
     /// [`acknowledge`], through `actor`'s publisher (declared now if it is not yet).
-    fn acknowledge(&self, actor: &str, incarnation: u64, seqs: &[u64], committed: bool) {
+    fn acknowledge(&self, actor: &str, incarnation: u64, seq: u64) {
         let publisher = {
             let mut publishers = self.publishers.lock().unwrap_or_else(|e| e.into_inner());
             match publishers.get(actor) {
@@ -254,15 +253,37 @@ impl Acknowledger {
         };
         let ack = Ack {
             incarnation,
-            seqs: seqs.to_vec(),
+            seqs: vec![seq],
             learner: self.learner,
-            committed,
+            committed: false,
         };
         let Some(publisher) = publisher else {
             return put_ack(&self.session, &self.keys, actor, &ack);
         };
         if let Err(e) = publisher.put(codec::encode(&ack)).wait() {
-            tracing::debug!(actor, ?seqs, "acknowledging segments: {e}");
+            tracing::debug!(actor, seq, "acknowledging a segment: {e}");
+        }
+    }
+
+    /// The committed receipt of `actor`'s segments `seqs` of `incarnation`, reliably: put from the learner's own
+    /// thread after its checkpoint (never from a zenoh callback), it waits for room rather than be dropped, as one
+    /// dropped would leave the segments in the actor's outbox until another learner process takes over.
+    fn commit(&self, actor: &str, incarnation: u64, seqs: Vec<u64>) {
+        let ack = Ack {
+            incarnation,
+            seqs,
+            learner: self.learner,
+            committed: true,
+        };
+        let put = self
+            .session
+            .put(self.keys.ack(actor), codec::encode(&ack))
+            .encoding(encoding_of::<Ack>())
+            .congestion_control(CongestionControl::Block)
+            .priority(Priority::DataHigh)
+            .wait();
+        if let Err(e) = put {
+            tracing::warn!(actor, segments = ack.seqs.len(), "committing segments: {e}");
         }
     }
 }
