@@ -16,3 +16,34 @@ pub fn in_actor(config: &RunConfig) -> Result<Relabeller, MpccError> {
         config.expert.max_batch,
     ))
 }
+
+/// The run's expert client by `expert.placement`: the expert servers over `bus` (waiting up to `expert.timeout_s`
+/// for an answer), or this actor's own [`Relabeller`].
+pub fn of_run<'a>(
+    config: &RunConfig,
+    bus: &'a cabc_bus::Bus,
+    interrupt: &cabc_bus::interrupt::Interrupt,
+    stats: cabc_bus::ports::SharedStats,
+) -> Result<Box<dyn cabc_proto::ports::ExpertClient + 'a>, ClientError> {
+    Ok(match config.expert.placement {
+        cabc_proto::config::ExpertPlacement::Server => {
+            Box::new(cabc_bus::expert::ZenohExpert::new(
+                bus,
+                config.expert.kind.as_str(),
+                std::time::Duration::from_secs_f64(config.expert.timeout_s),
+                interrupt,
+                stats,
+            )?)
+        }
+        cabc_proto::config::ExpertPlacement::InActor => Box::new(in_actor(config)?),
+    })
+}
+
+/// Why the run's expert client could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    #[error("the expert servers' client: {0}")]
+    Bus(#[from] cabc_proto::ports::PortError),
+    #[error("the actor's own expert: {0}")]
+    InActor(#[from] MpccError),
+}

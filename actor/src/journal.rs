@@ -2,29 +2,49 @@
 //! line before the segment goes on the wire, and each marker's after it went; the outbox writes the learner's
 //! receipts (`cabc_bus::outbox`), the collector the steps taken (`Collector::with_tally`).
 
+use crate::run::{ActorError, ActorStats};
 use cabc_proto::messages::TrajMessage;
 use cabc_proto::ports::{PortError, SegmentSink};
-use cabc_runfolder::journal::{ActorEvent, ActorJournal};
+use cabc_runfolder::journal::{ActorEvent, ActorJournal, STOPPED};
 use std::sync::Arc;
 
-/// A [`SegmentSink`] that journals what goes through it to the sink it wraps.
+/// A [`SegmentSink`] that journals what goes through it to the sink it wraps (with no journal, it passes through).
 pub struct Journaled<'a> {
     sink: &'a mut dyn SegmentSink,
-    journal: Arc<ActorJournal>,
+    journal: Option<Arc<ActorJournal>>,
 }
 
 impl<'a> Journaled<'a> {
-    pub fn new(sink: &'a mut dyn SegmentSink, journal: Arc<ActorJournal>) -> Self {
+    pub fn new(sink: &'a mut dyn SegmentSink, journal: Option<Arc<ActorJournal>>) -> Self {
         Journaled { sink, journal }
     }
 }
 
+/// The collector's tally (`Collector::with_tally`) into `journal`.
+pub fn tally(journal: Arc<ActorJournal>) -> impl FnMut(u64) + Send + 'static {
+    move |taken| journal.taken(taken)
+}
+
+/// The journal's last line: how the actor's run ended (`interrupted` by its own signal, stopped by the learner, or
+/// failed).
+pub fn ended(journal: &ActorJournal, ran: &Result<ActorStats, ActorError>, interrupted: bool) {
+    let reason = match ran {
+        Ok(_) if interrupted => "interrupted".to_string(),
+        Ok(_) => STOPPED.to_string(),
+        Err(e) => format!("failed: {e}"),
+    };
+    journal.record(&ActorEvent::Ended { reason });
+}
+
 impl SegmentSink for Journaled<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
+        let Some(journal) = &self.journal else {
+            return self.sink.put(message);
+        };
         match &message {
             TrajMessage::Segment(segment) => {
                 let seq = segment.seq;
-                self.journal.record(&ActorEvent::Published {
+                journal.record(&ActorEvent::Published {
                     seq,
                     version: segment.policy_version,
                     steps: segment.steps.len() as u64,
@@ -32,7 +52,7 @@ impl SegmentSink for Journaled<'_> {
                 let put = self.sink.put(message);
                 if let Err(e) = &put {
                     let why = e.to_string();
-                    self.journal.record(&ActorEvent::Unsent { seq, why });
+                    journal.record(&ActorEvent::Unsent { seq, why });
                 }
                 put
             }
@@ -44,7 +64,7 @@ impl SegmentSink for Journaled<'_> {
                     staged: marker.staged,
                 };
                 self.sink.put(message)?;
-                self.journal.record(&done);
+                journal.record(&done);
                 Ok(())
             }
         }

@@ -7,22 +7,19 @@
 
 use anyhow::{Context, Result};
 use cabc_actor::collect::Collector;
-use cabc_actor::journal::Journaled;
+use cabc_actor::journal::{self, Journaled};
 use cabc_actor::run::{run_actor, run_evaluator, stop_or_fail, ActorStats};
-use cabc_bus::expert::ZenohExpert;
 use cabc_bus::interrupt::Interrupt;
 use cabc_bus::outbox::ZenohSegments;
 use cabc_bus::ports::{Shard, SharedStats, ZenohEvals, ZenohPolicySource};
 use cabc_bus::{Bus, Role};
 use cabc_models::{PolicyArch, PolicyCheck};
-use cabc_proto::config::{ExpertPlacement, RunConfig};
+use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
-use cabc_proto::ports::{ExpertClient, SegmentSink};
-use cabc_runfolder::journal::{ActorEvent, ActorJournal};
+use cabc_runfolder::journal::ActorJournal;
 use clap::Parser;
 use std::sync::Arc;
-use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -107,18 +104,7 @@ fn main() -> Result<()> {
         stop_or_fail(ran, interrupt.is_set())?;
         drop(source);
     } else {
-        let timeout = Duration::from_secs_f64(config.expert.timeout_s);
-        let kind = config.expert.kind.as_str();
-        let mut expert: Box<dyn ExpertClient> = match config.expert.placement {
-            ExpertPlacement::Server => Box::new(ZenohExpert::new(
-                &bus,
-                kind,
-                timeout,
-                &interrupt,
-                stats.clone(),
-            )?),
-            ExpertPlacement::InActor => Box::new(cabc_actor::expert::in_actor(&config)?),
-        };
+        let mut expert = cabc_actor::expert::of_run(&config, &bus, &interrupt, stats.clone())?;
         let index = cli
             .index
             .unwrap_or_else(|| cabc_proto::keys::trailing_number(&cli.id));
@@ -132,41 +118,23 @@ fn main() -> Result<()> {
             .map(|dir| ActorJournal::begin(dir, &cli.id, incarnation).map(Arc::new))
             .transpose()
             .context("beginning the actor's journal")?;
-        let mut sink = match &journal {
-            Some(journal) => {
-                ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?
-            }
-            None => ZenohSegments::new(&bus, &cli.id, &interrupt, stats.clone())?,
-        };
+        let mut sink =
+            ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?;
         let mut source = source.echoing(sink.echo());
         let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
         if let Some(journal) = &journal {
-            let journal = journal.clone();
-            collector = collector.with_tally(move |taken| journal.taken(taken));
+            collector = collector.with_tally(journal::tally(journal.clone()));
         }
-        let mut journaled;
-        let out: &mut dyn SegmentSink = match &journal {
-            Some(journal) => {
-                journaled = Journaled::new(&mut sink, journal.clone());
-                &mut journaled
-            }
-            None => &mut sink,
-        };
         let ran = run_actor(
             &mut collector,
             &check,
             &mut source,
             expert.as_mut(),
-            out,
+            &mut Journaled::new(&mut sink, journal.clone()),
             &mut after_epoch,
         );
         if let Some(journal) = &journal {
-            let reason = match &ran {
-                Ok(_) if interrupt.is_set() => "interrupted".to_string(),
-                Ok(_) => cabc_runfolder::journal::STOPPED.to_string(),
-                Err(e) => format!("failed: {e}"),
-            };
-            journal.record(&ActorEvent::Ended { reason });
+            journal::ended(journal, &ran, interrupt.is_set());
         }
         stop_or_fail(ran, interrupt.is_set())?;
     }

@@ -381,16 +381,16 @@ impl<'a> ZenohSegments<'a> {
         Self::open(bus, actor, interrupt, stats, after, None)
     }
 
-    /// As [`ZenohSegments::new`], with the actor's journal: the outbox writes the learner's receipts in it (the
-    /// actor's `Journaled` sink writes what it publishes).
+    /// As [`ZenohSegments::new`], with the actor's journal if it keeps one: the outbox writes the learner's receipts
+    /// in it (the actor's `Journaled` sink writes what it publishes).
     pub fn journaled(
         bus: &'a Bus,
         actor: &str,
         interrupt: &Interrupt,
         stats: SharedStats,
-        journal: Arc<ActorJournal>,
+        journal: Option<Arc<ActorJournal>>,
     ) -> Result<Self, PortError> {
-        Self::open(bus, actor, interrupt, stats, RESEND_AFTER, Some(journal))
+        Self::open(bus, actor, interrupt, stats, RESEND_AFTER, journal)
     }
 
     fn open(

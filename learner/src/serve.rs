@@ -53,11 +53,11 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
     );
     journal.record(&LearnerJournal::began(actors.incarnation(), resume));
     let refusals = journal.clone();
-    learner = learner.with_refusals(Box::new(move |actor, incarnation, seq, why| {
+    learner = learner.with_refusals(Box::new(move |id, why| {
         refusals.record(&LearnerEvent::Refused {
-            actor: actor.to_string(),
-            incarnation,
-            seq,
+            actor: id.actor.clone(),
+            incarnation: id.incarnation,
+            seq: id.seq,
             why: why.to_string(),
         })
     }));

@@ -9,8 +9,6 @@ use crate::autolabel::{autolabel_replay, AutolabelOptions};
 use crate::checkpoint::CheckpointError;
 use crate::checkpointer::{Checkpointer, InFolder};
 use crate::evaluations::Evaluations;
-use crate::ledger::Ledger;
-use crate::provenance::Provenance;
 use crate::record::Record;
 use crate::replay::{Checked, Frames, Replay};
 use crate::schedule::Schedule;
@@ -26,8 +24,10 @@ use cabc_proto::ports::{Collected, PortError};
 use cabc_sim::track::Track;
 use std::collections::{BTreeMap, HashSet};
 use std::path::PathBuf;
-use std::time::Instant;
 use tch::Device;
+
+mod epoch;
+use epoch::Epoch;
 
 /// Errors that end the learner.
 #[derive(Debug, thiserror::Error)]
@@ -51,32 +51,8 @@ pub enum LearnerError {
 /// warning and the summary's. In process there is no bus, and nothing refused: `Box::new(BTreeMap::new)`.
 pub type AclDenials = Box<dyn Fn() -> BTreeMap<String, u64>>;
 
-/// Told each segment the learner refuses: its (actor, incarnation, seq) and why.
-pub type Refusals = Box<dyn FnMut(&str, u64, u64, &str)>;
-
-/// The epoch in progress, from [`Learner::begin_epoch`] to [`Learner::end_epoch`]: its record and its counts.
-struct Epoch {
-    record: Record,
-    started: Instant,
-    /// The ledger's stored steps and segments when the epoch began.
-    stored_before: (u64, u64),
-    /// Steps in incomplete segments.
-    incomplete_steps: u64,
-    /// Where the epoch's D? steps came from.
-    provenance: Provenance,
-}
-
-impl Epoch {
-    fn new(epoch: u64, ledger: &Ledger) -> Self {
-        Epoch {
-            record: Record::new(epoch),
-            started: Instant::now(),
-            stored_before: (ledger.stored_steps, ledger.stored_segments),
-            incomplete_steps: 0,
-            provenance: Provenance::default(),
-        }
-    }
-}
+/// Told each segment the learner refuses, and why.
+pub type Refusals = Box<dyn FnMut(&SegmentId, &str)>;
 
 /// Everything the learner holds. Made with [`Learner::new`] and [`Learner::restore`] (a run folder's:
 /// [`Learner::open`]); Algorithm 1 ([`crate::algorithm::run`]) drives it an epoch at a time ([`Learner::begin_epoch`],
@@ -284,11 +260,10 @@ impl Learner {
     /// `segments_not_stored` before the ledger sees it, as an evaluation of such a version is. This is the one check
     /// of a segment: it waits in D_new as [`Checked`], and [`Learner::partition`] stores it and counts it stored.
     pub fn store(&mut self, segment: Segment) {
-        let (actor, seq) = (segment.actor.clone(), segment.seq);
-        self.settled.push(SegmentId::of(&segment));
+        let (actor, seq, id) = (segment.actor.clone(), segment.seq, SegmentId::of(&segment));
+        self.settled.push(id.clone());
         let published = self.state.evaluations.published();
         if published.is_none_or(|published| segment.policy_version > published) {
-            self.state.segments_not_stored += 1;
             tracing::warn!(
                 actor,
                 seq,
@@ -296,18 +271,15 @@ impl Learner {
                 published = ?published,
                 "segment of a policy version not published: refused"
             );
-            self.refused(&segment, "a policy version this learner has not published");
+            self.refuse(&id, "a policy version this learner has not published");
             return;
         }
-        let (incarnation, steps) = (segment.incarnation, segment.steps.len());
+        let steps = segment.steps.len();
         let checked = match self.replay.checked(segment) {
             Ok(checked) => checked,
             Err(e) => {
-                self.state.segments_not_stored += 1;
                 tracing::warn!(actor, seq, steps, "segment refused: {e}");
-                if let Some(refusals) = &mut self.refusals {
-                    refusals(&actor, incarnation, seq, &e.to_string());
-                }
+                self.refuse(&id, &e.to_string());
                 return;
             }
         };
@@ -319,9 +291,11 @@ impl Learner {
         self.d_new.push(checked);
     }
 
-    fn refused(&mut self, segment: &Segment, why: &str) {
+    /// Counts segment `id` refused (`segments_not_stored`) and tells [`Learner::with_refusals`]'s hook why.
+    fn refuse(&mut self, id: &SegmentId, why: &str) {
+        self.state.segments_not_stored += 1;
         if let Some(refusals) = &mut self.refusals {
-            refusals(&segment.actor, segment.incarnation, segment.seq, why);
+            refusals(id, why);
         }
     }
 

@@ -135,6 +135,18 @@ pub struct Audit {
     pub problems: Vec<String>,
 }
 
+/// The audit's figures, without the processes one by one (`cabc chaos`'s report).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Figures {
+    /// Segments (and steps) by fate.
+    pub fates: BTreeMap<Fate, Count>,
+    /// Steps taken and never published: staged at the run's end, and in flight at an actor's kill or interrupt.
+    pub never_published_staged: u64,
+    pub never_published_in_flight: u64,
+    pub actor_processes: usize,
+    pub learner_processes: usize,
+}
+
 /// Lost seqs listed per actor process.
 pub const MAX_LISTED: usize = 20;
 
@@ -324,12 +336,11 @@ impl Audit {
         let mut problems = Vec::new();
         let learners = learners_of(&dir, &mut problems)?;
         let last = learners.processes.last();
-        match last {
-            Some(last) if last.ended.is_none() => problems.push(format!(
-                "the last learner process ({}) did not end: audit a run that ended",
-                last.incarnation
-            )),
-            _ => {}
+        if let Some(running) = last.filter(|l| l.ended.is_none()) {
+            let incarnation = running.incarnation;
+            problems.push(format!(
+                "the last learner process ({incarnation}) did not end: audit a run that ended"
+            ));
         }
         let last = last.map(|l| l.incarnation);
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
@@ -473,6 +484,18 @@ impl Audit {
         all
     }
 
+    /// The figures, without the processes one by one.
+    pub fn figures(&self) -> Figures {
+        let (staged, in_flight) = self.never_published();
+        Figures {
+            fates: self.fates.clone(),
+            never_published_staged: staged,
+            never_published_in_flight: in_flight,
+            actor_processes: self.actors.len(),
+            learner_processes: self.learners.len(),
+        }
+    }
+
     /// Steps taken and never published: by processes that ended on the learner's stop (staged at the end:
     /// unfinished laps), and by the others (in flight at a kill or an interrupt).
     pub fn never_published(&self) -> (u64, u64) {
@@ -574,141 +597,4 @@ impl std::fmt::Display for Audit {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::journal::{ActorJournal, LearnerJournal};
-
-    fn published(journal: &ActorJournal, seq: u64, steps: u64) {
-        journal.record(&ActorEvent::Published {
-            seq,
-            version: 0,
-            steps,
-        });
-    }
-
-    fn receipt(journal: &ActorJournal, learner: u64, seqs: &[u64], committed: bool) {
-        journal.record(&ActorEvent::Acknowledged {
-            learner,
-            seqs: seqs.to_vec(),
-            committed,
-        });
-    }
-
-    /// A run of two learner processes (1 killed, 2 resumed) and three actor processes, with the final ledger
-    /// holding `stored` ("actor/incarnation" -> seqs) and counting `steps` stored.
-    fn run(stored: &[(&str, &[u64])], steps: u64) -> tempfile::TempDir {
-        let dir = tempfile::tempdir().unwrap();
-        let journal = dir.path().join(journal::JOURNAL);
-        let learner = LearnerJournal::open(&journal).unwrap();
-        learner.record(&LearnerJournal::began(1, false));
-        learner.record(&LearnerJournal::began(2, true));
-        learner.record(&LearnerEvent::Refused {
-            actor: "actor-0".into(),
-            incarnation: 10,
-            seq: 3,
-            why: "a policy version this learner has not published".into(),
-        });
-        learner.record(&LearnerEvent::Ended {
-            reason: "max_epochs".into(),
-        });
-        // actor-0 lived to the end: seq 0 and 1 stored, 2 received by the killed learner and published again to
-        // the resumed one (stored), 3 refused.
-        let a = ActorJournal::begin(&journal, "actor-0", 10).unwrap();
-        for seq in 0..4 {
-            published(&a, seq, 10);
-        }
-        receipt(&a, 1, &[0, 1, 2], false);
-        receipt(&a, 1, &[0, 1], true);
-        receipt(&a, 2, &[2, 3], false);
-        a.taken(45);
-        a.record(&ActorEvent::Ended {
-            reason: journal::STOPPED.into(),
-        });
-        // actor-1, killed: seq 0 stored, 1 received by the killed learner only, 2 never received.
-        let b = ActorJournal::begin(&journal, "actor-1", 20).unwrap();
-        for seq in 0..3 {
-            published(&b, seq, 5);
-        }
-        receipt(&b, 1, &[0, 1], false);
-        receipt(&b, 1, &[0], true);
-        b.taken(19);
-        let mut seen = serde_json::Map::new();
-        let mut count = 0;
-        for (key, seqs) in stored {
-            count += seqs.len();
-            seen.insert(key.to_string(), serde_json::json!(seqs));
-        }
-        let state = serde_json::json!({"ledger": {
-            "seen": seen, "duplicates": 1, "stored_segments": count, "stored_steps": steps,
-        }});
-        std::fs::create_dir_all(dir.path().join(CHECKPOINT)).unwrap();
-        std::fs::write(
-            dir.path().join(CHECKPOINT).join("state.json"),
-            state.to_string(),
-        )
-        .unwrap();
-        dir
-    }
-
-    #[test]
-    fn each_published_segment_gets_its_fate() {
-        let dir = run(&[("actor-0/10", &[0, 1, 2]), ("actor-1/20", &[0])], 35);
-        let audit = Audit::of(dir.path()).unwrap();
-        assert!(audit.ok(), "{audit}");
-        let c = |fate| audit.count(fate);
-        assert_eq!(
-            c(Fate::Stored),
-            Count {
-                segments: 4,
-                steps: 35
-            }
-        );
-        assert_eq!(
-            c(Fate::Refused),
-            Count {
-                segments: 1,
-                steps: 10
-            }
-        );
-        assert_eq!(c(Fate::HeldByALearnerThatStopped).segments, 1);
-        assert_eq!(c(Fate::InFlightAtItsActorsEnd).segments, 1);
-        assert_eq!(c(Fate::Lost).segments, 0);
-        assert_eq!(
-            audit.published(),
-            Count {
-                segments: 7,
-                steps: 55
-            }
-        );
-        // actor-0 took 45 and published 40: 5 staged at its end; actor-1 took 19, published 15: 4 in flight.
-        assert_eq!(audit.never_published(), (5, 4));
-    }
-
-    #[test]
-    fn a_segment_missing_from_the_ledger_is_lost_and_fails_the_audit() {
-        // actor-0's seq 2 went again to the resumed learner, which received it and never stored it: lost.
-        let dir = run(&[("actor-0/10", &[0, 1]), ("actor-1/20", &[0])], 25);
-        let audit = Audit::of(dir.path()).unwrap();
-        assert!(!audit.ok());
-        assert_eq!(audit.count(Fate::Lost).segments, 1);
-        let actor = audit.actors.iter().find(|a| a.actor == "actor-0").unwrap();
-        assert_eq!(actor.lost, [2]);
-        assert!(audit
-            .to_string()
-            .contains("PROBLEM: 1 segments (10 steps) lost"));
-    }
-
-    #[test]
-    fn a_ledger_that_counts_other_steps_than_the_journals_fails_the_audit() {
-        let dir = run(&[("actor-0/10", &[0, 1, 2]), ("actor-1/20", &[0])], 45);
-        let audit = Audit::of(dir.path()).unwrap();
-        assert!(!audit.ok());
-        assert!(
-            audit
-                .problems
-                .iter()
-                .any(|p| p.contains("45 steps stored, the journals 35")),
-            "{audit}"
-        );
-    }
-}
+mod tests;

@@ -18,7 +18,7 @@
 
 use crate::roster::Role;
 use crate::{Ended, Live, SuperviseError, Supervisor, Watcher};
-use cabc_runfolder::audit::{Audit, Count, Fate};
+use cabc_runfolder::audit::{Audit, Figures};
 use cabc_runfolder::{Status, Table};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -132,38 +132,13 @@ pub struct Report {
     /// The run's audit, segment by segment (`cabc audit`, issue 74): what became of each published segment, the
     /// steps taken and never published, and what does not add up (`audit_problems`: none expected; the exit status
     /// is 1 on one).
-    pub audit: Option<AuditFigures>,
+    pub audit: Option<Figures>,
     pub audit_problems: Vec<String>,
     pub early_stop_version: Option<u64>,
     pub ended: String,
     /// How the supervised run ended (the supervisor's words), and the exit status the command gives.
     pub supervisor: String,
     pub exit: i32,
-}
-
-/// The audit's figures in the report.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct AuditFigures {
-    /// Segments (and steps) by fate.
-    pub fates: BTreeMap<Fate, Count>,
-    /// Steps taken and never published: staged at the run's end, and in flight at an actor's kill or interrupt.
-    pub never_published_staged: u64,
-    pub never_published_in_flight: u64,
-    pub actor_processes: usize,
-    pub learner_processes: usize,
-}
-
-impl AuditFigures {
-    fn of(audit: &Audit) -> Self {
-        let (staged, in_flight) = audit.never_published();
-        AuditFigures {
-            fates: audit.fates.clone(),
-            never_published_staged: staged,
-            never_published_in_flight: in_flight,
-            actor_processes: audit.actors.len(),
-            learner_processes: audit.learners.len(),
-        }
-    }
 }
 
 /// A chaos run's settings.
@@ -292,7 +267,7 @@ impl Chaos {
         report.supervisor = supervisor;
         match Audit::of(&self.run_dir) {
             Ok(audit) => {
-                report.audit = Some(AuditFigures::of(&audit));
+                report.audit = Some(audit.figures());
                 report.audit_problems = audit.problems.clone();
             }
             Err(e) => report.audit_problems = vec![format!("no audit: {e}")],

@@ -145,12 +145,20 @@ fn ran_to(run: &Path, epochs: u64) -> serde_json::Value {
     s
 }
 
-/// The run's audit (`cabc audit`): every segment the actors journalled accounted for, one by one; its report on
-/// failure.
-fn audited(run: &Path) -> Audit {
+/// Nothing lost: every epoch closed with at least its budget (a lost actor counts with the steps of the segments
+/// it was heard to deliver, and a segment carries the staged steps of earlier epochs' unfinished laps too, so a
+/// struck epoch's sum once came to 308 of 256), and the run's audit (`cabc audit`) accounts for every segment the
+/// actors journalled, one by one; printed, or its report on failure.
+fn assert_nothing_lost(run: &Path) {
+    let taken = column(run, "steps_taken");
+    assert!(
+        taken.iter().all(|&t| t >= BUDGET),
+        "every epoch with its whole budget: {taken:?}\n{}",
+        epoch_lines(run)
+    );
     let audit = Audit::of(run).unwrap_or_else(|e| panic!("auditing {}: {e}", run.display()));
     assert!(audit.ok(), "{audit}\n{}", epoch_lines(run));
-    audit
+    print!("{audit}");
 }
 
 fn column(run: &Path, name: &str) -> Vec<u64> {
@@ -260,17 +268,8 @@ fn a_node_lost_mid_run_costs_its_epoch_and_the_run_goes_on() {
     cluster.run("scancel", &["--signal=KILL", step]).unwrap();
     wait_done(&cluster, tmp.path(), job, &run);
     let s = ran_to(&run, 24);
-    // Every epoch, the struck one too, closed with its whole budget: actor-1's share went to actor-0. (At least the
-    // budget: a lost actor counts with the steps of the segments it was heard to deliver, and a segment carries the
-    // staged steps of earlier epochs' unfinished laps too, so the struck epoch's sum once came to 308 of 256. The
-    // audit below accounts per segment.)
-    let taken = column(&run, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t >= BUDGET),
-        "{taken:?}\n{}",
-        epoch_lines(&run)
-    );
-    print!("{}", audited(&run));
+    // Every epoch, the struck one too, closed with its whole budget: actor-1's share went to actor-0.
+    assert_nothing_lost(&run);
     assert_eq!(
         final_steps(&run, "actor-1"),
         None,
@@ -301,14 +300,7 @@ fn a_node_cut_off_mid_run_costs_the_lease_and_the_run_goes_on() {
     cluster.set_node_link(2, true).unwrap();
     wait_done(&cluster, tmp.path(), job, &run);
     let s = ran_to(&run, 40);
-    // Every epoch closed with its budget (at least: a lost actor's delivered segments carry earlier epochs' steps too).
-    let taken = column(&run, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t >= BUDGET),
-        "{taken:?}\n{}",
-        epoch_lines(&run)
-    );
-    print!("{}", audited(&run));
+    assert_nothing_lost(&run);
     // actor-1 left with the lease and came back with the link, and ended with the run.
     let learner = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();
     let joined = learner
@@ -394,12 +386,6 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         column(&run, "steps_published"),
     );
     assert_eq!(stored, published);
-    let taken = column(&run, "steps_taken");
-    assert!(
-        taken.iter().all(|&t| t >= BUDGET),
-        "every epoch with its whole budget: {taken:?}\n{}",
-        epoch_lines(&run)
-    );
     println!(
         "slurm: job {job} requeued after {at_requeue:?} recorded epochs, resumed each time, {} epochs in all; \
          steps stored {} = published {}",
@@ -407,8 +393,9 @@ fn a_requeued_job_resumes_its_run_and_stores_every_step_once() {
         stored.iter().sum::<u64>(),
         published.iter().sum::<u64>()
     );
-    // One by one: what the stopped jobs' learners held unsaved is counted apart, nothing else is missing.
-    print!("{}", audited(&run));
+    // Every epoch whole, and one by one: what the stopped jobs' learners held unsaved is counted apart, nothing
+    // else is missing.
+    assert_nothing_lost(&run);
 }
 
 /// The pids a node's supervisor recorded for its processes (the supervisor's own is its step's).
