@@ -22,11 +22,10 @@ use cabc_proto::messages::{
 };
 use cabc_proto::ports::{CollectionTimes, ExpertClient, Next, Pending, PortError};
 use cabc_sim::env::{Env, EnvBatch, EnvConfig, EnvObservation, Truncation};
-use cabc_sim::track::Track;
+use cabc_sim::track::{Track, TrackError};
 use cabc_sim::vehicle::{clip_action, Input, VehicleParams};
 use std::collections::VecDeque;
 use std::ops::Range;
-use std::sync::Arc;
 use std::time::Instant;
 
 /// What the policy sees for a batch of environments.
@@ -52,12 +51,12 @@ fn env_config(max_laps: u32) -> EnvConfig {
 
 /// The environment of a run: its track (`sim.track`), the reference vehicle and env constants, `max_laps` laps at
 /// most.
-pub fn make_env(config: &RunConfig, max_laps: u32) -> Env {
-    Env::new(
-        Arc::new(Track::from_kind(config.sim.track)),
+pub fn make_env(config: &RunConfig, max_laps: u32) -> Result<Env, TrackError> {
+    Ok(Env::new(
+        Track::of(&config.sim)?,
         VehicleParams::default(),
         env_config(max_laps),
-    )
+    ))
 }
 
 /// Mixed into the run seed for the sensors' random streams.
@@ -106,10 +105,11 @@ pub struct Collector {
 
 impl Collector {
     /// `index` makes each actor's random streams distinct (actor k uses streams k*K .. k*K+K-1 of the run seed).
-    pub fn new(actor: &str, index: u64, config: &RunConfig) -> Self {
+    /// An error when the run's track (`sim.track`) cannot be built.
+    pub fn new(actor: &str, index: u64, config: &RunConfig) -> Result<Self, TrackError> {
         let k = config.actors.envs_per_actor as usize;
         let envs = EnvBatch::with_streams(
-            Arc::new(Track::from_kind(config.sim.track)),
+            Track::of(&config.sim)?,
             VehicleParams::default(),
             env_config(config.collection.max_laps),
             config.run.seed,
@@ -122,8 +122,10 @@ impl Collector {
                     .with_rules(c.flush, c.expert_failure_staged)
             })
             .collect();
-        let eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(config));
-        Collector {
+        let eyes = (config.observation.kind == ObservationKind::Camera)
+            .then(|| Eyes::new(config))
+            .transpose()?;
+        Ok(Collector {
             actor: actor.to_string(),
             envs,
             segmenters,
@@ -157,7 +159,7 @@ impl Collector {
             shield: None,
             shielded: 0,
             times: CollectionTimes::default(),
-        }
+        })
     }
 
     /// The shield of the version about to be collected ([`crate::shield`]): none when the run has none or `nets` is

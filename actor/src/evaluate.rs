@@ -14,14 +14,19 @@ use crate::spawns::{draw_spawns_from, SpawnRanges};
 use cabc_proto::config::{ObservationKind, RunConfig};
 use cabc_proto::messages::{EndReason, EvalReport};
 use cabc_sim::env::{Env, Spawn};
-use cabc_sim::track::{Frenet, Track};
+use cabc_sim::track::{Frenet, Track, TrackError};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use std::time::Instant;
 
-/// Steps allowed per lap before an evaluation is cut (a policy creeping along without failing must end too).
-const STEPS_PER_LAP_LIMIT: u64 = 1000;
+/// Steps allowed per lap before an evaluation is cut (a policy creeping along without failing must end too): 1,000,
+/// or on a track longer than 20 m 50 a metre (a lap slower than 0.2 m/s on average).
+fn steps_per_lap_limit(track_length: f64) -> u64 {
+    const STEPS_PER_LAP_LIMIT: u64 = 1000;
+    const STEPS_PER_METRE_LIMIT: f64 = 50.0;
+    STEPS_PER_LAP_LIMIT.max((STEPS_PER_METRE_LIMIT * track_length).ceil() as u64)
+}
 
 /// Mixed into the seed for an evaluation's random streams (the sun; the sensor's with [`crate::collect::SENSOR_SEED`]).
 const EVAL_SEED: u64 = 0xe7a1;
@@ -110,7 +115,7 @@ pub fn evaluate(
     if report.laps < config.collection.eval_laps {
         return Ok(report);
     }
-    let episodes = judged_episodes(config, version);
+    let episodes = judged_episodes(config, version)?;
     if episodes.is_empty() {
         return Ok(report);
     }
@@ -138,12 +143,12 @@ pub fn evaluate(
 /// action and `early_stop_state_noise_std` on the observed state ([`Disturbance`]). Every stream comes from the
 /// run's seed and the version ([`JUDGED_SEED`]), so a version's episodes are the same whichever evaluator drives
 /// them and whenever, and no two versions share theirs.
-pub fn judged_episodes(config: &RunConfig, version: u64) -> Vec<Episode> {
+pub fn judged_episodes(config: &RunConfig, version: u64) -> Result<Vec<Episode>, TrackError> {
     let rules = &config.collection;
     if rules.early_stop_spawns == 0 {
-        return Vec::new();
+        return Ok(Vec::new());
     }
-    let track = Track::from_kind(config.sim.track);
+    let track = Track::of(&config.sim)?;
     let seed = config.run.seed;
     let mut rng = Env::rng(seed ^ JUDGED_SPAWN_SEED, version);
     let spawns = draw_spawns_from(
@@ -157,7 +162,7 @@ pub fn judged_episodes(config: &RunConfig, version: u64) -> Vec<Episode> {
         rules.early_stop_state_noise_std,
     );
     let noisy = action_std.iter().chain(&state_std).any(|&s| s > 0.0);
-    spawns
+    Ok(spawns
         .iter()
         .enumerate()
         .map(|(i, spawn)| {
@@ -178,7 +183,7 @@ pub fn judged_episodes(config: &RunConfig, version: u64) -> Vec<Episode> {
                 }),
             }
         })
-        .collect()
+        .collect())
 }
 
 /// The fixed spawn's episode of [`evaluate`] alone, showing `watch` the environment before each step: the car's full
@@ -195,7 +200,7 @@ pub fn evaluate_watched(
 }
 
 /// Drives `episode` with `act` (the run's observation kind and sensor noise), showing `watch` the environment before
-/// each step, until truncation, the wanted laps or the step limit ([`STEPS_PER_LAP_LIMIT`] per wanted lap).
+/// each step, until truncation, the wanted laps or the step limit ([`steps_per_lap_limit`] per wanted lap).
 pub fn drive(
     actor: &str,
     version: u64,
@@ -206,14 +211,16 @@ pub fn drive(
 ) -> anyhow::Result<EvalReport> {
     let laps_wanted = episode.laps;
     // One lap more than wanted so that the env's max-laps truncation never cuts the last wanted lap.
-    let mut env = make_env(config, laps_wanted + 1);
+    let mut env = make_env(config, laps_wanted + 1)?;
     let mut rng = Env::rng(episode.seed ^ EVAL_SEED, episode.stream);
     // The fixed spawn's reset draws the sun; a given start then moves the car.
     env.reset(Spawn::Fixed, &mut rng);
     if let Start::At { pose, v_long } = episode.start {
         env.set_spawn(pose.s, pose.x_tran, pose.e_psi, v_long);
     }
-    let mut eyes = (config.observation.kind == ObservationKind::Camera).then(|| Eyes::new(config));
+    let mut eyes = (config.observation.kind == ObservationKind::Camera)
+        .then(|| Eyes::new(config))
+        .transpose()?;
     // The sensor's noise, from a stream of its own per episode.
     let mut sensor = Sensor::new(
         &config.observation,
@@ -224,7 +231,7 @@ pub fn drive(
     );
     let mut disturbance = episode.disturbance;
     let mut line: Vec<[f32; 2]> = Vec::new();
-    let max_steps = STEPS_PER_LAP_LIMIT * laps_wanted.max(1) as u64;
+    let max_steps = steps_per_lap_limit(env.track().length()) * laps_wanted.max(1) as u64;
     let mut steps = 0u64;
     let end_reason = loop {
         watch(&env);
@@ -388,7 +395,7 @@ mod tests {
             (plain.laps, plain.spawn_episodes, plain.spawn_crashes),
             (2, 0, 0)
         );
-        assert!(judged_episodes(&config, 3).is_empty());
+        assert!(judged_episodes(&config, 3).unwrap().is_empty());
         // Without noise the PID laps from every spawn within half the half width (as in `cabc robust`'s test).
         config.collection.early_stop_spawns = 4;
         let quiet = evaluate("eval", 3, &config, pid_act(&mut pid)).unwrap();
@@ -402,13 +409,14 @@ mod tests {
             "the fixed spawn's figures"
         );
         // Each episode wants the out-lap and the laps, from its own spawn; a version's spawns are its own.
-        let episodes = judged_episodes(&config, 3);
+        let episodes = judged_episodes(&config, 3).unwrap();
         assert_eq!(episodes.len(), 4);
         assert!(episodes
             .iter()
             .all(|e| e.laps == 3 && e.disturbance.is_none()));
         let starts = |v| {
             judged_episodes(&config, v)
+                .unwrap()
                 .iter()
                 .map(|e| e.start)
                 .collect::<Vec<_>>()

@@ -1,10 +1,10 @@
 //! The actor's camera: renders what the vision policy sees, in the protocol's image type.
 
-use cabc_proto::config::{RunConfig, TrackKind};
+use cabc_proto::config::{RunConfig, SimSection};
 use cabc_proto::messages::Image;
 use cabc_sim::camera::{Camera, TrackLookup};
 use cabc_sim::env::Env;
-use cabc_sim::track::{Pose, Track};
+use cabc_sim::track::{Pose, Track, TrackError};
 use std::sync::{Arc, Mutex, OnceLock};
 
 /// Lookup-grid resolution (m) of the renderer's track map.
@@ -18,16 +18,16 @@ pub struct Eyes {
 
 impl Eyes {
     /// The camera of `config.observation` on the track of `config.sim.track`.
-    pub fn new(config: &RunConfig) -> Self {
+    pub fn new(config: &RunConfig) -> Result<Self, TrackError> {
         let observation = &config.observation;
-        Eyes {
+        Ok(Eyes {
             camera: Camera::new(
                 observation.width as usize,
                 observation.height as usize,
                 observation.fov_deg,
             ),
-            lookup: lookup(config.sim.track),
-        }
+            lookup: lookup(&config.sim)?,
+        })
     }
 
     /// The first-person image of `env`'s car under `env`'s sun (a new buffer, moved on to the segment).
@@ -39,19 +39,22 @@ impl Eyes {
     }
 }
 
-/// The track map of `kind`, built once a process and shared: an evaluation's camera no longer builds its own
-/// (0.1-0.2 s of every epoch's evaluation in a camera run).
-fn lookup(kind: TrackKind) -> Arc<TrackLookup> {
-    type Built = Mutex<Vec<(TrackKind, Arc<TrackLookup>)>>;
+/// The track map of the run's track, built once a process and shared: an evaluation's camera no longer builds its
+/// own (0.1-0.2 s of every epoch's evaluation in a camera run).
+fn lookup(sim: &SimSection) -> Result<Arc<TrackLookup>, TrackError> {
+    type Built = Mutex<Vec<(SimSection, Arc<TrackLookup>)>>;
     static BUILT: OnceLock<Built> = OnceLock::new();
     let mut built = BUILT
         .get_or_init(Default::default)
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner());
-    if let Some((_, lookup)) = built.iter().find(|(k, _)| *k == kind) {
-        return lookup.clone();
+    if let Some((_, lookup)) = built.iter().find(|(k, _)| k == sim) {
+        return Ok(lookup.clone());
     }
-    let lookup = Arc::new(TrackLookup::new(&Track::from_kind(kind), LOOKUP_RESOLUTION));
-    built.push((kind, lookup.clone()));
-    lookup
+    let lookup = Arc::new(TrackLookup::new(
+        Track::of(sim)?.as_ref(),
+        LOOKUP_RESOLUTION,
+    ));
+    built.push((sim.clone(), lookup.clone()));
+    Ok(lookup)
 }

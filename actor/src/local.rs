@@ -37,11 +37,15 @@ pub struct LocalActors<E: ExpertClient> {
 impl<E: ExpertClient> LocalActors<E> {
     /// The actors `actor-0 .. actor-{count-1}` of `config` (the same random streams as the processes of a
     /// distributed run), asking `expert`; with `evaluate`, each version is also evaluated (as `eval-0`).
-    pub fn new(config: &RunConfig, expert: E, evaluate: bool) -> Self {
+    pub fn new(
+        config: &RunConfig,
+        expert: E,
+        evaluate: bool,
+    ) -> Result<Self, cabc_sim::TrackError> {
         let collectors = (0..config.actors.count as u64)
             .map(|i| Collector::new(&format!("actor-{i}"), i, config))
-            .collect();
-        LocalActors {
+            .collect::<Result<_, _>>()?;
+        Ok(LocalActors {
             config: config.clone(),
             collectors,
             expert,
@@ -50,7 +54,7 @@ impl<E: ExpertClient> LocalActors<E> {
             device: Device::Cpu,
             interrupt: None,
             started: false,
-        }
+        })
     }
 
     /// The same actors running the policy on `device`: on a GPU each half of an actor's environments is one batch

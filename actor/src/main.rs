@@ -121,7 +121,9 @@ fn main() -> Result<()> {
         let mut sink =
             ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?;
         let mut source = source.echoing(sink.echo());
-        let mut collector = Collector::new(&cli.id, index, &config).with_incarnation(incarnation);
+        let mut collector = Collector::new(&cli.id, index, &config)
+            .context("the run's track (sim.track)")?
+            .with_incarnation(incarnation);
         if let Some(journal) = &journal {
             collector = collector.with_tally(journal::tally(journal.clone()));
         }

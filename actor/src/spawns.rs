@@ -96,12 +96,11 @@ pub fn draw_spawns_from(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cabc_proto::config::TrackKind;
 
     /// The spawns lie within their ranges; a seed gives one draw, another seed another.
     #[test]
     fn spawns_lie_within_their_ranges() {
-        let track = Track::from_kind(TrackKind::default());
+        let track = Track::l_track_barc();
         let ranges = SpawnRanges::default();
         let spawns = draw_spawns(&track, 200, 7, &ranges);
         assert_eq!(spawns, draw_spawns(&track, 200, 7, &ranges));

@@ -85,7 +85,7 @@ fn collect_epochs(
         );
         assert_eq!(collector.staged(), staged);
     }
-    let halves = Collector::new("golden", 1, config).halves().len();
+    let halves = Collector::new("golden", 1, config).unwrap().halves().len();
     assert_eq!(halves, config.actors.envs_per_actor.min(2) as usize);
     assert_eq!(deferred.most_in_flight, halves, "each half in flight");
     assert_eq!(deferred.in_flight(), 0);
@@ -100,7 +100,7 @@ fn collect_in_halves(
     beta: f64,
     expert: &mut dyn ExpertClient,
 ) -> (Vec<Segment>, Collector) {
-    let mut collector = Collector::new("golden", 1, config);
+    let mut collector = Collector::new("golden", 1, config).unwrap();
     let mut out = Vec::new();
     for version in 0..epochs {
         collector.begin_epoch();
@@ -135,7 +135,7 @@ fn collect_whole_batches(
     beta: f64,
     fail_every: usize,
 ) -> (Vec<Segment>, u64) {
-    let mut collector = Collector::new("golden", 1, config);
+    let mut collector = Collector::new("golden", 1, config).unwrap();
     let (mut out, mut n) = (Vec::new(), 0usize);
     for version in 0..epochs {
         collector.begin_epoch();
@@ -410,7 +410,7 @@ fn the_shield_hands_the_steps_it_overrules_to_the_expert() {
     let run = |threshold: f64, nets: Option<&ShieldNets>| {
         let mut config = config.clone();
         config.collection.shield = threshold;
-        let mut collector = Collector::new("t", 0, &config);
+        let mut collector = Collector::new("t", 0, &config).unwrap();
         let mut expert = Pid {
             fail_every: usize::MAX,
             answered: 0,

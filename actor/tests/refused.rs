@@ -134,7 +134,7 @@ fn bad_updates_are_refused_counted_and_the_epoch_goes_on() {
         polls: 0,
     };
     let check = PolicyCheck::new(arch);
-    let mut collector = Collector::new("actor-0", 0, &config);
+    let mut collector = Collector::new("actor-0", 0, &config).unwrap();
     let mut sink = Count::default();
     let stats = run_actor(
         &mut collector,

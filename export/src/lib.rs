@@ -188,10 +188,13 @@ pub fn export(run: &Path, out: &Path) -> Result<ExportReport, ExportError> {
     std::fs::create_dir_all(&root).map_err(|e| ExportError::io(&root, e))?;
 
     let fps = (1.0 / cabc_sim::env::DT).round() as u32;
-    let track = cabc_sim::Track::from_kind(config.sim.track);
+    let track = cabc_sim::Track::of(&config.sim).map_err(|e| ExportError::NotARun {
+        path: run.to_path_buf(),
+        reason: format!("its track (sim.track): {e}"),
+    })?;
     let task = format!(
         "drive laps of {} ({:.2} m) without leaving it (|x_tran| <= {} m)",
-        config.sim.track.describe(),
+        track.describe(),
         track.length(),
         track.half_width()
     );

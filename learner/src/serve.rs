@@ -113,7 +113,7 @@ pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()>
         device = ?learner.device(),
         "learner up, actors in-process"
     );
-    let mut actors = LocalActors::new(learner.config(), expert, true)
+    let mut actors = LocalActors::new(learner.config(), expert, true)?
         .on_device(learner.device())
         .with_interrupt(interrupt);
     run_to_the_end(&mut learner, &mut actors).map(drop)

@@ -44,6 +44,8 @@ pub enum LearnerError {
     Sink(#[from] SinkError),
     #[error("{0}")]
     Checkpoint(String),
+    #[error("the track (sim.track): {0}")]
+    Track(#[from] cabc_sim::TrackError),
 }
 
 /// The access control's refusals so far, by "<subject>: <action> on <key>", as the side that knows the bus counts
@@ -107,6 +109,7 @@ impl Learner {
     ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
         let state = LearnerState::default();
+        let half_width = Track::of(&config.sim)?.half_width();
         Ok(Learner {
             trainer: Trainer::with_device(&config, device),
             replay: Replay::from_config(&config),
@@ -120,7 +123,7 @@ impl Learner {
             settled: Vec::new(),
             d_new: Vec::new(),
             expert_streams: HashSet::new(),
-            half_width: Track::half_width_of(config.sim.track),
+            half_width,
             config,
         })
     }

@@ -45,7 +45,7 @@ fn open(
 ) -> Result<Learner, LearnerError> {
     let folder = run_dir.path().to_path_buf();
     let mut sinks: Vec<Box<dyn Sink>> = vec![
-        Box::new(RunFolder::new(run_dir.clone(), &config)),
+        Box::new(RunFolder::new(run_dir.clone(), &config)?),
         Box::new(Tensorboard::new(&run_dir)),
         Box::new(Progress::new(config.run.max_epochs)),
     ];
@@ -75,15 +75,16 @@ pub struct RunFolder {
 }
 
 impl RunFolder {
-    pub fn new(run_dir: RunDir, config: &RunConfig) -> Self {
-        let track = Track::from_kind(config.sim.track);
-        RunFolder {
+    /// The run folder's outputs on the run's track; an error when the track (`sim.track`) cannot be built.
+    pub fn new(run_dir: RunDir, config: &RunConfig) -> Result<Self, cabc_sim::TrackError> {
+        let track = Track::of(&config.sim)?.as_ref().clone();
+        Ok(RunFolder {
             run_dir,
             eval_laps: config.collection.eval_laps,
             camera: CameraView::of(&config.observation, &track),
             track,
             history: History::default(),
-        }
+        })
     }
 
     fn tables_and_plots(&self) -> Result<(), SinkError> {
@@ -348,7 +349,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let run_dir = RunDir::create(dir.path()).unwrap();
         let config = RunConfig::load("smoke").unwrap();
-        let mut folder = RunFolder::new(run_dir.clone(), &config);
+        let mut folder = RunFolder::new(run_dir.clone(), &config).unwrap();
         let before = report(1, 0);
         folder.open(&History {
             rows: vec![record(0), record(1)],

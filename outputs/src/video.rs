@@ -50,12 +50,12 @@ impl Watched {
     /// The episode's video at `path` (`report` its evaluation, `config` its run's): the car's recorded poses on the
     /// run's track and, in a camera run, the camera's view under the episode's sun.
     pub fn gif(&self, path: &Path, config: &RunConfig, report: &EvalReport) -> Drawn {
-        let track = Track::from_kind(config.sim.track);
+        let track = Track::of(&config.sim)?;
         let mut view = CameraView::of(&config.observation, &track).map(|v| match self.sun {
             Some(sun) => v.under(sun),
             None => v,
         });
-        gif(path, &track, report, &self.poses, view.as_mut())
+        gif(path, track.as_ref(), report, &self.poses, view.as_mut())
     }
 }
 
@@ -317,7 +317,7 @@ mod tests {
     #[test]
     fn a_camera_runs_video_shows_the_view_beside_the_track() {
         let config = RunConfig::load("smoke-camera").unwrap();
-        let track = Track::from_kind(config.sim.track);
+        let track = Track::of(&config.sim).unwrap();
         let view = CameraView::of(&config.observation, &track).expect("a camera run");
         let smoke = RunConfig::load("smoke").unwrap();
         assert!(CameraView::of(&smoke.observation, &track).is_none());

@@ -30,7 +30,7 @@ fn live_run(dir: &Path) {
     let mut config = RunConfig::load("smoke").unwrap();
     config.collection.eval_laps = 3;
     let run_dir = RunDir::prepare(&config, Some(dir.to_path_buf()), true).unwrap();
-    let mut folder = RunFolder::new(run_dir, &config);
+    let mut folder = RunFolder::new(run_dir, &config).unwrap();
     folder.open(&History::default());
     let expert = [4.8, 4.9, 4.75];
     for seconds in expert {

@@ -18,7 +18,7 @@ pub use actors::ActorCount;
 pub use choices::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction,
-    TrackKind, Velocity, VisionTrunk,
+    Velocity, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};
 
@@ -134,6 +134,7 @@ impl RunConfig {
         })?;
         let mut config = Self::from_toml(&text, &path.display().to_string())?;
         let folder = path.parent().filter(|p| !p.as_os_str().is_empty());
+        config.sim.resolve(folder.unwrap_or(Path::new(".")));
         let security = &mut config.bus.security;
         let (actors, evaluators) = (config.actors.count, config.actors.evaluators);
         security.resolve(actors, evaluators, Some(folder.unwrap_or(Path::new("."))));

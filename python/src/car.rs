@@ -7,7 +7,7 @@ use std::sync::{Arc, OnceLock};
 use cabc_proto::messages::{image_bytes, EndReason};
 use cabc_sim::camera::{Camera, TrackLookup, REFERENCE_FOV_DEG, REFERENCE_SIZE};
 use cabc_sim::track::Pose;
-use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, TrackKind, Truncation};
+use cabc_sim::{Env, EnvConfig, EnvObservation, Input, Spawn, Track, Truncation};
 use pyo3::exceptions::PyValueError;
 use pyo3::PyResult;
 use rand_chacha::ChaCha8Rng;
@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 /// MPCC expert (`Mpcc::reference`).
 pub fn track() -> &'static Arc<Track> {
     static TRACK: OnceLock<Arc<Track>> = OnceLock::new();
-    TRACK.get_or_init(|| Arc::new(Track::from_kind(TrackKind::default())))
+    TRACK.get_or_init(|| Arc::new(Track::l_track_barc()))
 }
 
 /// The camera's distance grid of the track, built on the first camera's first frame and shared.

@@ -107,6 +107,8 @@ impl Default for RobustOptions {
 
 #[derive(thiserror::Error, Debug)]
 pub enum RobustError {
+    #[error("the track (sim.track): {0}")]
+    Track(#[from] cabc_sim::TrackError),
     #[error("--{flag}: {message}")]
     Flag { flag: &'static str, message: String },
     #[error("spawn {spawn} at noise level {level}: {message}")]
@@ -341,7 +343,7 @@ pub fn study(
     policy: &str,
     mut act: impl FnMut(&Observations) -> anyhow::Result<Vec<[f32; 2]>>,
 ) -> Result<RobustReport, RobustError> {
-    let track = Track::from_kind(config.sim.track);
+    let track = Track::of(&config.sim)?;
     let spawns = draw_spawns(&track, settings.spawns, settings.seed, &settings.spawn);
     let mut levels = Vec::with_capacity(settings.levels.len());
     for &level in &settings.levels {
@@ -515,6 +517,6 @@ pub fn study_policy_file(
     })?;
     let json = write(out.join("robust.json"), (text + "\n").into_bytes())?;
     let png = out.join("robust.png");
-    figure::draw(&png, &Track::from_kind(config.sim.track), &report)?;
+    figure::draw(&png, Track::of(&config.sim)?.as_ref(), &report)?;
     Ok(Written { report, json, png })
 }

@@ -1,6 +1,7 @@
 //! A deterministic CPU renderer of the first-person camera (simulator.md §4).
 //!
-//! Scene (the reference's CARLA world, minus CARLA): a road surface 1.4 m wide (|x_tran| ≤ 0.70), walls
+//! Scene (the reference's CARLA world, minus CARLA): a road surface 0.15 m wider than the constraint on each side
+//! (|x_tran| ≤ 0.70 on the L-track), walls
 //! 0.2 m high and [`WALL_THICKNESS`] thick at its edges, a flat ground plane outside and a sky. No road
 //! marks, no texture, nothing that localises the car. The camera sits 0.2 m above the CoM at (X, Y, ψ),
 //! looks horizontally forward, horizontal FOV (110° in the reference), pinhole, one ray per pixel centre.
@@ -24,8 +25,10 @@ use rayon::prelude::*;
 
 use crate::track::{Pose, Track};
 
-/// Road half-width as rendered (0.55 constraint + 0.15), m.
-pub const ROAD_HALF_WIDTH: f64 = 0.70;
+/// The road as rendered is wider than the constraint by this much on each side (m): 0.70 m on the L-track's 0.55.
+pub const ROAD_MARGIN: f64 = 0.15;
+/// The most cells a [`TrackLookup`] holds (160 MB); a larger track's grid is coarser.
+const LOOKUP_MAX_CELLS: f64 = 40e6;
 /// Wall height (CARLA `wall_height`), m.
 pub const WALL_HEIGHT: f64 = 0.2;
 /// Wall thickness, m (not given by the reference; CARLA's walls are thin).
@@ -141,10 +144,13 @@ pub struct TrackLookup {
     nx: usize,
     ny: usize,
     dist: Vec<f32>,
+    /// The road's half-width as rendered: the track's constraint plus [`ROAD_MARGIN`].
+    road: f64,
 }
 
 impl TrackLookup {
-    /// Grid with cell size `res` (m) covering the centreline bounds plus a 1.2 m margin.
+    /// Grid with cell size `res` (m) covering the centreline bounds plus a margin of the road and 0.5 m (1.2 m on
+    /// the L-track); coarser where that would be more than [`LOOKUP_MAX_CELLS`] cells.
     pub fn new(track: &Track, res: f64) -> TrackLookup {
         let res = if res.is_finite() && res > 1e-3 {
             res
@@ -152,20 +158,21 @@ impl TrackLookup {
             0.01
         };
         let (bx0, by0, bx1, by1) = track.centreline_bounds();
-        let margin = 1.2;
+        let road = track.half_width() + ROAD_MARGIN;
+        // The L-track's 1.2 m, or the road and 0.5 m where that is more.
+        let margin = if road + 0.5 > 1.2 + 1e-9 {
+            road + 0.5
+        } else {
+            1.2
+        };
+        let cells = (bx1 - bx0 + 2.0 * margin) * (by1 - by0 + 2.0 * margin) / (res * res);
+        let res = res * (cells / LOOKUP_MAX_CELLS).sqrt().max(1.0);
         // Origin on a multiple of `res` so that the grid is symmetric about the axes through the start.
         let x0 = ((bx0 - margin) / res).floor() * res;
         let y0 = ((by0 - margin) / res).floor() * res;
         let nx = ((bx1 + margin - x0) / res).ceil() as usize + 1;
         let ny = ((by1 + margin - y0) / res).ceil() as usize + 1;
-        let mut dist = Vec::with_capacity(nx * ny);
-        for iy in 0..ny {
-            let y = y0 + (iy as f64 + 0.5) * res;
-            for ix in 0..nx {
-                let x = x0 + (ix as f64 + 0.5) * res;
-                dist.push(track.distance_to_centreline(x, y).min(10.0) as f32);
-            }
-        }
+        let dist = track.distance_field(x0, y0, res, nx, ny, 10.0);
         TrackLookup {
             x0,
             y0,
@@ -173,6 +180,7 @@ impl TrackLookup {
             nx,
             ny,
             dist,
+            road,
         }
     }
 
@@ -199,7 +207,7 @@ impl TrackLookup {
     /// the ray first enters a wall, if it does.
     #[inline]
     fn trace_wall(&self, x: f64, y: f64, dx: f64, dy: f64, max_t: f64) -> Option<f64> {
-        let (inner, outer) = (ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + WALL_THICKNESS);
+        let (inner, outer) = (self.road, self.road + WALL_THICKNESS);
         let min_step = 0.5 * self.res;
         let mut t = 0.0;
         while t <= max_t {
@@ -465,17 +473,18 @@ impl Scene {
         }
         let (gx, gy) = (self.pose.x + g * column.dx, self.pose.y + g * column.dy);
         let d = lookup.distance(gx, gy);
-        let on_wall_top = !(d <= ROAD_HALF_WIDTH || d > ROAD_HALF_WIDTH + WALL_THICKNESS);
+        let road = lookup.road;
+        let on_wall_top = !(d <= road || d > road + WALL_THICKNESS);
         if on_wall_top {
             return self.wall_top;
         }
-        let near_wall = d <= ROAD_HALF_WIDTH + WALL_THICKNESS + self.shadow_len;
+        let near_wall = d <= road + WALL_THICKNESS + self.shadow_len;
         let shadowed = near_wall
             && (self.sun[2] <= 0.0
                 || lookup
                     .trace_wall(gx, gy, self.sun_dx, self.sun_dy, self.shadow_len)
                     .is_some());
-        match (d <= ROAD_HALF_WIDTH, shadowed) {
+        match (d <= road, shadowed) {
             (true, false) => self.road_lit,
             (true, true) => self.road_dark,
             (false, false) => self.ground_lit,

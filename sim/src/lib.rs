@@ -21,5 +21,5 @@ pub use env::{
     FIXED_SPAWN_SPEED,
 };
 pub use pid::PidLaneFollower;
-pub use track::{Frenet, Pose, Track, TrackError, TrackKind, TrackPiece};
+pub use track::{Frenet, Pose, Track, TrackError, TrackPiece};
 pub use vehicle::{clip_action, Input, State, VehicleParams, ACTION_HIGH, ACTION_LOW};

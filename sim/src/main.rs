@@ -6,9 +6,10 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use cabc_proto::config::RunConfig;
+use cabc_proto::config::SimSection;
 use cabc_sim::camera::{Camera, Sun, REFERENCE_FOV_DEG};
 use cabc_sim::rollout::{parse_size, parse_sun, rollout, RolloutOptions};
-use cabc_sim::{bench, map, trace, Track, TrackKind};
+use cabc_sim::{bench, map, trace, Track};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -82,16 +83,15 @@ fn main() -> Result<()> {
     // Write through a handle so a closed pipe is an error, not a panic.
     let mut out = std::io::stdout().lock();
     let cli = Cli::parse();
-    let kind = match &cli.config {
+    let sim = match &cli.config {
         Some(name) => {
             RunConfig::load(name)
                 .with_context(|| format!("loading configuration {name}"))?
                 .sim
-                .track
         }
-        None => TrackKind::default(),
+        None => SimSection::default(),
     };
-    let track = Track::from_kind(kind);
+    let track = Track::of(&sim)?.as_ref().clone();
     match cli.cmd {
         Cmd::Rollout { opts, json, trace } => {
             let summary = rollout(&opts, Arc::new(track), trace.as_deref())?;

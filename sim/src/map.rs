@@ -46,11 +46,13 @@ pub fn render_track(track: &Track, px_per_m: f64, trace: &[(f64, f64)]) -> Frame
     let mut img = Frame::new(width, height);
     let (h, band) = (track.half_width(), track.band());
     let line = 0.8 / px_per_m; // half line width, m
+                               // Rows from the bottom (y0 up), as the field holds them; the image's row j is the field's row height-1-j.
+    let res = 1.0 / px_per_m;
+    let y0 = view.y1 - height as f64 * res;
+    let field = track.distance_field(view.x0, y0, res, width, height, f64::INFINITY);
     for j in 0..height {
         for i in 0..width {
-            let x = view.x0 + (i as f64 + 0.5) / px_per_m;
-            let y = view.y1 - (j as f64 + 0.5) / px_per_m;
-            let d = track.distance_to_centreline(x, y);
+            let d = field[(height - 1 - j) * width + i] as f64;
             let c = if d < line {
                 CENTRELINE
             } else if (d - h).abs() < line {

@@ -6,8 +6,16 @@
 //! `local_to_global` and the analytic first-match `global_to_local`), so a round trip is exact to rounding.
 
 use std::f64::consts::{FRAC_PI_2, PI};
+use std::sync::Arc;
 
-pub use cabc_proto::config::TrackKind;
+mod fit;
+mod index;
+pub mod load;
+pub use fit::PIECE_LENGTH;
+pub use load::{car_min_radius, L_TRACK_BARC};
+
+/// The Frenet band's slack beyond the constraint (m): the L-track's, and a file's unless it says otherwise.
+pub const SLACK: f64 = 0.3;
 
 /// One piece of centreline: `length` of arc (m) and signed `radius` (m); 0 = straight, > 0 = left (CCW).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -46,6 +54,15 @@ pub enum TrackError {
     InvalidWidth { half_width: f64, slack: f64 },
     #[error("the centreline does not close: the end is {gap:.3e} m from the start")]
     NotClosed { gap: f64 },
+    /// A track file that cannot be a track: the file, the line nearest the fault where there is one, and why.
+    #[error("{file}{}: {why}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    File {
+        file: String,
+        line: Option<usize>,
+        why: String,
+    },
+    #[error("no track named `{name}`: a track is one of {names}, or a file (.csv: an F1TENTH centre line; .toml: pieces)")]
+    UnknownTrack { name: String, names: String },
 }
 
 /// One row of the reference's `key_pts`: the pose at the end of a track piece, its cumulative arc length and
@@ -63,20 +80,20 @@ struct KeyPoint {
 
 /// The circle of an arc piece that starts at `start` with curvature `curvature` (non-zero): its centre, its
 /// radius, its turning direction (1 left, -1 right) and the heading from the start to the centre (not wrapped).
-struct Arc {
+struct Circle {
     centre: (f64, f64),
     radius: f64,
     dir: f64,
     normal: f64,
 }
 
-impl Arc {
-    fn of(start: &KeyPoint, curvature: f64) -> Arc {
+impl Circle {
+    fn of(start: &KeyPoint, curvature: f64) -> Circle {
         let r = 1.0 / curvature;
         let dir = if r >= 0.0 { 1.0 } else { -1.0 };
         let radius = r.abs();
         let normal = start.psi + dir * FRAC_PI_2;
-        Arc {
+        Circle {
             centre: (
                 start.x + radius * normal.cos(),
                 start.y + radius * normal.sin(),
@@ -102,6 +119,10 @@ pub struct Track {
     key: Vec<KeyPoint>,
     length: f64,
     start_line: [(f64, f64); 2],
+    /// The track in words (reports, dataset descriptions).
+    description: String,
+    /// Which pieces may hold a point, by grid cell: for tracks of many pieces (a fitted centre line).
+    index: Option<Arc<index::Grid>>,
 }
 
 /// The reference's `wrap_angle`: one ±2π correction into [-π, π].
@@ -154,20 +175,48 @@ fn sign(v: f64) -> f64 {
 /// `L_track_barc`'s half-width (m): the constraint |x_tran| <= 0.55 m.
 const L_TRACK_BARC_HALF_WIDTH: f64 = 0.55;
 
+/// Tracks of more pieces than this find a point's piece through a grid ([`index::Grid`]); the L-track's nine are
+/// searched in order, as the reference does.
+const INDEXED_ABOVE: usize = 16;
+
 impl Track {
-    /// The track a run's configuration names (`sim.track`); [`TrackKind::default`] is [`Track::l_track_barc`].
-    pub fn from_kind(kind: TrackKind) -> Track {
-        match kind {
-            TrackKind::LTrackBarc => Track::l_track_barc(),
+    /// The track a run's configuration names (`sim.track`, `sim.track_scale`): built once per process and shared.
+    pub fn of(sim: &cabc_proto::config::SimSection) -> Result<Arc<Track>, TrackError> {
+        type Built = std::sync::Mutex<Vec<((String, [u64; 2]), Arc<Track>)>>;
+        static BUILT: std::sync::OnceLock<Built> = std::sync::OnceLock::new();
+        let size = load::Size::of(sim);
+        let key = (
+            sim.track.clone(),
+            [
+                size.scale.to_bits(),
+                size.half_width.map_or(0, f64::to_bits),
+            ],
+        );
+        let built = BUILT.get_or_init(Default::default);
+        if let Some((_, t)) = built
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(k, _)| *k == key)
+        {
+            return Ok(t.clone());
         }
+        let track = Arc::new(load::load(&sim.track, size)?);
+        built
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((key, track.clone()));
+        Ok(track)
     }
 
-    /// The half-width (m) of the track `kind` names, without building it: [`Track::half_width`] of
-    /// [`Track::from_kind`].
-    pub fn half_width_of(kind: TrackKind) -> f64 {
-        match kind {
-            TrackKind::LTrackBarc => L_TRACK_BARC_HALF_WIDTH,
-        }
+    /// The track in words: "the L-shaped BARC track", or its file and scale.
+    pub fn describe(&self) -> &str {
+        &self.description
+    }
+
+    pub(crate) fn described(mut self, description: String) -> Track {
+        self.description = description;
+        self
     }
 
     /// The paper's `L_track_barc` (simulator.md §2.1): nine pieces to the npz's full precision,
@@ -213,8 +262,9 @@ impl Track {
                 radius: 0.0,
             },
         ];
-        Track::new(pieces, L_TRACK_BARC_HALF_WIDTH, 0.3)
+        Track::new(pieces, L_TRACK_BARC_HALF_WIDTH, SLACK)
             .expect("L_track_barc is a valid closed track")
+            .described("the L-shaped BARC track".into())
     }
 
     /// Build a track from pieces starting at pose (0, 0, 0). Fails if a piece is degenerate, an arc is
@@ -292,7 +342,12 @@ impl Track {
             key,
             length,
             start_line: [(0.0, 0.0); 2],
+            description: "a track of pieces".into(),
+            index: None,
         };
+        if track.pieces.len() > INDEXED_ABOVE {
+            track.index = Some(Arc::new(index::Grid::new(&track)));
+        }
         let a = track.local_to_global(0.0, half_width, 0.0);
         let b = track.local_to_global(0.0, -half_width, 0.0);
         track.start_line = [(a.x, a.y), (b.x, b.y)];
@@ -359,10 +414,7 @@ impl Track {
         }
         // Last key point with cum_s <= s (among the piece starts 0..n-1).
         let n = self.pieces.len();
-        let mut i = 0;
-        while i + 1 < n && self.key[i + 1].cum_s <= s {
-            i += 1;
-        }
+        let i = self.key[1..n].partition_point(|k| k.cum_s <= s);
         let (ki, kf) = (self.key[i], self.key[i + 1]);
         let d = s - ki.cum_s;
         if kf.curvature == 0.0 {
@@ -373,7 +425,7 @@ impl Track {
                 psi: wrap(kf.psi + e_psi),
             }
         } else {
-            let arc = Arc::of(&ki, kf.curvature);
+            let arc = Circle::of(&ki, kf.curvature);
             let (dir, ar, (cx, cy)) = (arc.dir, arc.radius, arc.centre);
             let span = d / ar;
             let psi_d = wrap(ki.psi + dir * span);
@@ -393,58 +445,64 @@ impl Track {
     /// the band. ψ may be unwrapped (any multiple of 2π); `e_psi` comes back in [-π, π].
     pub fn global_to_local(&self, x: f64, y: f64, psi: f64) -> Result<Frenet, TrackError> {
         let band = self.band();
+        let found = match &self.index {
+            None => (1..self.key.len()).find_map(|i| self.in_piece(i, x, y, psi, band)),
+            Some(grid) => grid
+                .candidates(x, y)
+                .iter()
+                .find_map(|&i| self.in_piece(i as usize, x, y, psi, band)),
+        };
+        found.ok_or(TrackError::OutOfBand { x, y, band })
+    }
+
+    /// The Frenet coordinates of (x, y, ψ) in piece `i` (from key point i − 1 to i), if its region holds the
+    /// point within `band`.
+    fn in_piece(&self, i: usize, x: f64, y: f64, psi: f64, band: f64) -> Option<Frenet> {
         let p = (x, y);
-        for i in 1..self.key.len() {
-            let (k0, k1) = (self.key[i - 1], self.key[i]);
-            let p0 = (k0.x, k0.y);
-            let p1 = (k1.x, k1.y);
-            if p == p0 {
-                return Ok(Frenet {
-                    s: k0.cum_s,
-                    x_tran: 0.0,
-                    e_psi: unwrap_diff(k0.psi, psi),
-                });
-            }
-            if p == p1 {
-                return Ok(Frenet {
-                    s: k1.cum_s,
-                    x_tran: 0.0,
-                    e_psi: unwrap_diff(k1.psi, psi),
-                });
-            }
-            if k1.curvature == 0.0 {
-                if angle(p0, p, p1).abs() > FRAC_PI_2 || angle(p1, p, p0).abs() > FRAC_PI_2 {
-                    continue;
-                }
-                let a = angle(p0, p1, p);
-                let dist = (x - p0.0).hypot(y - p0.1);
-                let e_y = dist * a.sin();
-                if e_y.abs() <= band {
-                    return Ok(Frenet {
-                        s: k0.cum_s + dist * a.cos(),
-                        x_tran: e_y,
-                        e_psi: unwrap_diff(k0.psi, psi),
-                    });
-                }
-            } else {
-                let arc = Arc::of(&k0, k1.curvature);
-                let (dir, ar, c) = (arc.dir, arc.radius, arc.centre);
-                let span = arc.span(k1.len);
-                let cur = angle(c, p0, p);
-                if sign(span) != sign(cur) || span.abs() < cur.abs() {
-                    continue;
-                }
-                let e_y = -dir * ((x - c.0).hypot(y - c.1) - ar);
-                if e_y.abs() <= band {
-                    return Ok(Frenet {
-                        s: k0.cum_s + cur.abs() * ar,
-                        x_tran: e_y,
-                        e_psi: unwrap_diff(k0.psi + cur, psi),
-                    });
-                }
-            }
+        let (k0, k1) = (self.key[i - 1], self.key[i]);
+        let p0 = (k0.x, k0.y);
+        let p1 = (k1.x, k1.y);
+        if p == p0 {
+            return Some(Frenet {
+                s: k0.cum_s,
+                x_tran: 0.0,
+                e_psi: unwrap_diff(k0.psi, psi),
+            });
         }
-        Err(TrackError::OutOfBand { x, y, band })
+        if p == p1 {
+            return Some(Frenet {
+                s: k1.cum_s,
+                x_tran: 0.0,
+                e_psi: unwrap_diff(k1.psi, psi),
+            });
+        }
+        if k1.curvature == 0.0 {
+            if angle(p0, p, p1).abs() > FRAC_PI_2 || angle(p1, p, p0).abs() > FRAC_PI_2 {
+                return None;
+            }
+            let a = angle(p0, p1, p);
+            let dist = (x - p0.0).hypot(y - p0.1);
+            let e_y = dist * a.sin();
+            (e_y.abs() <= band).then(|| Frenet {
+                s: k0.cum_s + dist * a.cos(),
+                x_tran: e_y,
+                e_psi: unwrap_diff(k0.psi, psi),
+            })
+        } else {
+            let arc = Circle::of(&k0, k1.curvature);
+            let (dir, ar, c) = (arc.dir, arc.radius, arc.centre);
+            let span = arc.span(k1.len);
+            let cur = angle(c, p0, p);
+            if sign(span) != sign(cur) || span.abs() < cur.abs() {
+                return None;
+            }
+            let e_y = -dir * ((x - c.0).hypot(y - c.1) - ar);
+            (e_y.abs() <= band).then(|| Frenet {
+                s: k0.cum_s + cur.abs() * ar,
+                x_tran: e_y,
+                e_psi: unwrap_diff(k0.psi + cur, psi),
+            })
+        }
     }
 
     /// Whether the motion segment old → new intersects the start line (orientation test, collinear
@@ -465,7 +523,7 @@ impl Track {
                 let t = (((x - k0.x) * dx + (y - k0.y) * dy) / l2).clamp(0.0, 1.0);
                 (x - k0.x - t * dx).hypot(y - k0.y - t * dy)
             } else {
-                let arc = Arc::of(&k0, k1.curvature);
+                let arc = Circle::of(&k0, k1.curvature);
                 let (ar, c) = (arc.radius, arc.centre);
                 let span = arc.span(k1.len);
                 let cur = angle(c, (k0.x, k0.y), (x, y));
@@ -485,6 +543,79 @@ impl Track {
         best
     }
 
+    /// Where the track comes back near itself: two points of the centreline, at least π·band apart along it,
+    /// closer than twice the band (their bands would overlap, and a point there would have two Frenet frames), as
+    /// their arc lengths; None for a track whose parts keep apart. A curve of radius above the band never brings
+    /// two of its own points that close.
+    pub fn comes_back_near(&self) -> Option<(f64, f64)> {
+        let band = self.band();
+        let n = ((self.length / (0.25 * band)).ceil() as usize).max(8);
+        let s: Vec<f64> = (0..n).map(|i| self.length * i as f64 / n as f64).collect();
+        let p: Vec<Pose> = s
+            .iter()
+            .map(|&si| self.local_to_global(si, 0.0, 0.0))
+            .collect();
+        let (apart, near) = (PI * band, 2.0 * band * (1.0 - 1e-9));
+        for i in 0..n {
+            for j in i + 1..n {
+                let along = (s[j] - s[i]).min(self.length - (s[j] - s[i]));
+                if along >= apart && (p[i].x - p[j].x).hypot(p[i].y - p[j].y) < near {
+                    return Some((s[i], s[j]));
+                }
+            }
+        }
+        None
+    }
+
+    /// The distance to the centreline at the centres of `nx` x `ny` cells of side `res` from (x0, y0) (row-major,
+    /// rows along y), at most `cap`. Exact for a track of a few pieces (the L-track); for one of many pieces, exact
+    /// within the band (|x_tran|) and beyond it the band plus the distance to the nearest cell inside, to within
+    /// a cell.
+    pub fn distance_field(
+        &self,
+        x0: f64,
+        y0: f64,
+        res: f64,
+        nx: usize,
+        ny: usize,
+        cap: f64,
+    ) -> Vec<f32> {
+        use rayon::prelude::*;
+        let centre =
+            |ix: usize, iy: usize| (x0 + (ix as f64 + 0.5) * res, y0 + (iy as f64 + 0.5) * res);
+        if self.index.is_none() {
+            let mut dist = Vec::with_capacity(nx * ny);
+            for iy in 0..ny {
+                for ix in 0..nx {
+                    let (x, y) = centre(ix, iy);
+                    dist.push(self.distance_to_centreline(x, y).min(cap) as f32);
+                }
+            }
+            return dist;
+        }
+        let inside: Vec<Option<f64>> = (0..nx * ny)
+            .into_par_iter()
+            .map(|k| {
+                let (x, y) = centre(k % nx, k / nx);
+                self.global_to_local(x, y, 0.0).ok().map(|f| f.x_tran.abs())
+            })
+            .collect();
+        let squared: Vec<f64> = inside
+            .iter()
+            .map(|d| if d.is_some() { 0.0 } else { f64::INFINITY })
+            .collect();
+        let cells = squared_distance_transform(squared, nx, ny);
+        let band = self.band();
+        inside
+            .iter()
+            .zip(&cells)
+            .map(|(d, c)| match d {
+                Some(d) => d.min(cap) as f32,
+                None => (band + (c.sqrt() - 0.5).max(0.0) * res).min(cap) as f32,
+            })
+            .collect()
+    }
+
     /// Axis-aligned bounding box of the centreline sampled every ~1 cm: (x_min, y_min, x_max, y_max).
     pub fn centreline_bounds(&self) -> (f64, f64, f64, f64) {
         let n = (self.length / 0.01).ceil() as usize;
@@ -500,6 +631,72 @@ impl Track {
         }
         b
     }
+}
+
+/// The squared Euclidean distance (in cells) from each cell to the nearest cell of value 0 (Felzenszwalb and
+/// Huttenlocher's transform: columns, then rows).
+fn squared_distance_transform(mut f: Vec<f64>, nx: usize, ny: usize) -> Vec<f64> {
+    let mut line = Vec::new();
+    for ix in 0..nx {
+        line.clear();
+        line.extend((0..ny).map(|iy| f[iy * nx + ix]));
+        let out = transform_1d(&line);
+        for (iy, v) in out.into_iter().enumerate() {
+            f[iy * nx + ix] = v;
+        }
+    }
+    for iy in 0..ny {
+        let out = transform_1d(&f[iy * nx..(iy + 1) * nx]);
+        f[iy * nx..(iy + 1) * nx].copy_from_slice(&out);
+    }
+    f
+}
+
+/// The 1-D squared distance transform of a sampled function (lower envelope of parabolas).
+fn transform_1d(f: &[f64]) -> Vec<f64> {
+    let n = f.len();
+    let mut d = vec![f64::INFINITY; n];
+    let finite: Vec<usize> = (0..n).filter(|&q| f[q].is_finite()).collect();
+    if finite.is_empty() {
+        return d;
+    }
+    let (mut v, mut z) = (Vec::with_capacity(n), Vec::with_capacity(n + 1));
+    v.push(finite[0]);
+    z.push(f64::NEG_INFINITY);
+    z.push(f64::INFINITY);
+    for &q in &finite[1..] {
+        loop {
+            let p = v[v.len() - 1];
+            let s =
+                ((f[q] + (q * q) as f64) - (f[p] + (p * p) as f64)) / (2.0 * (q as f64 - p as f64));
+            if s <= z[z.len() - 2] && v.len() > 1 {
+                v.pop();
+                z.pop();
+                continue;
+            }
+            if s <= z[z.len() - 2] {
+                // One parabola left and it is dominated: replace it.
+                v[0] = q;
+                let last = z.len() - 1;
+                z[last] = f64::INFINITY;
+                break;
+            }
+            let last = z.len() - 1;
+            z[last] = s;
+            v.push(q);
+            z.push(f64::INFINITY);
+            break;
+        }
+    }
+    let mut k = 0;
+    for (q, dq) in d.iter_mut().enumerate() {
+        while z[k + 1] < q as f64 {
+            k += 1;
+        }
+        let p = v[k];
+        *dq = (q as f64 - p as f64).powi(2) + f[p];
+    }
+    d
 }
 
 /// Orientation of the triple (p, q, r): 0 collinear, 1 clockwise, 2 counter-clockwise.
@@ -537,12 +734,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_half_width_of_a_kind_is_its_tracks() {
-        let kind = TrackKind::LTrackBarc;
-        assert_eq!(
-            Track::half_width_of(kind),
-            Track::from_kind(kind).half_width()
-        );
+    fn the_default_sim_section_is_the_l_track_with_its_pieces_searched_in_order() {
+        let t = Track::of(&cabc_proto::config::SimSection::default()).unwrap();
+        assert_eq!(t.pieces(), Track::l_track_barc().pieces());
+        assert_eq!(t.describe(), "the L-shaped BARC track");
+        assert!(t.index.is_none());
     }
 
     #[test]

@@ -22,7 +22,7 @@ fn run(config: &RunConfig, dir: &std::path::Path) -> (Learner, Ending) {
         config.expert.max_streams,
         config.expert.max_batch,
     );
-    let mut actors = LocalActors::new(config, expert, true);
+    let mut actors = LocalActors::new(config, expert, true).unwrap();
     let run_dir = RunDir::create(dir).unwrap();
     let mut learner = cabc_outputs::learner(config.clone(), run_dir, false).unwrap();
     let ending = algorithm::run(&mut learner, &mut actors).unwrap();
@@ -229,7 +229,7 @@ fn a_resumed_in_process_run_stores_what_it_collects() {
         config.expert.max_streams,
         config.expert.max_batch,
     );
-    let mut actors = LocalActors::new(&config, expert, true);
+    let mut actors = LocalActors::new(&config, expert, true).unwrap();
     let run_dir = RunDir::create(tmp.path()).unwrap();
     let mut learner = cabc_outputs::learner(config.clone(), run_dir, true).unwrap();
     assert_eq!(learner.next_epoch(), 2);

@@ -39,7 +39,7 @@ const BETA: f64 = 0.7;
 
 fn whole_batches() -> Vec<Segment> {
     let mut expert = relabeller();
-    let mut collector = Collector::new("a", 0, &config());
+    let mut collector = Collector::new("a", 0, &config()).unwrap();
     let mut out = Vec::new();
     for version in 0..2 {
         collector.begin_epoch();
@@ -55,7 +55,7 @@ fn whole_batches() -> Vec<Segment> {
 }
 
 fn halves(expert: &mut dyn ExpertClient) -> Vec<Segment> {
-    let mut collector = Collector::new("a", 0, &config());
+    let mut collector = Collector::new("a", 0, &config()).unwrap();
     let mut out = Vec::new();
     for version in 0..2 {
         collector.begin_epoch();

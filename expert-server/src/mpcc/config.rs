@@ -79,6 +79,9 @@ pub struct MpccConfig {
     pub track_tightening: f64,
     /// Number of spline sample points along the track (100, including both ends).
     pub spline_points: usize,
+    /// The most arc length between two spline points (m): a track longer than the L-track gets more points, at
+    /// the L-track's density (0.2 m; its 100 points are 0.176 m apart).
+    pub max_spline_spacing: f64,
 
     /// State scaling T_x⁻¹ (physical = scale × scaled) for (v_x, v_y, ω, X, Y, ψ); s uses ⌈L⌉.
     pub state_scale: [f64; 6],
@@ -151,6 +154,7 @@ impl Default for MpccConfig {
             rate_bound: [40.0, 4.5, 5.0],
             track_tightening: 0.1,
             spline_points: 100,
+            max_spline_spacing: 0.2,
             state_scale: [4.0, 2.0, 7.0, 6.0, 6.0, 2.0 * std::f64::consts::PI],
             input_scale: [2.0, 0.436, 4.5],
             qp_iters: 2,

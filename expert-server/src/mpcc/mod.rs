@@ -91,6 +91,8 @@ pub enum MpccError {
     NonFinite(State),
     #[error("measured state is off the track: {0}")]
     OffTrack(#[from] TrackError),
+    #[error("the track (sim.track): {0}")]
+    Track(TrackError),
 }
 
 /// The controller: track splines, model and configuration. Immutable, `Send + Sync`; one per process is enough.
@@ -207,10 +209,19 @@ impl Mpcc {
                 "ldl = faer needs cabc-expert's `faer` feature (Clarabel's faer back end)".into(),
             ));
         }
+        if !(cfg.max_spline_spacing > 0.0 && cfg.max_spline_spacing.is_finite()) {
+            return Err(MpccError::Config(
+                "max_spline_spacing must be a positive number".into(),
+            ));
+        }
         if cfg.spline_points < 4 {
             return Err(MpccError::Config("spline_points must be at least 4".into()));
         }
-        let splines = TrackSplines::new(&track, cfg.spline_points, cfg.track_tightening)?;
+        // A longer track than the L-track keeps the L-track's density of spline points.
+        let points = cfg
+            .spline_points
+            .max((track.length() / cfg.max_spline_spacing).ceil() as usize + 1);
+        let splines = TrackSplines::new(&track, points, cfg.track_tightening)?;
         let layout = QpLayout::new(&cfg, track.length());
         let lean = cfg
             .lazy_state_boxes
@@ -239,11 +250,8 @@ impl Mpcc {
             lazy_state_boxes: config.expert.mpcc_lazy_boxes,
             ..MpccConfig::default()
         };
-        Self::new(
-            Track::from_kind(config.sim.track),
-            VehicleParams::default(),
-            cfg,
-        )
+        let track = Track::of(&config.sim).map_err(MpccError::Track)?;
+        Self::new(track.as_ref().clone(), VehicleParams::default(), cfg)
     }
 
     /// The reference controller on `L_track_barc` with the reference vehicle: the default configuration's expert.

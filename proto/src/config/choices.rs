@@ -231,22 +231,3 @@ pub enum ClipScope {
     /// clip factor then also counts their last fit's gradient and what L_safety accumulates into them.
     PolicyCriticDynamics,
 }
-
-/// The track the plant drives (`sim.track`): the simulator's, the expert's and the plots'. Built by
-/// `cabc_sim::Track::from_kind`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum TrackKind {
-    /// The paper's `L_track_barc` (simulator.md §2.1): the L-shaped BARC track, half-width 0.55 m.
-    #[default]
-    LTrackBarc,
-}
-
-impl TrackKind {
-    /// The track in words, for reports and dataset descriptions.
-    pub fn describe(self) -> &'static str {
-        match self {
-            TrackKind::LTrackBarc => "the L-shaped BARC track",
-        }
-    }
-}

@@ -3,7 +3,7 @@
 use super::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn,
-    StoredAction, TrackKind, Velocity, VisionTrunk,
+    StoredAction, Velocity, VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
@@ -34,11 +34,53 @@ impl Default for RunSection {
 }
 
 /// The plant: what the simulator, the expert's prediction model and the plots of a run drive on.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimSection {
-    /// The track: `l-track-barc` (the paper's L-shaped BARC track, the only one today and the default).
-    pub track: TrackKind,
+    /// The track: `l-track-barc` (the paper's L-shaped BARC track, the default), a track shipped in `tracks/` by
+    /// its name (`oval`, `chicane`, `long`), or a file: `*.csv`, an F1TENTH centre line (`x_m, y_m, w_tr_right_m,
+    /// w_tr_left_m`), or `*.toml`, a list of pieces (docs/TRACKS.md). A relative path is from the configuration
+    /// file's folder (from the working directory under `--set`); a run folder keeps its own copy.
+    pub track: String,
+    /// The track's lengths and widths are multiplied by this (an F1TENTH circuit is 2.2 m wide; the car's is 1.1).
+    pub track_scale: f64,
+    /// The constraint's half-width (m, after the scale) instead of the file's narrowest: an F1TENTH circuit's
+    /// hairpins are about as tight as the circuit is wide, which no scale changes; with the BARC car's 0.55 m they
+    /// drive. Left out: the file's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub track_half_width: Option<f64>,
+}
+
+impl Default for SimSection {
+    fn default() -> Self {
+        SimSection {
+            track: Self::L_TRACK_BARC.into(),
+            track_scale: 1.0,
+            track_half_width: None,
+        }
+    }
+}
+
+impl SimSection {
+    /// The paper's track, the default.
+    pub const L_TRACK_BARC: &'static str = "l-track-barc";
+    /// The tracks `sim.track` names without a file: the L-track, then those shipped in `tracks/` (built into the
+    /// simulator: `cabc_sim::track::load::SHIPPED`).
+    pub const NAMES: &'static [&'static str] = &[Self::L_TRACK_BARC, "oval", "chicane", "long"];
+
+    /// Whether `sim.track` names a file (it ends in `.csv` or `.toml`) rather than a track by name.
+    pub fn track_is_file(&self) -> bool {
+        self.track.ends_with(".csv") || self.track.ends_with(".toml")
+    }
+
+    /// A relative track file is read from `folder` (the configuration file's).
+    pub fn resolve(&mut self, folder: &std::path::Path) {
+        let path = std::path::Path::new(&self.track);
+        if self.track_is_file() && path.is_relative() {
+            let folder = std::fs::canonicalize(folder).unwrap_or_else(|_| folder.to_path_buf());
+            self.track = folder.join(path).display().to_string();
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

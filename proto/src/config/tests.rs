@@ -462,14 +462,14 @@ fn the_track_key_defaults_to_the_l_track_and_refuses_an_unknown_track() {
     for (name, _) in PRESETS {
         assert_eq!(
             RunConfig::load(name).unwrap().sim.track,
-            TrackKind::LTrackBarc,
+            SimSection::L_TRACK_BARC,
             "{name}"
         );
     }
     let recorded = include_str!("../../../docs/reproducibility/smoke-6-epochs.toml");
     assert!(!recorded.contains("[sim]"));
     let c = RunConfig::from_toml(recorded, "smoke-6-epochs.toml").unwrap();
-    assert_eq!(c.sim.track, TrackKind::LTrackBarc);
+    assert_eq!(c.sim, SimSection::default());
     let explicit = RunConfig::from_toml("[sim]\ntrack = \"l-track-barc\"\n", "t.toml").unwrap();
     assert_eq!(explicit, RunConfig::default());
     assert_eq!(explicit.show("sim.track").as_deref(), Some("l-track-barc"));
@@ -477,17 +477,29 @@ fn the_track_key_defaults_to_the_l_track_and_refuses_an_unknown_track() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("line 2") && err.contains("monza") && err.contains("l-track-barc"),
+        err.contains("t.toml") && err.contains("monza") && err.contains("l-track-barc"),
         "{err}"
     );
     let err = RunConfig::default()
-        .with_overrides(&["sim.track=oval".into()])
+        .with_overrides(&["sim.track_scale=0".into()])
         .unwrap_err()
         .to_string();
-    assert!(
-        err.contains("oval") && err.contains("l-track-barc"),
-        "{err}"
-    );
+    assert!(err.contains("sim.track_scale"), "{err}");
+    // A shipped track by name; a file relative to the configuration's folder.
+    let oval = RunConfig::default()
+        .with_overrides(&["sim.track=oval".into()])
+        .unwrap();
+    assert_eq!(oval.sim.track, "oval");
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("run.toml"),
+        "[sim]\ntrack = \"mine.csv\"\ntrack_scale = 0.5\n",
+    )
+    .unwrap();
+    let c = RunConfig::load(&dir.path().join("run.toml").display().to_string()).unwrap();
+    let folder = std::fs::canonicalize(dir.path()).unwrap();
+    assert_eq!(c.sim.track, folder.join("mine.csv").display().to_string());
+    assert_eq!(c.sim.track_scale, 0.5);
 }
 
 /// Issue 58: the velocities a camera policy sees are a key; all three by default, and written back as set.

@@ -1,5 +1,6 @@
 //! What the types of the run configuration cannot check.
 
+use super::SimSection;
 use super::{ConfigError, ObservationKind, RunConfig, Velocity, REPLAY_STEP_BYTES};
 
 impl RunConfig {
@@ -34,6 +35,31 @@ impl RunConfig {
                     "must be a positive number of seconds",
                 );
             }
+        }
+        if !self.sim.track_is_file() && !SimSection::NAMES.contains(&self.sim.track.as_str()) {
+            return invalid(
+                "sim.track",
+                self.sim.track.clone(),
+                "name a track (l-track-barc, oval, chicane, long) or a file (.csv: an F1TENTH centre line; .toml: pieces)",
+            );
+        }
+        if !(self.sim.track_scale > 0.0 && self.sim.track_scale.is_finite()) {
+            return invalid(
+                "sim.track_scale",
+                self.sim.track_scale.to_string(),
+                "must be a positive number",
+            );
+        }
+        if let Some(h) = self
+            .sim
+            .track_half_width
+            .filter(|h| !(*h > 0.0 && h.is_finite()))
+        {
+            return invalid(
+                "sim.track_half_width",
+                h.to_string(),
+                "must be a positive number of metres",
+            );
         }
         if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
             return invalid(
