@@ -11,6 +11,7 @@ pub mod mpcc;
 pub mod relabel;
 pub mod rk4;
 pub mod spline;
+pub mod tracks;
 
 pub use bench::{bench, BenchReport};
 pub use drive::{drive, drive_from, DriveEnd, DriveOptions, DriveReport, DriveStep};

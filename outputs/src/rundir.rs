@@ -94,6 +94,7 @@ pub struct RunDir {
 impl RunDir {
     /// The run's configuration, written when it starts ([`RunDir::prepare`]).
     pub const CONFIG: &'static str = cabc_runfolder::CONFIG;
+    pub const TRACK: &'static str = cabc_runfolder::TRACK;
     /// A row per epoch ([`RunDir::write_tables`]).
     pub const METRICS: &'static str = cabc_runfolder::METRICS;
     /// A row per evaluation ([`EVALS_HEADER`], [`parse_evals`]).
@@ -188,7 +189,28 @@ impl RunDir {
         self.root.join(Self::policy_file(which))
     }
 
+    /// Writes `config.toml`; a track from a file (`sim.track`) is copied beside it as `track.csv` or `track.toml`
+    /// and named so, so that the folder holds all that its run drives on (on every machine that reads it).
     pub fn write_config(&self, config: &RunConfig) -> Result<(), RunDirError> {
+        let mut config = config.clone();
+        if config.sim.track_is_file() {
+            let from = PathBuf::from(&config.sim.track);
+            let ext = if config.sim.track.ends_with(".csv") {
+                "csv"
+            } else {
+                "toml"
+            };
+            let name = format!("{}.{ext}", Self::TRACK);
+            let to = self.root.join(&name);
+            let same = match (std::fs::canonicalize(&from), std::fs::canonicalize(&to)) {
+                (Ok(a), Ok(b)) => a == b,
+                _ => false,
+            };
+            if !same {
+                std::fs::copy(&from, &to).map_err(io(&from))?;
+            }
+            config.sim.track = name;
+        }
         let path = self.config_path();
         std::fs::write(&path, config.to_toml()).map_err(io(&path))
     }
@@ -387,6 +409,38 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunDirError> {
 mod tests {
     use super::*;
     use cabc_proto::messages::{EndReason, EvalReport};
+
+    #[test]
+    fn a_track_from_a_file_is_copied_into_the_run_folder_and_read_from_there() {
+        let dir = tempfile::tempdir().unwrap();
+        let user = dir.path().join("mine.toml");
+        let oval = include_str!("../../tracks/oval.toml");
+        std::fs::write(&user, oval).unwrap();
+        let config = RunConfig::default()
+            .with_overrides(&[format!("sim.track={}", user.display())])
+            .unwrap();
+        let run = RunDir::create(dir.path().join("run")).unwrap();
+        run.write_config(&config).unwrap();
+        let copy = dir.path().join("run").join("track.toml");
+        assert_eq!(std::fs::read_to_string(&copy).unwrap(), oval);
+        // The folder's configuration names its own copy, read from the folder whatever the working directory.
+        std::fs::remove_file(&user).unwrap();
+        let read = RunConfig::load(&run.config_path().display().to_string()).unwrap();
+        let copy = std::fs::canonicalize(copy).unwrap();
+        assert_eq!(read.sim.track, copy.display().to_string());
+        // Written again (a resumed run), the copy stays.
+        run.write_config(&read).unwrap();
+        assert_eq!(std::fs::read_to_string(&copy).unwrap(), oval);
+        assert!(std::fs::read_to_string(run.config_path())
+            .unwrap()
+            .contains("track = \"track.toml\""));
+        // A track file that is not there is an error naming it.
+        let missing = RunConfig::default()
+            .with_overrides(&["sim.track=/nonexistent/t.csv".into()])
+            .unwrap();
+        let e = run.write_config(&missing).unwrap_err().to_string();
+        assert!(e.contains("/nonexistent/t.csv"), "{e}");
+    }
 
     #[test]
     fn a_run_folder_holds_one_run_at_a_time() {

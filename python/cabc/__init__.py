@@ -6,6 +6,9 @@
     pid = cabc.expert("pid")                                   # or "mpcc"
     obs, reward, terminated, truncated, info = env.step(pid(obs))
 
+    oval = cabc.make("BarcTrack-v0", track="oval")             # or "chicane", "long", "path/to/centre-line.csv"
+    mpcc = cabc.expert("mpcc", track="oval")                   # the MPCC on the same track
+
     envs = cabc.make_vec(64)                                   # 64 cars stepped in one call
     obs, info = envs.reset(seed=0)
     obs, rewards, terminated, truncated, info = envs.step(pid(obs))
@@ -46,7 +49,9 @@ def make(env_id: str = ENV_IDS[0], **kwargs) -> gym.Env:
     """``gymnasium.make`` of a cabc environment (with Gymnasium's usual wrappers; ``.unwrapped`` is the bare one).
 
     Keyword arguments: ``observation`` ("state" or "camera"), ``spawn`` ("random" or "fixed"), ``render_mode``,
-    ``width``, ``height``, ``fov``, ``max_laps``, ``max_episode_steps`` (see ``cabc.BarcTrackEnv``).
+    ``width``, ``height``, ``fov``, ``max_laps``, ``max_episode_steps``, ``track`` ("l-track-barc", the default;
+    "oval", "chicane", "long", or a .csv or .toml file), ``track_scale``, ``track_half_width`` (see
+    ``cabc.BarcTrackEnv``).
     """
     _check_id(env_id)
     return gym.make(env_id, **kwargs)
@@ -62,7 +67,10 @@ def make_vec(num_envs: int, env_id: str = ENV_IDS[0], **kwargs) -> BarcTrackVect
 def expert(name: str, **kwargs) -> _core.Expert:
     """The PID lane follower (``"pid"``, ``target_speed=`` in m/s) or MPCC-conv (``"mpcc"``), as a callable
     ``expert(state) -> action`` that keeps its memory (the PID's errors, the MPCC's warm start) between calls, per
-    row of a batch; ``expert.reset()`` at a new episode (``expert.reset(i)`` for row i of a vector env)."""
+    row of a batch; ``expert.reset()`` at a new episode (``expert.reset(i)`` for row i of a vector env).
+
+    ``track=``, ``track_scale=``, ``track_half_width=``: the track the MPCC drives, as the environment's (the
+    L-track when not given); give the same as the environment's."""
     if name not in EXPERTS:
         raise ValueError(f"unknown expert {name!r}: expected one of {', '.join(EXPERTS)}")
     return _core.Expert(name, **kwargs)

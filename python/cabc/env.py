@@ -1,6 +1,8 @@
 """BarcTrack-v0: the racing task as a Gymnasium environment, a thin shell over the Rust simulator (``cabc._core.Sim``).
 
-The car is the dynamic bicycle of cabc-sim on the L-shaped BARC track; one step holds the action for 0.1 s.
+The car is the dynamic bicycle of cabc-sim on the L-shaped BARC track, or on the track ``track=`` names (a shipped
+one, "oval", "chicane", "long", or a ``.csv``/``.toml`` file; ``track_scale=``, ``track_half_width=``); one step holds
+the action for 0.1 s.
 
 * Observation ``"state"``: ``Box(6)`` float64, [v_long, v_tran, omega, s, x_tran, e_psi] (m/s, m/s, rad/s, m, m, rad).
   ``"camera"``: ``Dict(image=Box(H, W, 3) uint8, velocity=Box(3) float64)``, the first-person image and
@@ -8,7 +10,7 @@ The car is the dynamic bicycle of cabc-sim on the L-shaped BARC track; one step 
 * Action: ``Box(2)`` float64, [a (m/s^2), delta (rad)] within the simulator's box; values outside are clipped,
   non-finite ones raise ``ValueError``.
 * Reward: the progress along the centreline in metres during the step (the simulator's own, the reference's).
-* ``terminated``: the car left the track (|x_tran| > 0.55, the constraint; or the Frenet band).
+* ``terminated``: the car left the track (|x_tran| > the half-width, 0.55 on the L-track; or the Frenet band).
   ``truncated``: the simulator's limits (stall, spin, ``max_laps`` laps) or a step limit.
 * ``info``: ``laps``, ``lap_times``, ``lap_completed``, ``lap_time``, ``end_reason``, ``state`` (the 6-d state,
   what the experts take), ``vehicle_state`` ([v_x, v_y, omega, X, Y, psi]) and ``time``.
@@ -33,9 +35,11 @@ def action_space() -> spaces.Box:
     return spaces.Box(low=np.array(_core.ACTION_LOW), high=np.array(_core.ACTION_HIGH), dtype=np.float64)
 
 
-def observation_space(observation: str, image_shape: tuple[int, int]) -> spaces.Space:
-    """The observation space of one environment."""
-    state = spaces.Box(low=np.array(_core.STATE_LOW), high=np.array(_core.STATE_HIGH), dtype=np.float64)
+def observation_space(observation: str, image_shape: tuple[int, int], state_bounds) -> spaces.Space:
+    """The observation space of one environment; ``state_bounds``: the (low, high) of the state on its track (s
+    within [0, its length], x_tran within its band)."""
+    low, high = state_bounds
+    state = spaces.Box(low=np.array(low), high=np.array(high), dtype=np.float64)
     if observation == "state":
         return state
     h, w = image_shape
@@ -67,6 +71,14 @@ class BarcTrackEnv(gym.Env):
         max_episode_steps: an optional step limit (truncation, end reason ``"budget"``); ``cabc.make`` and
             ``gymnasium.make`` take this argument themselves and wrap the environment in Gymnasium's ``TimeLimit``
             (the same truncation, without an end reason).
+        track: the track, as a run's ``sim.track``: ``"l-track-barc"`` (the default), a shipped one (``"oval"``,
+            ``"chicane"``, ``"long"``) or a file, ``*.csv`` (an F1TENTH centre line) or ``*.toml`` (pieces); a bad
+            one raises ``ValueError`` naming the file and line. Tracks are built once per process and name.
+        track_scale: the track's lengths and widths multiplied by this (1).
+        track_half_width: the constraint's half-width (m, after the scale) instead of the track's own.
+
+    Attributes (of this environment's track): ``track`` (in words), ``track_length`` (m), ``half_width`` (m);
+    ``cabc._core.TRACK_LENGTH`` and ``HALF_WIDTH`` are the default L-track's.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": round(1 / _core.DT)}
@@ -81,13 +93,21 @@ class BarcTrackEnv(gym.Env):
         fov: float | None = None,
         max_laps: int | None = None,
         max_episode_steps: int | None = None,
+        track: str | None = None,
+        track_scale: float | None = None,
+        track_half_width: float | None = None,
     ):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"unknown render_mode {render_mode!r}: expected None or 'rgb_array'")
-        self._sim = _core.Sim(observation, spawn, width, height, fov, max_laps, max_episode_steps)
+        self._sim = _core.Sim(
+            observation, spawn, width, height, fov, max_laps, max_episode_steps, track, track_scale, track_half_width
+        )
         self.render_mode = render_mode
+        self.track = self._sim.track
+        self.track_length = self._sim.track_length
+        self.half_width = self._sim.half_width
         self.action_space = action_space()
-        self.observation_space = observation_space(observation, self._sim.image_shape)
+        self.observation_space = observation_space(observation, self._sim.image_shape, self._sim.state_bounds)
         self._seeded = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):

@@ -21,7 +21,8 @@ from .env import _SEED_BOUND, action_space, observation_space, spawn_option
 
 
 class BarcTrackVectorEnv(VectorEnv):
-    """``num_envs`` cars, env i drawing its spawns from stream i of the seed; arguments as ``BarcTrackEnv``'s."""
+    """``num_envs`` cars, env i drawing its spawns from stream i of the seed; arguments and the track's attributes
+    (``track``, ``track_length``, ``half_width``) as ``BarcTrackEnv``'s."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
@@ -35,11 +36,29 @@ class BarcTrackVectorEnv(VectorEnv):
         fov: float | None = None,
         max_laps: int | None = None,
         max_episode_steps: int | None = None,
+        track: str | None = None,
+        track_scale: float | None = None,
+        track_half_width: float | None = None,
     ):
-        self._sim = _core.VecSim(num_envs, observation, spawn, width, height, fov, max_laps, max_episode_steps)
+        self._sim = _core.VecSim(
+            num_envs,
+            observation,
+            spawn,
+            width,
+            height,
+            fov,
+            max_laps,
+            max_episode_steps,
+            track,
+            track_scale,
+            track_half_width,
+        )
         self.num_envs = num_envs
+        self.track = self._sim.track
+        self.track_length = self._sim.track_length
+        self.half_width = self._sim.half_width
         self.single_action_space = action_space()
-        self.single_observation_space = observation_space(observation, self._sim.image_shape)
+        self.single_observation_space = observation_space(observation, self._sim.image_shape, self._sim.state_bounds)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.render_mode = None

@@ -2,8 +2,9 @@
 //! step limit, and the simulator's end of an episode split into Gymnasium's `terminated` and `truncated`.
 
 use std::str::FromStr;
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
+use cabc_proto::config::SimSection;
 use cabc_proto::messages::{image_bytes, EndReason};
 use cabc_sim::camera::{Camera, TrackLookup, REFERENCE_FOV_DEG, REFERENCE_SIZE};
 use cabc_sim::track::Pose;
@@ -12,19 +13,80 @@ use pyo3::exceptions::PyValueError;
 use pyo3::PyResult;
 use rand_chacha::ChaCha8Rng;
 
-/// The track every environment drives (built once per process): the default of a run's `sim.track`, the track of the
-/// MPCC expert (`Mpcc::reference`).
-pub fn track() -> &'static Arc<Track> {
-    static TRACK: OnceLock<Arc<Track>> = OnceLock::new();
-    TRACK.get_or_init(|| Arc::new(Track::l_track_barc()))
+/// The `sim` section of the keyword arguments `track`, `track_scale`, `track_half_width` (the L-track, scale 1, its
+/// own half-width when not given). A relative file is taken from the working directory now, so that the
+/// per-process cache of tracks ([`Track::of`], by name) does not mistake it for another file after a `chdir`.
+pub fn sim_section(
+    track: Option<&str>,
+    track_scale: Option<f64>,
+    track_half_width: Option<f64>,
+) -> SimSection {
+    let mut sim = SimSection {
+        track: track.unwrap_or(SimSection::L_TRACK_BARC).to_string(),
+        track_scale: track_scale.unwrap_or(1.0),
+        track_half_width,
+    };
+    if let Ok(cwd) = std::env::current_dir() {
+        sim.resolve(&cwd);
+    }
+    sim
 }
 
-/// The camera's distance grid of the track, built on the first camera's first frame and shared.
-fn lookup() -> &'static TrackLookup {
-    /// Grid resolution (m): the actor's.
-    const LOOKUP_RESOLUTION: f64 = 0.01;
-    static LOOKUP: OnceLock<TrackLookup> = OnceLock::new();
-    LOOKUP.get_or_init(|| TrackLookup::new(track(), LOOKUP_RESOLUTION))
+/// The track `sim` names, built once per process ([`Track::of`]); a bad one is a `ValueError` with the track's
+/// error (the file and line of a bad file).
+pub fn track_of(sim: &SimSection) -> PyResult<Arc<Track>> {
+    Track::of(sim).map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
+/// A track and the camera's distance grid of it, built on the first frame of a camera on that track and shared by
+/// every environment on the same track (one grid per track and process).
+#[derive(Clone, Debug)]
+pub struct Road {
+    pub track: Arc<Track>,
+    lookup: Arc<OnceLock<TrackLookup>>,
+}
+
+impl Road {
+    /// The road of the track `sim` names.
+    pub fn of(sim: &SimSection) -> PyResult<Road> {
+        type Lookups = Mutex<Vec<(Arc<Track>, Arc<OnceLock<TrackLookup>>)>>;
+        static LOOKUPS: OnceLock<Lookups> = OnceLock::new();
+        let track = track_of(sim)?;
+        let mut lookups = LOOKUPS
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        // Track::of hands out one Arc per track and keeps it for the process, so the pointer names the track.
+        let lookup = match lookups.iter().find(|(t, _)| Arc::ptr_eq(t, &track)) {
+            Some((_, l)) => l.clone(),
+            None => {
+                let l = Arc::new(OnceLock::new());
+                lookups.push((track.clone(), l.clone()));
+                l
+            }
+        };
+        Ok(Road { track, lookup })
+    }
+
+    /// The camera's distance grid (built here on the first call for this track).
+    pub fn lookup(&self) -> &TrackLookup {
+        /// Grid resolution (m): the actor's.
+        const LOOKUP_RESOLUTION: f64 = 0.01;
+        self.lookup
+            .get_or_init(|| TrackLookup::new(&self.track, LOOKUP_RESOLUTION))
+    }
+}
+
+/// The bounds of the state observation [v_long, v_tran, ω, s, x_tran, e_psi] on `track`: the velocities are
+/// unbounded; s lies on the centreline [0, L]; x_tran within the Frenet band (the simulator keeps the last value
+/// inside it); e_psi in [-π, π].
+pub fn state_bounds(track: &Track) -> ([f64; 6], [f64; 6]) {
+    let (inf, pi) = (f64::INFINITY, std::f64::consts::PI);
+    let (band, length) = (track.band(), track.length());
+    (
+        [-inf, -inf, -inf, 0.0, -band, -pi],
+        [inf, inf, inf, length, band, pi],
+    )
 }
 
 /// What the environment observes: the 6-d state, or a camera image with the three velocities.
@@ -96,16 +158,18 @@ impl Lens {
     }
 }
 
-/// Renders `env`'s first-person view into `out` (`lens.image_len()` bytes, HWC RGB).
-pub fn see(camera: &mut Camera, env: &Env, out: &mut [u8]) {
+/// Renders `env`'s first-person view of `road` into `out` (`lens.image_len()` bytes, HWC RGB).
+pub fn see(camera: &mut Camera, road: &Road, env: &Env, out: &mut [u8]) {
     let [x, y, psi] = env.observation().pose;
-    let frame = camera.render(lookup(), Pose { x, y, psi }, env.sun());
+    let frame = camera.render(road.lookup(), Pose { x, y, psi }, env.sun());
     out.copy_from_slice(&frame.rgb);
 }
 
 /// How the environments of one Python object are made.
 #[derive(Clone, Debug)]
 pub struct Setup {
+    /// The track the environments drive, and its camera grid.
+    pub road: Road,
     pub spawn: Spawn,
     pub max_laps: u32,
     /// Truncate after this many steps (Gymnasium's time limit; the simulator has none).
@@ -113,7 +177,9 @@ pub struct Setup {
 }
 
 impl Setup {
+    /// `sim`: the track (see [`sim_section`]).
     pub fn new(
+        sim: &SimSection,
         spawn: &str,
         max_laps: Option<u32>,
         max_episode_steps: Option<u64>,
@@ -124,6 +190,7 @@ impl Setup {
             ));
         }
         Ok(Setup {
+            road: Road::of(sim)?,
             spawn: parse_spawn(spawn)?,
             max_laps: max_laps.unwrap_or(cabc_sim::env::MAX_LAPS),
             max_episode_steps,
@@ -135,7 +202,7 @@ impl Setup {
             max_laps: self.max_laps,
             ..EnvConfig::default()
         };
-        Env::new(track().clone(), Default::default(), config)
+        Env::new(self.road.track.clone(), Default::default(), config)
     }
 }
 

@@ -7,7 +7,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::arrays::{row, u8s, vector};
-use crate::car::{parse_spawn, see, Car, Kind, Lens, Setup, Transition};
+use crate::car::{parse_spawn, see, sim_section, state_bounds, Car, Kind, Lens, Setup, Transition};
 
 /// The observation object: the `(6,)` state, or `{"image": (H, W, 3) uint8, "velocity": (3,)}`.
 pub fn observation<'py>(
@@ -45,7 +45,7 @@ pub struct Sim {
 impl Sim {
     fn image(&mut self) -> Vec<u8> {
         let mut rgb = vec![0; self.lens.image_len()];
-        see(&mut self.camera, &self.car.env, &mut rgb);
+        see(&mut self.camera, &self.setup.road, &self.car.env, &mut rgb);
         rgb
     }
 
@@ -74,9 +74,11 @@ impl Sim {
 impl Sim {
     /// observation: "state" or "camera"; spawn: "random" or "fixed" (the default of every reset); width, height,
     /// fov: the camera's (the observation's when it is "camera", the rendering's always); max_laps: the simulator's
-    /// lap limit; max_episode_steps: an optional step limit.
+    /// lap limit; max_episode_steps: an optional step limit; track, track_scale, track_half_width: the track (a
+    /// run's `sim.track`, `sim.track_scale`, `sim.track_half_width`; the L-track when not given).
     #[new]
-    #[pyo3(signature = (observation="state", spawn="random", width=None, height=None, fov=None, max_laps=None, max_episode_steps=None))]
+    #[pyo3(signature = (observation="state", spawn="random", width=None, height=None, fov=None, max_laps=None, max_episode_steps=None, track=None, track_scale=None, track_half_width=None))]
+    #[allow(clippy::too_many_arguments)] // Gymnasium's keyword arguments
     fn new(
         observation: &str,
         spawn: &str,
@@ -85,8 +87,12 @@ impl Sim {
         fov: Option<f64>,
         max_laps: Option<u32>,
         max_episode_steps: Option<u64>,
+        track: Option<&str>,
+        track_scale: Option<f64>,
+        track_half_width: Option<f64>,
     ) -> PyResult<Sim> {
-        let setup = Setup::new(spawn, max_laps, max_episode_steps)?;
+        let sim = sim_section(track, track_scale, track_half_width);
+        let setup = Setup::new(&sim, spawn, max_laps, max_episode_steps)?;
         let lens = Lens::new(width, height, fov)?;
         Ok(Sim {
             kind: observation.parse()?,
@@ -142,6 +148,30 @@ impl Sim {
     #[getter]
     fn image_shape(&self) -> (usize, usize) {
         (self.lens.height, self.lens.width)
+    }
+
+    /// The track's centreline length (m).
+    #[getter]
+    fn track_length(&self) -> f64 {
+        self.setup.road.track.length()
+    }
+
+    /// The track's half-width (m): the constraint |x_tran| <= half_width.
+    #[getter]
+    fn half_width(&self) -> f64 {
+        self.setup.road.track.half_width()
+    }
+
+    /// The bounds of the state observation on this track: (low, high), each [v_long, v_tran, ω, s, x_tran, e_psi].
+    #[getter]
+    fn state_bounds(&self) -> ([f64; 6], [f64; 6]) {
+        state_bounds(&self.setup.road.track)
+    }
+
+    /// The track in words ("the L-shaped BARC track", or its file and size).
+    #[getter]
+    fn track(&self) -> String {
+        self.setup.road.track.describe().to_string()
     }
 
     #[getter]

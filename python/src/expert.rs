@@ -10,15 +10,16 @@
 use std::sync::Arc;
 
 use cabc_expert::mpcc::{Mpcc, MpccStream};
+use cabc_proto::config::RunConfig;
 use cabc_sim::pid::PidLaneFollower;
-use cabc_sim::{Input, State};
+use cabc_sim::{Input, State, Track};
 use numpy::PyArray1;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
 use crate::arrays::{f64s, rows};
-use crate::car::track;
+use crate::car::{sim_section, track_of};
 
 /// Most streams one expert keeps.
 const MAX_STREAMS: usize = 65_536;
@@ -54,9 +55,9 @@ impl Expert {
     }
 }
 
-/// The vehicle state q = [v_x, v_y, ω, X, Y, ψ] of a Frenet state [v_long, v_tran, ω, s, x_tran, e_psi].
-fn vehicle_of(state: &[f64; 6]) -> State {
-    let track = track();
+/// The vehicle state q = [v_x, v_y, ω, X, Y, ψ] of a Frenet state [v_long, v_tran, ω, s, x_tran, e_psi] on
+/// `track`.
+fn vehicle_of(track: &Track, state: &[f64; 6]) -> State {
     // s brought into [0, L) here: the track's own wrapping steps by L, slow for a huge s.
     let s = state[3].rem_euclid(track.length());
     let pose = track.local_to_global(s, state[4], state[5]);
@@ -65,10 +66,21 @@ fn vehicle_of(state: &[f64; 6]) -> State {
 
 #[pymethods]
 impl Expert {
-    /// `name`: "pid" or "mpcc"; `target_speed`: the PID's (m/s; the reference's 1.0 when not given).
+    /// `name`: "pid" or "mpcc"; `target_speed`: the PID's (m/s; the reference's 1.0 when not given); `track`,
+    /// `track_scale`, `track_half_width`: the track the MPCC drives, as the environment's (the L-track when not
+    /// given; the PID follows the lane of any track, so its track is only checked).
     #[new]
-    #[pyo3(signature = (name, target_speed=None))]
-    fn new(name: &str, target_speed: Option<f64>) -> PyResult<Expert> {
+    #[pyo3(signature = (name, target_speed=None, track=None, track_scale=None, track_half_width=None))]
+    fn new(
+        name: &str,
+        target_speed: Option<f64>,
+        track: Option<&str>,
+        track_scale: Option<f64>,
+        track_half_width: Option<f64>,
+    ) -> PyResult<Expert> {
+        let sim = sim_section(track, track_scale, track_half_width);
+        // A bad track is the environment's ValueError, whichever the expert.
+        track_of(&sim)?;
         let kind = match (name, target_speed) {
             ("pid", None) => Kind::Pid(PidLaneFollower::default().speed.x_ref),
             ("pid", Some(v)) if v.is_finite() && v > 0.0 => Kind::Pid(v),
@@ -77,7 +89,17 @@ impl Expert {
                     "target_speed must be a positive number, got {v}"
                 )))
             }
-            ("mpcc", None) => Kind::Mpcc(Arc::new(Mpcc::reference())),
+            // The reference MPCC (`Mpcc::reference`, the default configuration's) on the track.
+            ("mpcc", None) => {
+                let config = RunConfig {
+                    sim,
+                    ..RunConfig::default()
+                };
+                let mpcc = Mpcc::from_config(&config).map_err(|e| {
+                    PyValueError::new_err(format!("the MPCC cannot drive this track: {e}"))
+                })?;
+                Kind::Mpcc(Arc::new(mpcc))
+            }
             ("mpcc", Some(_)) => {
                 return Err(PyValueError::new_err(
                     "target_speed is the PID's: the MPCC has none",
@@ -134,17 +156,18 @@ impl Expert {
                         let (qs, _) = rows::<6>(v, "vehicle", Some(n), flat)?;
                         qs
                     }
-                    None => states.iter().map(vehicle_of).collect(),
+                    None => states.iter().map(|s| vehicle_of(mpcc.track(), s)).collect(),
                 };
+                let track = mpcc.track();
                 // Checked before any stream moves, so a bad row leaves every stream as it was.
                 if let Some((i, q)) = qs
                     .iter()
                     .enumerate()
-                    .find(|(_, q)| track().global_to_local(q[3], q[4], q[5]).is_err())
+                    .find(|(_, q)| track.global_to_local(q[3], q[4], q[5]).is_err())
                 {
                     return Err(PyValueError::new_err(format!(
                         "state {i} is off the track's band (|x_tran| > {}): the MPCC cannot measure it ({q:?})",
-                        track().band()
+                        track.band()
                     )));
                 }
                 let mpcc = mpcc.clone();

@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::arrays::{f64s, rows, u8s};
-use crate::car::{parse_spawn, see, Car, Kind, Lens, Setup};
+use crate::car::{parse_spawn, see, sim_section, state_bounds, Car, Kind, Lens, Setup};
 use crate::env::observation;
 
 /// Most environments in one object, and most bytes of their images (bounds on what one call allocates).
@@ -51,7 +51,7 @@ impl VecSim {
         let len = self.lens.image_len();
         if self.kind == Kind::Camera {
             for (car, out) in self.cars.iter().zip(self.images.chunks_exact_mut(len)) {
-                see(&mut self.camera, &car.env, out);
+                see(&mut self.camera, &self.setup.road, &car.env, out);
             }
         }
     }
@@ -85,7 +85,7 @@ impl VecSim {
 impl VecSim {
     /// `n` environments; the other arguments as `Sim`'s.
     #[new]
-    #[pyo3(signature = (n, observation="state", spawn="random", width=None, height=None, fov=None, max_laps=None, max_episode_steps=None))]
+    #[pyo3(signature = (n, observation="state", spawn="random", width=None, height=None, fov=None, max_laps=None, max_episode_steps=None, track=None, track_scale=None, track_half_width=None))]
     #[allow(clippy::too_many_arguments)] // Gymnasium's keyword arguments
     fn new(
         n: usize,
@@ -96,13 +96,21 @@ impl VecSim {
         fov: Option<f64>,
         max_laps: Option<u32>,
         max_episode_steps: Option<u64>,
+        track: Option<&str>,
+        track_scale: Option<f64>,
+        track_half_width: Option<f64>,
     ) -> PyResult<VecSim> {
         if !(1..=MAX_ENVS).contains(&n) {
             return Err(PyValueError::new_err(format!(
                 "n must be within 1..={MAX_ENVS}, got {n}"
             )));
         }
-        let setup = Setup::new(spawn, max_laps, max_episode_steps)?;
+        let setup = Setup::new(
+            &sim_section(track, track_scale, track_half_width),
+            spawn,
+            max_laps,
+            max_episode_steps,
+        )?;
         let kind: Kind = observation.parse()?;
         let lens = Lens::new(width, height, fov)?;
         let image_bytes = match kind {
@@ -220,6 +228,30 @@ impl VecSim {
     fn image_shape(&self) -> (usize, usize) {
         (self.lens.height, self.lens.width)
     }
+
+    /// The track's centreline length (m).
+    #[getter]
+    fn track_length(&self) -> f64 {
+        self.setup.road.track.length()
+    }
+
+    /// The track's half-width (m).
+    #[getter]
+    fn half_width(&self) -> f64 {
+        self.setup.road.track.half_width()
+    }
+
+    /// The bounds of one state observation on this track: (low, high).
+    #[getter]
+    fn state_bounds(&self) -> ([f64; 6], [f64; 6]) {
+        state_bounds(&self.setup.road.track)
+    }
+
+    /// The track in words.
+    #[getter]
+    fn track(&self) -> String {
+        self.setup.road.track.describe().to_string()
+    }
 }
 
 impl VecSim {
@@ -242,7 +274,7 @@ impl VecSim {
                 outcome.last = Some(car.env.observation());
                 if camera {
                     let mut rgb = vec![0; len];
-                    see(&mut self.camera, &car.env, &mut rgb);
+                    see(&mut self.camera, &self.setup.road, &car.env, &mut rgb);
                     self.last_images[i] = Some(rgb);
                 }
                 car.reset(self.setup.spawn);

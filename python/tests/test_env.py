@@ -18,7 +18,15 @@ import cabc
 KNOWN_WARNINGS = ("symmetric and normalized space", "minimum value is -infinity", "maximum value is infinity")
 
 
-@pytest.mark.parametrize("kwargs", [{"observation": "state"}, {"observation": "camera", "width": 32, "height": 24}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"observation": "state"},
+        {"observation": "camera", "width": 32, "height": 24},
+        {"observation": "state", "track": "oval"},
+        {"observation": "camera", "width": 32, "height": 24, "track": "chicane"},
+    ],
+)
 def test_gymnasium_env_checker_passes(kwargs):
     env = gym.make("BarcTrack-v0", render_mode="rgb_array", **kwargs).unwrapped
     with warnings.catch_warnings(record=True) as caught:

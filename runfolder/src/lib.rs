@@ -15,6 +15,8 @@ use std::path::Path;
 
 /// The run's resolved configuration.
 pub const CONFIG: &str = "config.toml";
+/// A run's track from a file, copied beside its configuration: `track.csv` or `track.toml`.
+pub const TRACK: &str = "track";
 /// One row per epoch (the learner's metrics).
 pub const METRICS: &str = "metrics.csv";
 /// One row per evaluated policy version.

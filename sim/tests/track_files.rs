@@ -98,7 +98,7 @@ fn the_shipped_tracks_are_what_their_files_say() {
     assert_eq!(oval.half_width(), 0.55);
     let chicane = load("chicane", Size::default()).unwrap();
     assert!(
-        (chicane.length() - 32.709212856117723).abs() < 1e-9,
+        (chicane.length() - 32.709_212_856_117_72).abs() < 1e-9,
         "{}",
         chicane.length()
     );

@@ -158,7 +158,7 @@ pub fn fit(points: &[CentrePoint]) -> Result<Fitted, FitError> {
     let mut t = vec![0.0; n];
     for i in 1..n {
         let d = (points[i].x - points[i - 1].x).hypot(points[i].y - points[i - 1].y);
-        if !(d > 1e-9) {
+        if d.is_nan() || d <= 1e-9 {
             return Err(fail(
                 Some(points[i].line),
                 "this point repeats the one before it".into(),
@@ -211,7 +211,7 @@ pub fn fit(points: &[CentrePoint]) -> Result<Fitted, FitError> {
             };
             let ds = du / 6.0 * (speed(u0) + 4.0 * speed(um) + speed(u1));
             let (a, b) = tangent(i, u1);
-            if !(a.hypot(b) > 1e-12) {
+            if a.hypot(b).is_nan() || a.hypot(b) <= 1e-12 {
                 return Err(fail(
                     Some(points[i].line),
                     "the centre line has a cusp here (its direction is undefined)".into(),
@@ -342,7 +342,7 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
     };
     let d = det(a);
-    if !(d.abs() > 1e-300) {
+    if d.is_nan() || d.abs() <= 1e-300 {
         return None;
     }
     let mut z = [0.0; 3];

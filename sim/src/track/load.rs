@@ -207,7 +207,7 @@ fn centre_line(text: &str, file: &str, size: Size) -> Result<Track, TrackError> 
                 })?;
         }
         for (w, side) in [(v[2], "right"), (v[3], "left")] {
-            if !(w > 0.0) {
+            if w.is_nan() || w <= 0.0 {
                 return Err(file_error(
                     file,
                     Some(line),
@@ -309,7 +309,7 @@ fn pieces(text: &str, file: &str, size: Size) -> Result<Track, TrackError> {
                 radius: r,
             },
             (None, None, Some(deg), Some(r)) => {
-                if !(r > 0.0) {
+                if r.is_nan() || r <= 0.0 {
                     return bad("a turn's radius is positive; the turn's sign says left (> 0) or right");
                 }
                 TrackPiece {
