@@ -10,6 +10,7 @@ use cabc_proto::messages::EvalReport;
 use cabc_sim::track::Track;
 use plotters::coord::types::{RangedCoordf64, RangedCoordu32, RangedCoordu64};
 use plotters::prelude::*;
+use std::ops::Range;
 use std::path::Path;
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
@@ -322,7 +323,34 @@ pub fn track_edges(track: &Track, n: usize) -> [Vec<(f64, f64)>; 3] {
     [edge(0.0), edge(half), edge(-half)]
 }
 
-/// A chart of the track map: X and Y in metres over `L_track_barc`'s extent (the one track, `sim.track`).
+/// The X and Y ranges that show `lines` (a track's edges) with a 0.5 m margin on a drawing of `pixels`, the shorter
+/// side widened so that a metre is as long on both axes.
+pub fn view_of(lines: &[&[(f64, f64)]], pixels: (u32, u32)) -> (Range<f64>, Range<f64>) {
+    let points = lines.iter().flat_map(|l| l.iter());
+    let (mut x0, mut y0, mut x1, mut y1) = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for &(x, y) in points {
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
+        return (-1.0..1.0, -1.0..1.0);
+    }
+    let aspect = f64::from(pixels.0.max(1)) / f64::from(pixels.1.max(1));
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (mut hx, mut hy) = (0.5 * (x1 - x0) + 0.5, 0.5 * (y1 - y0) + 0.5);
+    if hx / hy < aspect {
+        hx = hy * aspect;
+    } else {
+        hy = hx / aspect;
+    }
+    (cx - hx..cx + hx, cy - hy..cy + hy)
+}
+
+/// A chart of the track map: X and Y in metres over the run's track (`sim.track`) and its band.
 pub type TrackMap<'a> =
     ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
@@ -333,13 +361,14 @@ pub fn track_map<'a>(
     track: &Track,
     caption: &str,
 ) -> Result<TrackMap<'a>, Box<dyn std::error::Error>> {
-    let [centre, left, right] = track_edges(track, 400);
+    let [centre, left, right] = track_edges(track, 400.max((track.length() / 0.1) as usize));
+    let (xs, ys) = view_of(&[&centre, &left, &right], area.dim_in_pixel());
     let mut chart = ChartBuilder::on(area)
         .caption(caption, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(30)
         .y_label_area_size(40)
-        .build_cartesian_2d(-3.2..4.4, -1.2..5.8)?;
+        .build_cartesian_2d(xs, ys)?;
     chart
         .configure_mesh()
         .x_desc("X (m)")

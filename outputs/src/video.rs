@@ -218,10 +218,11 @@ fn frame(
     let root = BitMapBackend::with_buffer(buf, size).into_drawing_area();
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(TRACK.0);
+    let (xs, ys) = crate::plots::view_of(&[&edges[1], &edges[2]], left.dim_in_pixel());
     let mut chart = ChartBuilder::on(&left)
         .caption(title, ("sans-serif", 14))
         .margin(6)
-        .build_cartesian_2d(-3.2..4.4, -1.2..5.8)?;
+        .build_cartesian_2d(xs, ys)?;
     chart.draw_series(LineSeries::new(edges[0].iter().copied(), BLACK.mix(0.3)))?;
     for e in &edges[1..] {
         chart.draw_series(LineSeries::new(e.iter().copied(), BLACK.stroke_width(2)))?;
@@ -335,7 +336,7 @@ mod tests {
             .collect();
         let sky = panel
             .iter()
-            .filter(|p| p[2] > 180 && p[2] > p[0] + 30)
+            .filter(|p| p[2] > 180 && p[2] > p[0].saturating_add(30))
             .count();
         let road = panel
             .iter()

@@ -115,6 +115,14 @@ fn the_shipped_tracks_are_what_their_files_say() {
         long.length()
     );
     assert!(long.pieces().len() > 1000);
+    // Its curvature steps little from one 5 cm piece to the next (docs/TRACKS.md quotes the figure printed here).
+    let k: Vec<f64> = long.pieces().iter().map(|p| 1.0 / p.radius).collect();
+    let step = k
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .fold(0.0, f64::max);
+    println!("long: largest curvature step between pieces {step:.4} 1/m");
+    assert!(step < 0.1, "{step}");
     // The names the configuration takes are the shipped ones.
     let names = cabc_proto::config::SimSection::NAMES;
     assert_eq!(names[0], "l-track-barc");
