@@ -41,10 +41,12 @@ pub fn end_reason(t: Truncation) -> EndReason {
     t.into()
 }
 
-/// The env constants of a run: the simulator's, with `max_laps` laps at most.
-fn env_config(max_laps: u32) -> EnvConfig {
+/// The env constants of a run: the simulator's, with `max_laps` laps at most and the run's observed track feature.
+fn env_config(config: &RunConfig, max_laps: u32) -> EnvConfig {
     EnvConfig {
         max_laps,
+        track_feature: config.observation.track_feature,
+        preview_m: config.observation.preview_m,
         ..EnvConfig::default()
     }
 }
@@ -55,7 +57,7 @@ pub fn make_env(config: &RunConfig, max_laps: u32) -> Result<Env, TrackError> {
     Ok(Env::new(
         Track::of(&config.sim)?,
         VehicleParams::default(),
-        env_config(max_laps),
+        env_config(config, max_laps),
     ))
 }
 
@@ -111,7 +113,7 @@ impl Collector {
         let envs = EnvBatch::with_streams(
             Track::of(&config.sim)?,
             VehicleParams::default(),
-            env_config(config.collection.max_laps),
+            env_config(config, config.collection.max_laps),
             config.run.seed,
             index * k as u64..(index + 1) * k as u64,
         );

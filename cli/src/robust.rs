@@ -17,16 +17,38 @@ pub struct Args {
     pub policy: String,
     #[command(flatten)]
     pub options: RobustOptions,
-    /// Where to write robust.json and robust.png (default: RUN/robust/).
+    /// Where to write robust.json and robust.png (default: RUN/robust/, or RUN/robust-<track>/ with --track).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Drive this track instead of the run's (a circuit the policy never saw): a name (l-track-barc, oval, chicane,
+    /// long) or a file (.csv, .toml), sized by --track-scale and --track-half-width (docs/TRACKS.md).
+    #[arg(long)]
+    pub track: Option<String>,
+    /// With --track: multiply its lengths and widths by this.
+    #[arg(long, default_value_t = 1.0, requires = "track")]
+    pub track_scale: f64,
+    /// With --track: the constraint's half-width (m) instead of the file's narrowest.
+    #[arg(long, requires = "track")]
+    pub track_half_width: Option<f64>,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let config = run_config(&args.run)?;
+    let mut config = run_config(&args.run)?;
+    let mut folder = "robust".to_string();
+    if let Some(track) = &args.track {
+        config.sim = cabc_proto::config::SimSection {
+            track: track.clone(),
+            track_scale: args.track_scale,
+            track_half_width: args.track_half_width,
+        };
+        let name = std::path::Path::new(track)
+            .file_stem()
+            .map_or(track.clone(), |s| s.to_string_lossy().into_owned());
+        folder = format!("robust-{name}");
+    }
     let settings = args.options.settings(&config)?;
     let policy = cabc_robust::policy_path(&args.run, &args.policy);
-    let out = args.out.clone().unwrap_or_else(|| args.run.join("robust"));
+    let out = args.out.clone().unwrap_or_else(|| args.run.join(folder));
     // One libtorch thread: a policy of one observation at a time gains nothing from more.
     cabc_models::device::one_cpu_thread();
     let started = Instant::now();

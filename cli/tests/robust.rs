@@ -23,6 +23,52 @@ fn run_folder(dir: &Path) -> std::path::PathBuf {
 }
 
 #[test]
+fn robust_drives_a_track_the_policy_never_saw() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = run_folder(tmp.path());
+    let args = |track: &str| {
+        vec![
+            "robust".to_string(),
+            run.display().to_string(),
+            "--policy".into(),
+            "final".into(),
+            "--spawns".into(),
+            "3".into(),
+            "--levels".into(),
+            "0".into(),
+            "--laps".into(),
+            "1".into(),
+            "--track".into(),
+            track.into(),
+        ]
+    };
+    let (ok, stdout, stderr) = cabc(&args("oval"));
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(summary["track"], "tracks/oval.toml, scale 1");
+    let json = std::fs::read_to_string(run.join("robust-oval").join("robust.json")).unwrap();
+    let full: serde_json::Value = serde_json::from_str(&json).unwrap();
+    // The spawns lie on the oval (straights y = 0 and y = 3 for x in [0, 4], half circles of 1.5 m about (0, 1.5)
+    // and (4, 1.5)), within half its half-width of the centre line.
+    let from_centre = |x: f64, y: f64| {
+        let c = if x < 0.0 { 0.0 } else { 4.0 };
+        if (0.0..=4.0).contains(&x) {
+            y.abs().min((y - 3.0).abs())
+        } else {
+            ((x - c).hypot(y - 1.5) - 1.5).abs()
+        }
+    };
+    for p in full["spawn_points"].as_array().unwrap() {
+        let (x, y) = (p["x"].as_f64().unwrap(), p["y"].as_f64().unwrap());
+        assert!(from_centre(x, y) <= 0.5 * 0.55 + 1e-9, "{p}");
+    }
+    assert!(!run.join("robust").exists());
+    // A track that is not one is refused, naming it.
+    let (ok, _, stderr) = cabc(&args("monza"));
+    assert!(!ok && stderr.contains("monza"), "{stderr}");
+}
+
+#[test]
 fn robust_reports_a_policy_as_json_and_a_figure() {
     let tmp = tempfile::tempdir().unwrap();
     let run = run_folder(tmp.path());

@@ -18,7 +18,7 @@ pub use actors::ActorCount;
 pub use choices::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, Spawn, StoredAction,
-    Velocity, VisionTrunk,
+    TrackFeature, Velocity, VisionTrunk,
 };
 pub use security::{SecurityMode, SecuritySection};
 

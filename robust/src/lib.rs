@@ -194,6 +194,9 @@ pub struct LevelReport {
 pub struct RobustReport {
     /// The policy driven (its file).
     pub policy: String,
+    /// The track driven, in words (`cabc robust --track`: another than the run's).
+    #[serde(default)]
+    pub track: String,
     pub seed: u64,
     pub spawns: usize,
     /// Full laps wanted per episode.
@@ -384,6 +387,7 @@ pub fn study(
     }
     Ok(RobustReport {
         policy: policy.to_string(),
+        track: track.describe().to_string(),
         seed: settings.seed,
         spawns: settings.spawns,
         laps: settings.laps,

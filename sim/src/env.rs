@@ -35,6 +35,7 @@ use cabc_proto::messages::EndReason;
 use crate::camera::Sun;
 use crate::track::{Frenet, Track, TrackError};
 use crate::vehicle::{clip_action, Input, State, VehicleParams};
+use cabc_proto::config::TrackFeature;
 
 /// Where an episode starts: the run configuration's type, re-exported.
 pub use cabc_proto::config::Spawn;
@@ -118,6 +119,9 @@ pub struct EnvConfig {
     pub min_speed: f64,
     /// Spin threshold on |e_psi| (rad).
     pub max_heading_error: f64,
+    /// The observed state's fourth entry: s, or the curvature preview over `preview_m` metres.
+    pub track_feature: TrackFeature,
+    pub preview_m: f64,
 }
 
 impl Default for EnvConfig {
@@ -129,6 +133,8 @@ impl Default for EnvConfig {
             max_laps: MAX_LAPS,
             min_speed: MIN_SPEED,
             max_heading_error: MAX_HEADING_ERROR,
+            track_feature: TrackFeature::S,
+            preview_m: 1.0,
         }
     }
 }
@@ -331,8 +337,12 @@ impl Env {
 
     pub fn observation(&self) -> EnvObservation {
         let (q, f) = (&self.q, &self.frenet);
+        let fourth = match self.config.track_feature {
+            TrackFeature::S => f.s,
+            TrackFeature::CurvaturePreview => self.track.mean_curvature(f.s, self.config.preview_m),
+        };
         EnvObservation {
-            state: [q[0], q[1], q[2], f.s, f.x_tran, f.e_psi],
+            state: [q[0], q[1], q[2], fourth, f.x_tran, f.e_psi],
             pose: [q[3], q[4], q[5]],
         }
     }

@@ -543,6 +543,16 @@ impl Track {
         best
     }
 
+    /// The centreline's mean curvature (1/m, > 0 turning left) over [s, s + ahead]: its heading's change over the
+    /// distance (the observation's curvature preview, `observation.track_feature`).
+    pub fn mean_curvature(&self, s: f64, ahead: f64) -> f64 {
+        let (a, b) = (
+            self.local_to_global(s, 0.0, 0.0),
+            self.local_to_global(s + ahead, 0.0, 0.0),
+        );
+        wrap(b.psi - a.psi) / ahead
+    }
+
     /// Where the track comes back near itself: two points of the centreline, at least π·band apart along it,
     /// closer than twice the band (their bands would overlap, and a point there would have two Frenet frames), as
     /// their arc lengths; None for a track whose parts keep apart. A curve of radius above the band never brings

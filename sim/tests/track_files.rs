@@ -250,3 +250,28 @@ fn the_distance_field_of_a_fitted_track_is_its_lateral_offset_inside_the_band() 
         }
     }
 }
+
+#[test]
+fn the_curvature_preview_is_the_same_on_every_track_where_the_road_is_the_same() {
+    // The oval's straight, then its half circle of 1.5 m to the left: the preview sees the turn before it comes.
+    let oval = Arc::new(load("oval", Size::default()).unwrap());
+    assert!(oval.mean_curvature(1.0, 1.0).abs() < 1e-12);
+    assert!((oval.mean_curvature(5.0, 1.0) - 1.0 / 1.5).abs() < 1e-9);
+    assert!((oval.mean_curvature(3.5, 1.0) - 0.5 / 1.5).abs() < 1e-9);
+    // The L-track's first straight and left hairpin (radius 1.1525) read the same way.
+    let l = Track::l_track_barc();
+    assert!(l.mean_curvature(0.5, 1.0).abs() < 1e-12);
+    assert!((l.mean_curvature(3.0, 1.0) - 1.0 / 1.1525).abs() < 1e-9);
+    // The environment observes it in place of s under `track_feature = curvature-preview`.
+    let config = EnvConfig {
+        track_feature: cabc_proto::config::TrackFeature::CurvaturePreview,
+        preview_m: 1.0,
+        ..EnvConfig::default()
+    };
+    let mut env = Env::new(oval.clone(), VehicleParams::default(), config);
+    env.set_spawn(3.5, 0.0, 0.0, 1.0);
+    assert!((env.observation().state[3] - 0.5 / 1.5).abs() < 1e-9);
+    let mut plain = Env::new(oval, VehicleParams::default(), EnvConfig::default());
+    plain.set_spawn(3.5, 0.0, 0.0, 1.0);
+    assert!((plain.observation().state[3] - 3.5).abs() < 1e-9);
+}

@@ -231,3 +231,14 @@ pub enum ClipScope {
     /// clip factor then also counts their last fit's gradient and what L_safety accumulates into them.
     PolicyCriticDynamics,
 }
+
+/// What the fourth entry of the observed state is (`observation.track_feature`): the arc length `s` (the paper's and
+/// the default), or the track's mean curvature over the next `observation.preview_m` metres, which means the same on
+/// every track (issue 76: a policy that drives circuits it never saw).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrackFeature {
+    #[default]
+    S,
+    CurvaturePreview,
+}

@@ -3,7 +3,7 @@
 use super::{
     ClipScope, CriticNegatives, Episodes, ExpertFailureStaged, ExpertKind, ExpertPlacement, Flush,
     ObservationKind, Precision, SafetyStates, SafetyTerm, ScheduleKind, SecuritySection, Spawn,
-    StoredAction, Velocity, VisionTrunk,
+    StoredAction, TrackFeature, Velocity, VisionTrunk,
 };
 use serde::{Deserialize, Serialize};
 
@@ -147,6 +147,11 @@ pub struct ObservationSection {
     /// Issue 58's probe of the copycat shortcut: `[]` (the image alone) or `["v_long"]` (no yaw rate or lateral
     /// velocity to read the last steering from). A full-state policy sees the whole state: only the default there.
     pub velocity_inputs: Vec<Velocity>,
+    /// The state's fourth entry: `s` (the arc length, the default) or `curvature-preview` (the track's mean
+    /// curvature, 1/m, over the next `preview_m` metres: the same on every track).
+    pub track_feature: TrackFeature,
+    /// How far ahead the curvature preview looks (m).
+    pub preview_m: f64,
 }
 
 impl Default for ObservationSection {
@@ -161,6 +166,8 @@ impl Default for ObservationSection {
             pixel_noise_std: 0.0,
             pretrained: None,
             velocity_inputs: Velocity::ALL.to_vec(),
+            track_feature: TrackFeature::S,
+            preview_m: 1.0,
         }
     }
 }

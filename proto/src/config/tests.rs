@@ -592,3 +592,28 @@ fn the_early_stop_on_random_spawns_is_off_unless_asked() {
         assert!(e.contains("collection.early_stop_"), "{bad}: {e}");
     }
 }
+
+#[test]
+fn the_curvature_preview_is_a_key_of_the_observation() {
+    let c = RunConfig::default();
+    assert_eq!(c.observation.track_feature, TrackFeature::S);
+    let p = c
+        .clone()
+        .with_overrides(&["observation.track_feature=curvature-preview".into()])
+        .unwrap();
+    assert_eq!(p.observation.track_feature, TrackFeature::CurvaturePreview);
+    assert!(p
+        .to_toml()
+        .contains("track_feature = \"curvature-preview\""));
+    let e = c
+        .clone()
+        .with_overrides(&["observation.preview_m=0".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("observation.preview_m"), "{e}");
+    let e = c
+        .with_overrides(&["observation.track_feature=tangent".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("curvature-preview"), "{e}");
+}

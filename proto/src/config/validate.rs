@@ -61,6 +61,13 @@ impl RunConfig {
                 "must be a positive number of metres",
             );
         }
+        if !(self.observation.preview_m > 0.0 && self.observation.preview_m.is_finite()) {
+            return invalid(
+                "observation.preview_m",
+                self.observation.preview_m.to_string(),
+                "must be a positive number of metres",
+            );
+        }
         if !(self.algorithm.lambda >= 0.0 && self.algorithm.lambda.is_finite()) {
             return invalid(
                 "algorithm.lambda",

@@ -1,0 +1,71 @@
+#!/usr/bin/env python3
+"""Issue 76's generalisation table from `deploy/tracks-study.sh`'s robust-<track>/robust.json of each run folder.
+
+    python3 docs/tracks/generalisation/table.py GROUP=RUN_PREFIX ... [--seeds 1,2,3,4,5] [--copy DIR]
+
+A group is a run-name prefix: runs PREFIX-s<k> (proposed) and PREFIX-s<k>-baseline (baseline) under runs/. For each
+track: the crash share over the seeds' 20 spawns each (mean of the seeds, 95 % bootstrap interval over seeds), laps
+per episode, and the paired difference proposed - baseline (bootstrap over seeds). --copy DIR keeps each run's
+robust.json files under DIR/<run>/ (the results this table is made from).
+"""
+import json
+import random
+import shutil
+import sys
+from pathlib import Path
+
+TRACKS = ["l-track-barc", "oval", "chicane", "long"]
+
+
+def level(run, track):
+    data = json.loads((Path("runs") / run / f"robust-{track}" / "robust.json").read_text())
+    row = data["levels"][0]
+    return row["crashes"] / row["episodes"], row["laps_mean"]
+
+
+def boot(values, n=10000, seed=76):
+    rng = random.Random(seed)
+    means = sorted(sum(rng.choice(values) for _ in values) / len(values) for _ in range(n))
+    return sum(values) / len(values), means[int(0.025 * n)], means[int(0.975 * n) - 1]
+
+
+def fmt(m, lo, hi, pct=True):
+    if pct:
+        return f"{100 * m:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+    return f"{m:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def main(argv):
+    seeds, groups, copy = [1, 2, 3, 4, 5], [], None
+    args = iter(argv)
+    for a in args:
+        if a == "--seeds":
+            seeds = [int(s) for s in next(args).split(",")]
+        elif a == "--copy":
+            copy = Path(next(args))
+        else:
+            name, prefix = a.split("=", 1)
+            groups.append((name, prefix))
+    print("| key | track | seen in training | crashes, proposed | crashes, baseline | proposed - baseline (crashes) "
+          "| laps per episode, proposed | laps per episode, baseline |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, prefix in groups:
+        for track in TRACKS:
+            p = [level(f"{prefix}-s{k}", track) for k in seeds]
+            b = [level(f"{prefix}-s{k}-baseline", track) for k in seeds]
+            diff = [pc - bc for (pc, _), (bc, _) in zip(p, b)]
+            print(
+                f"| {name} | {track} | {'yes' if track == 'l-track-barc' else 'no'} "
+                f"| {fmt(*boot([c for c, _ in p]))} | {fmt(*boot([c for c, _ in b]))} "
+                f"| {fmt(*boot(diff))} | {fmt(*boot([l for _, l in p]), pct=False)} "
+                f"| {fmt(*boot([l for _, l in b]), pct=False)} |"
+            )
+            if copy:
+                for run in [f"{prefix}-s{k}" for k in seeds] + [f"{prefix}-s{k}-baseline" for k in seeds]:
+                    dst = copy / run / f"robust-{track}"
+                    dst.mkdir(parents=True, exist_ok=True)
+                    shutil.copy(Path("runs") / run / f"robust-{track}" / "robust.json", dst / "robust.json")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
