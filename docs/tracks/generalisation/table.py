@@ -46,6 +46,20 @@ def main(argv):
         else:
             name, prefix = a.split("=", 1)
             groups.append((name, prefix))
+    print("| key | method | early stop | early-stop versions | first version with 50 laps, median |")
+    print("|---|---|---|---|---|")
+    for name, prefix in groups:
+        for method, suffix in [("proposed", ""), ("baseline (λ 0)", "-baseline")]:
+            runs = [json.loads((Path("runs") / f"{prefix}-s{k}{suffix}" / "summary.json").read_text()) for k in seeds]
+            stops = [r.get("early_stop_version") for r in runs]
+            firsts = sorted(r.get("first_version_with_eval_laps") or 10**9 for r in runs)
+            first = firsts[len(firsts) // 2]
+            print(
+                f"| {name} | {method} | {sum(v is not None for v in stops)} of {len(runs)} "
+                f"| {', '.join(str(v) if v is not None else '-' for v in stops)} "
+                f"| {first if first < 10**9 else '-'} |"
+            )
+    print()
     print("| key | track | seen in training | crashes, proposed | crashes, baseline | proposed - baseline (crashes) "
           "| laps per episode, proposed | laps per episode, baseline |")
     print("|---|---|---|---|---|---|---|---|")
@@ -61,6 +75,11 @@ def main(argv):
                 f"| {fmt(*boot([l for _, l in b]), pct=False)} |"
             )
             if copy:
+                for run in [f"{prefix}-s{k}" for k in seeds] + [f"{prefix}-s{k}-baseline" for k in seeds]:
+                    dst = copy / run
+                    dst.mkdir(parents=True, exist_ok=True)
+                    for f in ["summary.json", "metrics.csv", "evals.csv", "config.toml"]:
+                        shutil.copy(Path("runs") / run / f, dst / f)
                 for run in [f"{prefix}-s{k}" for k in seeds] + [f"{prefix}-s{k}-baseline" for k in seeds]:
                     dst = copy / run / f"robust-{track}"
                     dst.mkdir(parents=True, exist_ok=True)
