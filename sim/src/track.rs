@@ -566,11 +566,26 @@ impl Track {
             .map(|&si| self.local_to_global(si, 0.0, 0.0))
             .collect();
         let (apart, near) = (PI * band, 2.0 * band * (1.0 - 1e-9));
+        // Samples bucketed by cells of twice the band: a close pair lies in the same or neighbouring cells.
+        let cell = 2.0 * band;
+        let key = |q: &Pose| ((q.x / cell).floor() as i64, (q.y / cell).floor() as i64);
+        let mut buckets: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+        for (i, q) in p.iter().enumerate() {
+            buckets.entry(key(q)).or_default().push(i);
+        }
         for i in 0..n {
-            for j in i + 1..n {
-                let along = (s[j] - s[i]).min(self.length - (s[j] - s[i]));
-                if along >= apart && (p[i].x - p[j].x).hypot(p[i].y - p[j].y) < near {
-                    return Some((s[i], s[j]));
+            let (cx, cy) = key(&p[i]);
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for &j in buckets.get(&(cx + dx, cy + dy)).map_or(&[][..], |v| &v[..]) {
+                        if j <= i {
+                            continue;
+                        }
+                        let along = (s[j] - s[i]).min(self.length - (s[j] - s[i]));
+                        if along >= apart && (p[i].x - p[j].x).hypot(p[i].y - p[j].y) < near {
+                            return Some((s[i], s[j]));
+                        }
+                    }
                 }
             }
         }

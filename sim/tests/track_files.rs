@@ -216,6 +216,11 @@ fn a_bad_file_is_refused_naming_the_file_and_line() {
     let (_, line, why) = file_error(parse(tight, "tight.toml", Size::default()).unwrap_err());
     assert_eq!(line, Some(4));
     assert!(why.contains("tighter than the car turns"), "{why}");
+    // A circle of 2 km radius at scale 1: longer than a track may be.
+    let e = parse(&circle_csv(2000.0, 400, 0.5), "huge.csv", Size::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("at most 10000 m"), "{e}");
     // A file that is not there, and one of another kind.
     let e = load("/nonexistent/track.csv", Size::default())
         .unwrap_err()

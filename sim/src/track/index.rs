@@ -5,6 +5,9 @@
 
 use super::{Circle, Track};
 
+/// The most cells a grid holds (each a list of pieces).
+const MAX_CELLS: f64 = 4e6;
+
 #[derive(Debug)]
 pub(super) struct Grid {
     x0: f64,
@@ -52,6 +55,8 @@ impl Grid {
         let y0 = boxes.iter().map(|b| b.1).fold(f64::INFINITY, f64::min);
         let x1 = boxes.iter().map(|b| b.2).fold(f64::NEG_INFINITY, f64::max);
         let y1 = boxes.iter().map(|b| b.3).fold(f64::NEG_INFINITY, f64::max);
+        // At most MAX_CELLS cells: a larger track gets larger cells (and longer lists in each).
+        let cell = cell.max(((x1 - x0) * (y1 - y0) / MAX_CELLS).sqrt());
         let nx = ((x1 - x0) / cell).ceil() as usize + 1;
         let ny = ((y1 - y0) / cell).ceil() as usize + 1;
         let mut cells = vec![Vec::new(); nx * ny];

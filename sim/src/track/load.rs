@@ -27,6 +27,9 @@ pub const SHIPPED: &[(&str, &str, &str)] = &[
     ("long", "long.csv", include_str!("../../../tracks/long.csv")),
 ];
 
+/// The longest track a file may make (m): its checks and its grid grow with it.
+pub const MAX_LENGTH: f64 = 10_000.0;
+
 /// The least slack a centre line's band keeps beyond its constraint (m); tighter curves are refused.
 const MIN_BAND_MARGIN: f64 = 0.05;
 
@@ -375,6 +378,16 @@ fn checked(
     why_width: &str,
 ) -> Result<Track, TrackError> {
     let band = half_width + slack;
+    let length: f64 = pieces.iter().map(|p| p.length).sum();
+    if length > MAX_LENGTH {
+        return Err(file_error(
+            file,
+            None,
+            format!(
+                "a track of {length:.0} m: at most {MAX_LENGTH:.0} m (sim.track_scale shrinks it)"
+            ),
+        ));
+    }
     let car = car_min_radius();
     let mut s = 0.0;
     for p in &pieces {
