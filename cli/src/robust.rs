@@ -40,6 +40,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             track: track.clone(),
             track_scale: args.track_scale,
             track_half_width: args.track_half_width,
+            actor_tracks: Vec::new(),
         };
         let name = std::path::Path::new(track)
             .file_stem()

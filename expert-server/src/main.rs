@@ -135,6 +135,7 @@ fn main() -> Result<()> {
                     track: name.clone(),
                     track_scale: scale,
                     track_half_width: half_width,
+                    actor_tracks: Vec::new(),
                 };
                 eprintln!("[tracks] driving {name}");
                 match cabc_expert::tracks::laps_on(&sim, laps, max_steps) {

@@ -98,6 +98,11 @@ pub fn run(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
 /// the distributed run (the same streams, segment order and code; `tests/tests/local.rs`), except that every
 /// version's evaluation arrives before the next epoch, so an early stop can come a few epochs sooner.
 pub fn run_local(config: RunConfig, run_dir: RunDir, resume: bool) -> Result<()> {
+    anyhow::ensure!(
+        config.sim.actor_tracks.is_empty(),
+        "sim.actor_tracks needs each actor in its own process with its own expert (deploy/run-local.sh); \
+         learner run --local shares one expert on sim.track"
+    );
     let interrupt = Interrupt::on_signals();
     let expert = Expert::from_config(&config).context("building the MPCC")?;
     let expert = Background::new(Relabeller::new(

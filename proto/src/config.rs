@@ -251,6 +251,16 @@ impl RunConfig {
         }
     }
 
+    /// The configuration actor `index` collects under: its own track under `sim.actor_tracks`, else this one.
+    pub fn for_actor(&self, index: u64) -> RunConfig {
+        let mut config = self.clone();
+        let tracks = &self.sim.actor_tracks;
+        if !tracks.is_empty() {
+            config.sim.track = tracks[(index % tracks.len() as u64) as usize].clone();
+        }
+        config
+    }
+
     /// Each actor's share of an epoch's steps (rounded up, so the epoch collects at least its budget).
     pub fn steps_per_actor(&self, epoch: u64) -> u64 {
         self.epoch_steps(epoch).div_ceil(self.actors.count as u64)

@@ -25,6 +25,7 @@ pub fn sim_section(
         track: track.unwrap_or(SimSection::L_TRACK_BARC).to_string(),
         track_scale: track_scale.unwrap_or(1.0),
         track_half_width,
+        actor_tracks: Vec::new(),
     };
     if let Ok(cwd) = std::env::current_dir() {
         sim.resolve(&cwd);

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Issue 76's generalisation table from `deploy/tracks-study.sh`'s robust-<track>/robust.json of each run folder.
 
-    python3 docs/tracks/generalisation/table.py GROUP=RUN_PREFIX ... [--seeds 1,2,3,4,5] [--copy DIR]
+    python3 docs/tracks/generalisation/table.py NAME=RUN_PREFIX[:SEEN,SEEN] ... [--seeds 1,2,3,4,5] [--copy DIR]
 
-A group is a run-name prefix: runs PREFIX-s<k> (proposed) and PREFIX-s<k>-baseline (baseline) under runs/. For each
+A group is a run-name prefix (SEEN: the tracks it trained on, l-track-barc unless given): runs PREFIX-s<k> (proposed) and PREFIX-s<k>-baseline (baseline) under runs/. For each
 track: the crash share over the seeds' 20 spawns each (mean of the seeds, 95 % bootstrap interval over seeds), laps
 per episode, and the paired difference proposed - baseline (bootstrap over seeds). --copy DIR keeps each run's
 robust.json files under DIR/<run>/ (the results this table is made from).
@@ -45,10 +45,11 @@ def main(argv):
             copy = Path(next(args))
         else:
             name, prefix = a.split("=", 1)
-            groups.append((name, prefix))
+            prefix, _, seen = prefix.partition(":")
+            groups.append((name, prefix, seen.split(",") if seen else ["l-track-barc"]))
     print("| key | method | early stop | early-stop versions | first version with 50 laps, median |")
     print("|---|---|---|---|---|")
-    for name, prefix in groups:
+    for name, prefix, _ in groups:
         for method, suffix in [("proposed", ""), ("baseline (λ 0)", "-baseline")]:
             runs = [json.loads((Path("runs") / f"{prefix}-s{k}{suffix}" / "summary.json").read_text()) for k in seeds]
             stops = [r.get("early_stop_version") for r in runs]
@@ -63,13 +64,13 @@ def main(argv):
     print("| key | track | seen in training | crashes, proposed | crashes, baseline | proposed - baseline (crashes) "
           "| laps per episode, proposed | laps per episode, baseline |")
     print("|---|---|---|---|---|---|---|---|")
-    for name, prefix in groups:
+    for name, prefix, seen in groups:
         for track in TRACKS:
             p = [level(f"{prefix}-s{k}", track) for k in seeds]
             b = [level(f"{prefix}-s{k}-baseline", track) for k in seeds]
             diff = [pc - bc for (pc, _), (bc, _) in zip(p, b)]
             print(
-                f"| {name} | {track} | {'yes' if track == 'l-track-barc' else 'no'} "
+                f"| {name} | {track} | {'yes' if track in seen else 'no'} "
                 f"| {fmt(*boot([c for c, _ in p]))} | {fmt(*boot([c for c, _ in b]))} "
                 f"| {fmt(*boot(diff))} | {fmt(*boot([l for _, l in p]), pct=False)} "
                 f"| {fmt(*boot([l for _, l in b]), pct=False)} |"

@@ -49,6 +49,12 @@ pub struct SimSection {
     /// drive. Left out: the file's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub track_half_width: Option<f64>,
+    /// Tracks the collecting actors drive instead of `track` (issue 76: training on several circuits): actor i
+    /// drives `actor_tracks[i mod n]`, sized as `track`, its expert on it too (so `expert.placement = "in-actor"`);
+    /// the evaluation and the early stop drive `track`. Names, or files read from their path on every machine (not
+    /// copied into the run folder). Empty (the default): every actor drives `track`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub actor_tracks: Vec<String>,
 }
 
 impl Default for SimSection {
@@ -57,6 +63,7 @@ impl Default for SimSection {
             track: Self::L_TRACK_BARC.into(),
             track_scale: 1.0,
             track_half_width: None,
+            actor_tracks: Vec::new(),
         }
     }
 }
@@ -70,15 +77,22 @@ impl SimSection {
 
     /// Whether `sim.track` names a file (it ends in `.csv` or `.toml`) rather than a track by name.
     pub fn track_is_file(&self) -> bool {
-        self.track.ends_with(".csv") || self.track.ends_with(".toml")
+        Self::is_file(&self.track)
+    }
+
+    /// Whether a track's name is a file's (it ends in `.csv` or `.toml`).
+    pub fn is_file(track: &str) -> bool {
+        track.ends_with(".csv") || track.ends_with(".toml")
     }
 
     /// A relative track file is read from `folder` (the configuration file's).
     pub fn resolve(&mut self, folder: &std::path::Path) {
-        let path = std::path::Path::new(&self.track);
-        if self.track_is_file() && path.is_relative() {
-            let folder = std::fs::canonicalize(folder).unwrap_or_else(|_| folder.to_path_buf());
-            self.track = folder.join(path).display().to_string();
+        let folder = std::fs::canonicalize(folder).unwrap_or_else(|_| folder.to_path_buf());
+        for track in std::iter::once(&mut self.track).chain(self.actor_tracks.iter_mut()) {
+            let path = std::path::Path::new(track.as_str());
+            if Self::is_file(track) && path.is_relative() {
+                *track = folder.join(path).display().to_string();
+            }
         }
     }
 }

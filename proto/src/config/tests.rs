@@ -617,3 +617,33 @@ fn the_curvature_preview_is_a_key_of_the_observation() {
         .to_string();
     assert!(e.contains("curvature-preview"), "{e}");
 }
+
+#[test]
+fn each_actor_drives_its_own_track_under_actor_tracks() {
+    let c = RunConfig::default()
+        .with_overrides(&[
+            r#"sim.actor_tracks=["oval", "long"]"#.into(),
+            "expert.placement=in-actor".into(),
+            "sim.track=chicane".into(),
+        ])
+        .unwrap();
+    assert_eq!(c.for_actor(0).sim.track, "oval");
+    assert_eq!(c.for_actor(1).sim.track, "long");
+    assert_eq!(c.for_actor(2).sim.track, "oval");
+    assert_eq!(c.sim.track, "chicane");
+    assert_eq!(RunConfig::default().for_actor(1), RunConfig::default());
+    // An expert server answers on one track; an unknown name is refused.
+    let e = RunConfig::default()
+        .with_overrides(&[r#"sim.actor_tracks=["oval"]"#.into()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("in-actor"), "{e}");
+    let e = RunConfig::default()
+        .with_overrides(&[
+            r#"sim.actor_tracks=["monza"]"#.into(),
+            "expert.placement=in-actor".into(),
+        ])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("monza"), "{e}");
+}

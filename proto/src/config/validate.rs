@@ -61,6 +61,24 @@ impl RunConfig {
                 "must be a positive number of metres",
             );
         }
+        for track in &self.sim.actor_tracks {
+            if !SimSection::is_file(track) && !SimSection::NAMES.contains(&track.as_str()) {
+                return invalid(
+                    "sim.actor_tracks",
+                    track.clone(),
+                    "name a track (l-track-barc, oval, chicane, long) or a file (.csv, .toml)",
+                );
+            }
+        }
+        if !self.sim.actor_tracks.is_empty()
+            && self.expert.placement != super::ExpertPlacement::InActor
+        {
+            return invalid(
+                "sim.actor_tracks",
+                format!("{:?}", self.sim.actor_tracks),
+                "needs expert.placement = \"in-actor\": an expert server answers on one track",
+            );
+        }
         if !(self.observation.preview_m > 0.0 && self.observation.preview_m.is_finite()) {
             return invalid(
                 "observation.preview_m",
