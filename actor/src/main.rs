@@ -107,7 +107,6 @@ fn main() -> Result<()> {
         let index = cli
             .index
             .unwrap_or_else(|| cabc_proto::keys::trailing_number(&cli.id));
-        // Under `sim.actor_tracks` this actor drives its own track, its in-actor expert on it too.
         let config = config.for_actor(index);
         let mut expert = cabc_actor::expert::of_run(&config, &bus, &interrupt, stats.clone())?;
         // Restarts under the same id are new incarnations (the learner's ledger keys segments by both).

@@ -8,7 +8,7 @@ use cabc_expert::bench;
 use cabc_expert::drive::{drive, DriveOptions};
 use cabc_expert::relabel::Expert;
 use cabc_expert::Mpcc;
-use cabc_proto::config::{RunConfig, SimSection};
+use cabc_proto::config::RunConfig;
 use cabc_sim::vehicle::VehicleParams;
 use clap::{Parser, Subcommand};
 
@@ -49,26 +49,7 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Drive the MPCC alone on each track (the L-track and the shipped ones unless named) and print a table of laps,
     /// lap times and solver failures (Markdown on stdout; --json for every figure).
-    Tracks {
-        /// A track by name (l-track-barc, oval, chicane, long) or a file (.csv, .toml); repeatable.
-        #[arg(long = "track")]
-        tracks: Vec<String>,
-        /// Multiply the named tracks' lengths and widths by this.
-        #[arg(long, default_value_t = 1.0)]
-        scale: f64,
-        /// The constraint's half-width (m) instead of each file's narrowest.
-        #[arg(long)]
-        half_width: Option<f64>,
-        /// Laps to drive on each.
-        #[arg(long, default_value_t = 2)]
-        laps: usize,
-        /// Step limit per track.
-        #[arg(long, default_value_t = 20_000)]
-        max_steps: usize,
-        /// Write the rows as JSON here too.
-        #[arg(long)]
-        json: Option<std::path::PathBuf>,
-    },
+    Tracks(cabc_expert::tracks::TracksArgs),
 }
 
 fn main() -> Result<()> {
@@ -116,43 +97,8 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&report.summary())?);
             Ok(())
         }
-        Command::Tracks {
-            tracks,
-            scale,
-            half_width,
-            laps,
-            max_steps,
-            json,
-        } => {
-            let names: Vec<String> = if tracks.is_empty() {
-                SimSection::NAMES.iter().map(|s| s.to_string()).collect()
-            } else {
-                tracks
-            };
-            let (mut rows, mut refused) = (Vec::new(), Vec::new());
-            for name in names {
-                let sim = SimSection {
-                    track: name.clone(),
-                    track_scale: scale,
-                    track_half_width: half_width,
-                    actor_tracks: Vec::new(),
-                };
-                eprintln!("[tracks] driving {name}");
-                match cabc_expert::tracks::laps_on(&sim, laps, max_steps) {
-                    Ok(row) => rows.push(row),
-                    // One track that cannot be built does not stop the others; the command fails at the end.
-                    Err(e) => {
-                        eprintln!("[tracks] {name}: {e:#}");
-                        refused.push(name);
-                    }
-                }
-            }
-            if let Some(path) = &json {
-                std::fs::write(path, serde_json::to_string_pretty(&rows)? + "\n")
-                    .with_context(|| format!("writing {}", path.display()))?;
-            }
-            print!("{}", cabc_expert::tracks::table(&rows));
-            anyhow::ensure!(refused.is_empty(), "tracks refused: {}", refused.join(", "));
+        Command::Tracks(args) => {
+            print!("{}", cabc_expert::tracks::run(&args)?);
             Ok(())
         }
         Command::Bench(args) => {

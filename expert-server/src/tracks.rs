@@ -4,10 +4,71 @@
 
 use crate::drive::{drive, DriveOptions};
 use crate::mpcc::{Mpcc, MpccConfig};
+use anyhow::Context;
 use cabc_proto::config::SimSection;
 use cabc_sim::track::Track;
 use cabc_sim::vehicle::VehicleParams;
 use serde::Serialize;
+
+/// `expert-server tracks`'s options.
+#[derive(clap::Args, Debug, Clone)]
+pub struct TracksArgs {
+    /// A track by name (l-track-barc, oval, chicane, long) or a file (.csv, .toml); repeatable.
+    #[arg(long = "track")]
+    pub tracks: Vec<String>,
+    /// Multiply the named tracks' lengths and widths by this.
+    #[arg(long, default_value_t = 1.0)]
+    pub scale: f64,
+    /// The constraint's half-width (m) instead of each file's narrowest.
+    #[arg(long)]
+    pub half_width: Option<f64>,
+    /// Laps to drive on each.
+    #[arg(long, default_value_t = 2)]
+    pub laps: usize,
+    /// Step limit per track.
+    #[arg(long, default_value_t = 20_000)]
+    pub max_steps: usize,
+    /// Write the rows as JSON here too.
+    #[arg(long)]
+    pub json: Option<std::path::PathBuf>,
+}
+
+/// Drives every track `args` names (the L-track and the shipped ones without `--track`) and returns the table; a
+/// track refused (on stderr, with its file and line) does not stop the others, and fails the command at the end.
+pub fn run(args: &TracksArgs) -> anyhow::Result<String> {
+    let names: Vec<String> = if args.tracks.is_empty() {
+        SimSection::NAMES.iter().map(|s| s.to_string()).collect()
+    } else {
+        args.tracks.clone()
+    };
+    let (mut rows, mut refused) = (Vec::new(), Vec::new());
+    for name in names {
+        let sim = SimSection {
+            track: name.clone(),
+            track_scale: args.scale,
+            track_half_width: args.half_width,
+            actor_tracks: Vec::new(),
+        };
+        eprintln!("[tracks] driving {name}");
+        match laps_on(&sim, args.laps, args.max_steps) {
+            Ok(row) => rows.push(row),
+            Err(e) => {
+                eprintln!("[tracks] {name}: {e:#}");
+                refused.push(name);
+            }
+        }
+    }
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&rows)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let table = table(&rows);
+    if !refused.is_empty() {
+        print!("{table}");
+        anyhow::bail!("tracks refused: {}", refused.join(", "));
+    }
+    Ok(table)
+}
 
 /// One track's drive.
 #[derive(Debug, Clone, Serialize)]

@@ -109,22 +109,7 @@ impl Learner {
     ) -> Result<Self, LearnerError> {
         let device = parse_device(&config.training.device).map_err(TrainError::from)?;
         let state = LearnerState::default();
-        let half_width = Track::of(&config.sim)?.half_width();
-        // Every actor's track has the constraint the safety labels use.
-        for track in &config.sim.actor_tracks {
-            let sim = cabc_proto::config::SimSection {
-                track: track.clone(),
-                actor_tracks: Vec::new(),
-                ..config.sim.clone()
-            };
-            let other = Track::of(&sim)?.half_width();
-            if other != half_width {
-                return Err(LearnerError::Checkpoint(format!(
-                    "sim.actor_tracks: {track}'s half-width is {other} m, sim.track's {half_width} m: the actors' \
-                     tracks share the constraint (sim.track_half_width sets it)"
-                )));
-            }
-        }
+        let half_width = Track::constraint_of(&config.sim)?;
         Ok(Learner {
             trainer: Trainer::with_device(&config, device),
             replay: Replay::from_config(&config),

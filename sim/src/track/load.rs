@@ -11,6 +11,7 @@ use crate::vehicle::{VehicleParams, ACTION_HIGH};
 use cabc_proto::config::SimSection;
 use serde::Deserialize;
 use std::path::Path;
+use std::sync::Arc;
 
 /// The tracks made by this project, shipped as files (`tracks/`) and built into the binaries, by name.
 pub const SHIPPED: &[(&str, &str, &str)] = &[
@@ -29,6 +30,69 @@ pub const SHIPPED: &[(&str, &str, &str)] = &[
 
 /// The longest track a file may make (m): its checks and its grid grow with it.
 pub const MAX_LENGTH: f64 = 10_000.0;
+
+impl Track {
+    /// The track a run's configuration names (`sim.track`, `sim.track_scale`): built once per process and shared.
+    pub fn of(sim: &cabc_proto::config::SimSection) -> Result<Arc<Track>, TrackError> {
+        type Built = std::sync::Mutex<Vec<((String, [u64; 2]), Arc<Track>)>>;
+        static BUILT: std::sync::OnceLock<Built> = std::sync::OnceLock::new();
+        let size = Size::of(sim);
+        let key = (
+            sim.track.clone(),
+            [
+                size.scale.to_bits(),
+                size.half_width.map_or(0, f64::to_bits),
+            ],
+        );
+        let built = BUILT.get_or_init(Default::default);
+        if let Some((_, t)) = built
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(k, _)| *k == key)
+        {
+            return Ok(t.clone());
+        }
+        let track = Arc::new(load(&sim.track, size)?);
+        built
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((key, track.clone()));
+        Ok(track)
+    }
+
+    /// The half-width (m) of the run's constraint: `sim.track`'s, which every track of `sim.actor_tracks` must share
+    /// (the safety labels use one constraint).
+    pub fn constraint_of(sim: &SimSection) -> Result<f64, TrackError> {
+        let half_width = Track::of(sim)?.half_width();
+        for track in &sim.actor_tracks {
+            let other = SimSection {
+                track: track.clone(),
+                actor_tracks: Vec::new(),
+                ..sim.clone()
+            };
+            let width = Track::of(&other)?.half_width();
+            if width != half_width {
+                return Err(TrackError::OtherWidth {
+                    track: track.clone(),
+                    width,
+                    half_width,
+                });
+            }
+        }
+        Ok(half_width)
+    }
+
+    /// The track in words: "the L-shaped BARC track", or its file and scale.
+    pub fn describe(&self) -> &str {
+        &self.description
+    }
+
+    pub(crate) fn described(mut self, description: String) -> Track {
+        self.description = description;
+        self
+    }
+}
 
 /// The least slack a centre line's band keeps beyond its constraint (m); tighter curves are refused.
 const MIN_BAND_MARGIN: f64 = 0.05;
