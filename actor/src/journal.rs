@@ -42,17 +42,24 @@ impl SegmentSink for Journaled<'_> {
             return self.sink.put(message);
         };
         match &message {
-            TrajMessage::Segment(segment) => {
-                let seq = segment.seq;
-                journal.record(&ActorEvent::Published {
-                    seq,
-                    version: segment.policy_version,
-                    steps: segment.steps.len() as u64,
-                });
+            TrajMessage::Segment(_) | TrajMessage::Segments(_) => {
+                for segment in message.segments() {
+                    journal.record(&ActorEvent::Published {
+                        seq: segment.seq,
+                        version: segment.policy_version,
+                        steps: segment.steps.len() as u64,
+                    });
+                }
+                let seqs: Vec<u64> = message.segments().iter().map(|s| s.seq).collect();
                 let put = self.sink.put(message);
                 if let Err(e) = &put {
                     let why = e.to_string();
-                    journal.record(&ActorEvent::Unsent { seq, why });
+                    for seq in seqs {
+                        journal.record(&ActorEvent::Unsent {
+                            seq,
+                            why: why.clone(),
+                        });
+                    }
                 }
                 put
             }

@@ -102,13 +102,16 @@ struct Store<'a> {
 impl SegmentSink for Store<'_> {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         match message {
-            TrajMessage::Segment(segment) => (self.store)(segment),
             TrajMessage::EpochDone(done) => {
                 self.steps_published += done.steps;
                 self.steps_taken += done.taken;
                 self.steps_staged += done.staged;
                 self.steps_shielded += done.shielded;
             }
+            message => message
+                .into_segments()
+                .into_iter()
+                .for_each(&mut *self.store),
         }
         Ok(())
     }

@@ -10,7 +10,7 @@ use cabc_actor::collect::Collector;
 use cabc_actor::journal::{self, Journaled};
 use cabc_actor::run::{run_actor, run_evaluator, stop_or_fail, ActorStats};
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::outbox::ZenohSegments;
+use cabc_bus::outbox::{Batching, ZenohSegments};
 use cabc_bus::ports::{Shard, SharedStats, ZenohEvals, ZenohPolicySource};
 use cabc_bus::{Bus, Role};
 use cabc_models::{PolicyArch, PolicyCheck};
@@ -120,7 +120,8 @@ fn main() -> Result<()> {
             .transpose()
             .context("beginning the actor's journal")?;
         let mut sink =
-            ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?;
+            ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?
+                .batching(Batching::of(&config.bus));
         let mut source = source.echoing(sink.echo());
         let mut collector = Collector::new(&cli.id, index, &config)
             .context("the run's track (sim.track)")?

@@ -90,10 +90,16 @@ struct Count {
 impl SegmentSink for Count {
     fn put(&mut self, message: TrajMessage) -> Result<(), PortError> {
         match message {
-            TrajMessage::Segment(s) => self.steps += s.steps.len() as u64,
             TrajMessage::EpochDone(d) => {
                 self.staged = d.staged;
                 self.markers.push((d.version, d.steps))
+            }
+            message => {
+                self.steps += message
+                    .segments()
+                    .iter()
+                    .map(|s| s.steps.len() as u64)
+                    .sum::<u64>()
             }
         }
         Ok(())

@@ -48,15 +48,18 @@ impl Arrival {
             gate.heard_from(sender, Instant::now());
         }
         match self.message {
-            Some(TrajMessage::Segment(segment)) => {
-                if segment.policy_version == version {
-                    *heard.entry(segment.actor.clone()).or_default() += segment.steps.len() as u64;
-                }
-                store(segment)
-            }
             Some(TrajMessage::EpochDone(marker)) => {
                 heard.entry(marker.actor.clone()).or_default();
                 gate.done(marker);
+            }
+            Some(message) => {
+                for segment in message.into_segments() {
+                    if segment.policy_version == version {
+                        *heard.entry(segment.actor.clone()).or_default() +=
+                            segment.steps.len() as u64;
+                    }
+                    store(segment)
+                }
             }
             None => {}
         }
@@ -165,8 +168,12 @@ impl Receipts {
                 });
                 let sender = traj_sender(key).map(str::to_string);
                 let decoded = ReceiptClock::add(&times.decode_ns, started);
-                if let (Some(actor), Some(TrajMessage::Segment(segment))) = (&sender, &message) {
-                    receipts.acknowledge(actor, segment.incarnation, segment.seq);
+                // One receipt for every segment of the message (a batch is of one incarnation).
+                if let (Some(actor), Some(message)) = (&sender, &message) {
+                    if let Some(first) = message.segments().first() {
+                        let seqs = message.segments().iter().map(|s| s.seq).collect();
+                        receipts.acknowledge(actor, first.incarnation, seqs);
+                    }
                 }
                 let acknowledged = ReceiptClock::add(&times.ack_ns, decoded);
                 // The receiver is gone only when the learner is closing.
@@ -221,7 +228,7 @@ impl Acknowledger {
     }
 
     /// [`acknowledge`], through `actor`'s publisher (declared now if it is not yet).
-    fn acknowledge(&self, actor: &str, incarnation: u64, seq: u64) {
+    fn acknowledge(&self, actor: &str, incarnation: u64, seqs: Vec<u64>) {
         let publisher = {
             let mut publishers = self.publishers.lock().unwrap_or_else(|e| e.into_inner());
             match publishers.get(actor) {
@@ -253,7 +260,7 @@ impl Acknowledger {
         };
         let ack = Ack {
             incarnation,
-            seqs: vec![seq],
+            seqs,
             learner: self.learner,
             committed: false,
         };
@@ -261,7 +268,7 @@ impl Acknowledger {
             return put_ack(&self.session, &self.keys, actor, &ack);
         };
         if let Err(e) = publisher.put(codec::encode(&ack)).wait() {
-            tracing::debug!(actor, seq, "acknowledging a segment: {e}");
+            tracing::debug!(actor, seqs = ?ack.seqs, "acknowledging segments: {e}");
         }
     }
 

@@ -34,7 +34,7 @@ pub use crate::senders::{
 use crate::{decode_sample, Bus};
 use bytes::Bytes;
 use cabc_proto::codec;
-use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, SegmentId, TrajMessage};
+use cabc_proto::messages::{EpochDone, EvalReport, PolicyUpdate, Segment, SegmentId};
 use cabc_proto::ports::{Collected, PortError, Rollouts};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::mpsc::RecvTimeoutError;
@@ -238,8 +238,8 @@ impl ZenohActors {
     pub fn unstored(&mut self) -> Vec<SegmentId> {
         let mut unstored = Vec::new();
         while let Ok(arrival) = self.traj.arrivals.try_recv() {
-            if let Some(TrajMessage::Segment(segment)) = arrival.message {
-                unstored.push(SegmentId::of(&segment));
+            if let Some(message) = arrival.message {
+                unstored.extend(message.segments().iter().map(SegmentId::of));
             }
         }
         unstored

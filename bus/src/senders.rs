@@ -31,9 +31,13 @@ pub fn eval_sender(key: &str) -> Option<&str> {
 
 /// A segment's or a marker's `actor` must be the actor of the key it came on.
 pub fn check_traj(key: &str, message: &TrajMessage) -> Result<(), String> {
+    // A batch names one actor (the codec refuses one that names several).
     let named = match message {
-        TrajMessage::Segment(s) => &s.actor,
         TrajMessage::EpochDone(d) => &d.actor,
+        TrajMessage::Segment(_) | TrajMessage::Segments(_) => match message.segments().first() {
+            Some(s) => &s.actor,
+            None => return Err("a batch of no segments".into()),
+        },
     };
     match traj_sender(key) {
         Some(sender) if sender == named => Ok(()),
@@ -140,6 +144,10 @@ mod tests {
         assert!(check_traj(key, &segment("actor-2")).is_err());
         assert!(check_traj(key, &marker("actor-2")).is_err());
         assert!(check_traj("cabc/r/eval/actor-1", &segment("actor-1")).is_err());
+        let batch = |actor: &str| TrajMessage::Segments(segment(actor).into_segments());
+        assert!(check_traj(key, &batch("actor-1")).is_ok());
+        assert!(check_traj(key, &batch("actor-2")).is_err());
+        assert!(check_traj(key, &TrajMessage::Segments(Vec::new())).is_err());
     }
 
     #[test]

@@ -6,7 +6,7 @@
 mod common;
 
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::outbox::ZenohSegments;
+use cabc_bus::outbox::{Batching, ZenohSegments};
 use cabc_bus::ports::SharedStats;
 use cabc_bus::receipts::{acknowledge, Receipts};
 use cabc_bus::{decode_sample, Bus, Role};
@@ -48,7 +48,8 @@ fn segments(actor: &Bus, resend: Duration) -> (ZenohSegments<'_>, SharedStats) {
     (sink, stats)
 }
 
-/// The next `n` messages on `traj/*`, each from actor-0, as "segment <seq>" or "marker <version>".
+/// The next `n` messages on `traj/*`, each from actor-0, as "segment <seq>", "segments <seq>,<seq>,..." (a batch) or
+/// "marker <version>".
 fn arrive(receipts: &Receipts, n: usize) -> Vec<String> {
     (0..n)
         .map(|_| {
@@ -59,6 +60,10 @@ fn arrive(receipts: &Receipts, n: usize) -> Vec<String> {
             assert_eq!(arrival.sender.as_deref(), Some("actor-0"));
             match arrival.message {
                 Some(TrajMessage::Segment(s)) => format!("segment {}", s.seq),
+                Some(TrajMessage::Segments(batch)) => {
+                    let seqs: Vec<String> = batch.iter().map(|s| s.seq.to_string()).collect();
+                    format!("segments {}", seqs.join(","))
+                }
                 Some(TrajMessage::EpochDone(m)) => format!("marker {}", m.version),
                 None => panic!("an undecodable message"),
             }
@@ -202,4 +207,74 @@ fn an_echoed_marker_goes_after_every_segment_not_acknowledged() {
     assert!(echo.again(&actor, (3, 1234), &stats));
     assert_eq!(arrive(&receipts, 2), ["segment 0", "marker 3"]);
     wait_until("the segment acknowledged", || sink.unacknowledged() == 0);
+}
+
+fn marker(version: u64) -> TrajMessage {
+    TrajMessage::EpochDone(cabc_proto::messages::EpochDone {
+        actor: "actor-0".into(),
+        version,
+        published_unix_ms: 1,
+        segments: 0,
+        steps: 0,
+        taken: 0,
+        staged: 0,
+        shielded: 0,
+    })
+}
+
+/// Issue 73: an actor batching its segments sends what it cut within the window as one message, a full batch at
+/// once, the rest before its marker; the learner acknowledges each segment of a batch, and the outbox empties.
+#[test]
+fn batched_segments_go_as_one_message_before_the_marker_and_each_is_acknowledged() {
+    let (learner, actor) = pair("outbox-batch");
+    let receipts = Receipts::subscribe(&learner).unwrap();
+    let (sink, stats) = segments(&actor, RESEND);
+    // A window no test outlasts; a bound that three segments reach.
+    let batching = Batching {
+        window: Duration::from_secs(3600),
+        max_bytes: 3 * (64 + "actor-0".len()),
+    };
+    let mut sink = sink.batching(batching);
+    for seq in 0..5 {
+        sink.put(segment(seq)).unwrap();
+    }
+    assert_eq!(arrive(&receipts, 1), ["segments 0,1,2"], "the full batch");
+    assert!(
+        receipts
+            .arrivals
+            .recv_timeout(Duration::from_millis(500))
+            .is_err(),
+        "3 and 4 wait"
+    );
+    sink.put(marker(1)).unwrap();
+    assert_eq!(arrive(&receipts, 2), ["segments 3,4", "marker 1"]);
+    wait_until("every segment acknowledged", || sink.unacknowledged() == 0);
+    std::thread::sleep(RESEND + Duration::from_millis(500));
+    assert!(receipts.arrivals.try_recv().is_err(), "nothing went twice");
+    assert_eq!(stats.lock().unwrap().segments_resent, 0);
+}
+
+/// A batch still pending when the actor's sink goes (the learner's stop) is published then, not lost; a window of 0
+/// sends every segment as it comes.
+#[test]
+fn a_pending_batch_goes_when_the_sink_does_and_no_window_sends_each_at_once() {
+    let (learner, actor) = pair("outbox-batch-drop");
+    let receipts = Receipts::subscribe(&learner).unwrap();
+    let (sink, _) = segments(&actor, RESEND);
+    let mut sink = sink.batching(Batching {
+        window: Duration::from_secs(3600),
+        max_bytes: usize::MAX,
+    });
+    sink.put(segment(0)).unwrap();
+    sink.put(segment(1)).unwrap();
+    assert!(receipts
+        .arrivals
+        .recv_timeout(Duration::from_millis(500))
+        .is_err());
+    drop(sink);
+    assert_eq!(arrive(&receipts, 1), ["segments 0,1"]);
+    let (sink, _) = segments(&actor, RESEND);
+    let mut sink = sink.batching(Batching::NONE);
+    sink.put(segment(2)).unwrap();
+    assert_eq!(arrive(&receipts, 1), ["segment 2"]);
 }

@@ -12,7 +12,7 @@ use serde::{de::DeserializeOwned, Serialize};
 /// The first four bytes of every payload.
 pub const MAGIC: [u8; 4] = *b"CABC";
 /// Bumped whenever a message changes shape.
-pub const SCHEMA_VERSION: u16 = 7;
+pub const SCHEMA_VERSION: u16 = 8;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 7;
 /// Largest body accepted (a policy update of a ResNet-18 is ~45 MB; segments are far smaller).
@@ -184,14 +184,31 @@ impl Step {
     }
 }
 
+fn validate_steps(segment: &Segment) -> Result<(), String> {
+    for (i, step) in segment.steps.iter().enumerate() {
+        step.validate().map_err(|e| format!("step {i}: {e}"))?;
+    }
+    Ok(())
+}
+
 impl Message for TrajMessage {
     const KIND: u8 = 1;
     const NAME: &'static str = "TrajMessage";
     fn validate(&self) -> Result<(), String> {
         match self {
-            TrajMessage::Segment(segment) => {
-                for (i, step) in segment.steps.iter().enumerate() {
-                    step.validate().map_err(|e| format!("step {i}: {e}"))?;
+            TrajMessage::Segment(segment) => validate_steps(segment),
+            TrajMessage::Segments(segments) => {
+                let Some(first) = segments.first() else {
+                    return Err("a batch of no segments".into());
+                };
+                for (k, segment) in segments.iter().enumerate() {
+                    if (&segment.actor, segment.incarnation) != (&first.actor, first.incarnation) {
+                        return Err(format!(
+                            "segment {k} of a batch is of actor `{}` incarnation {}, the first of `{}` incarnation {}",
+                            segment.actor, segment.incarnation, first.actor, first.incarnation
+                        ));
+                    }
+                    validate_steps(segment).map_err(|e| format!("segment {k}: {e}"))?;
                 }
                 Ok(())
             }
@@ -465,6 +482,44 @@ mod tests {
             assert!(matches!(err, DecodeError::Invalid { .. }), "{err}");
             assert!(err.to_string().contains("step 1: next_state[4]"), "{err}");
         }
+    }
+
+    /// A batch round-trips; one of no segments, or mixing actors or incarnations, or with a bad step in any of its
+    /// segments, is refused with what was wrong.
+    #[test]
+    fn a_batch_of_one_incarnations_segments_round_trips_and_any_other_is_refused() {
+        let TrajMessage::Segment(first) = segment() else {
+            unreachable!()
+        };
+        let second = Segment {
+            seq: 12,
+            ..first.clone()
+        };
+        round_trip(TrajMessage::Segments(vec![first.clone(), second.clone()]));
+        let refused = |batch: Vec<Segment>| {
+            let err = decode::<TrajMessage>(&encode(&TrajMessage::Segments(batch))).unwrap_err();
+            assert!(matches!(err, DecodeError::Invalid { .. }), "{err}");
+            err.to_string()
+        };
+        assert!(refused(Vec::new()).contains("a batch of no segments"));
+        let other_actor = Segment {
+            actor: "actor-1".into(),
+            ..second.clone()
+        };
+        let why = refused(vec![first.clone(), other_actor]);
+        assert!(
+            why.contains("segment 1 of a batch is of actor `actor-1`"),
+            "{why}"
+        );
+        let other_incarnation = Segment {
+            incarnation: 4,
+            ..second.clone()
+        };
+        assert!(refused(vec![first.clone(), other_incarnation]).contains("incarnation 4"));
+        let mut bad = second;
+        bad.steps[0].state[2] = f32::NAN;
+        let why = refused(vec![first, bad]);
+        assert!(why.contains("segment 1: step 0: state[2]"), "{why}");
     }
 
     #[test]

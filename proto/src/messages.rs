@@ -212,6 +212,30 @@ pub struct EpochDone {
 pub enum TrajMessage {
     Segment(Segment),
     EpochDone(EpochDone),
+    /// Several segments of one actor's incarnation in one message (issue 73: the learner's cost is per message, so
+    /// an actor batches what it cut within `bus.segment_batch_ms`; `cabc_bus::outbox`). Each is still its own
+    /// segment: stored, acknowledged and accounted for by its own seq.
+    Segments(Vec<Segment>),
+}
+
+impl TrajMessage {
+    /// The segments this message carries (none for a marker).
+    pub fn segments(&self) -> &[Segment] {
+        match self {
+            TrajMessage::Segment(segment) => std::slice::from_ref(segment),
+            TrajMessage::Segments(segments) => segments,
+            TrajMessage::EpochDone(_) => &[],
+        }
+    }
+
+    /// The segments this message carries, taken (none for a marker).
+    pub fn into_segments(self) -> Vec<Segment> {
+        match self {
+            TrajMessage::Segment(segment) => vec![segment],
+            TrajMessage::Segments(segments) => segments,
+            TrajMessage::EpochDone(_) => Vec::new(),
+        }
+    }
 }
 
 /// The learner's policy broadcast.

@@ -113,8 +113,8 @@ fn note(seen: &Mutex<Seen>, key: &str, bytes: &[u8]) {
     } else if key.contains("/traj/") {
         seen.traj += 1;
         match decode::<TrajMessage>(bytes).unwrap() {
-            TrajMessage::Segment(s) => s.seq >= FORGED,
             TrajMessage::EpochDone(d) => d.steps >= FORGED,
+            message => message.segments().iter().any(|s| s.seq >= FORGED),
         }
     } else {
         decode::<EvalReport>(bytes).unwrap().steps >= FORGED

@@ -7,7 +7,7 @@
 
 use super::{CapacityError, Kind};
 use cabc_bus::interrupt::Interrupt;
-use cabc_bus::outbox::ZenohSegments;
+use cabc_bus::outbox::{Batching, ZenohSegments};
 use cabc_bus::ports::{SharedStats, ZenohPolicySource};
 use cabc_bus::{Bus, Role};
 use cabc_proto::codec;
@@ -41,6 +41,11 @@ pub struct ActorsArgs {
     pub count: usize,
     #[arg(long)]
     pub steps_per_segment: usize,
+    /// The run's `bus.segment_batch_ms` and `bus.segment_batch_kib`.
+    #[arg(long)]
+    pub segment_batch_ms: f64,
+    #[arg(long)]
+    pub segment_batch_kib: u64,
     /// The camera's image side (64: `v-a-cpu`).
     #[arg(long, default_value_t = 64)]
     pub side: u16,
@@ -138,11 +143,12 @@ fn actor(
     id: &str,
     incarnation: u64,
     steps: &[Step],
+    batching: Batching,
     trips: &Arc<Mutex<RoundTrips>>,
 ) -> Result<ActorBook, CapacityError> {
     let interrupt = Interrupt::default();
     let stats = SharedStats::default();
-    let mut sink = ZenohSegments::new(bus, id, &interrupt, stats.clone())?;
+    let mut sink = ZenohSegments::new(bus, id, &interrupt, stats.clone())?.batching(batching);
     let mut source = ZenohPolicySource::new(bus, &interrupt, stats.clone())?.echoing(sink.echo());
     let mut book = ActorBook {
         id: id.to_string(),
@@ -206,8 +212,11 @@ pub fn serve(args: &ActorsArgs) -> Result<ActorsReport, CapacityError> {
     let bus_section = BusSection {
         listen: Vec::new(),
         connect: vec![args.connect.clone()],
+        segment_batch_ms: args.segment_batch_ms,
+        segment_batch_kib: args.segment_batch_kib,
         ..BusSection::default()
     };
+    let batching = Batching::of(&bus_section);
     let steps = template(args.kind, args.steps_per_segment.max(1), args.side, 0x5eed);
     let incarnation = unix_us();
     let mut trips = Vec::new();
@@ -246,7 +255,8 @@ pub fn serve(args: &ActorsArgs) -> Result<ActorsReport, CapacityError> {
                             })
                             .wait()
                             .map_err(|e| CapacityError::Setup(format!("ack subscriber: {e}")))?;
-                        let book = actor(&bus, &id, incarnation + i as u64, steps, &trips_i);
+                        let book =
+                            actor(&bus, &id, incarnation + i as u64, steps, batching, &trips_i);
                         drop(_acks);
                         bus.close_blocking()?;
                         book

@@ -128,6 +128,8 @@ pub(super) struct MainTimes {
     pub store: Duration,
     pub partition: Duration,
     pub publish: Duration,
+    /// Putting the committed receipts of the epoch's segments.
+    pub commit: Duration,
     /// Segments and steps offered to the learner.
     pub segments: u64,
     pub steps: u64,
@@ -162,6 +164,11 @@ fn epoch(
     let started = Instant::now();
     learner.partition(&collected);
     times.partition += started.elapsed();
+    // The committed receipts, as the real learner puts them after its checkpoint: the actors forget the epoch's
+    // segments (without them every outbox grows until it drops its oldest, counted lost).
+    let started = Instant::now();
+    actors.commit(&learner.settled());
+    times.commit += started.elapsed();
     Ok(published)
 }
 
@@ -219,6 +226,13 @@ pub fn measure(
     config.collection.steps_per_epoch = case.epoch_steps;
     config.bus.epoch_timeout_s = 600.0;
     config.bus.no_actor_timeout_s = 60.0;
+    if let Some(ms) = case.segment_batch_ms {
+        config.bus.segment_batch_ms = ms;
+    }
+    let batching = (
+        config.bus.segment_batch_ms.to_string(),
+        config.bus.segment_batch_kib.to_string(),
+    );
     match case.router {
         Router::Embedded => {
             config.bus.listen = vec![endpoint.clone()];
@@ -255,6 +269,8 @@ pub fn measure(
         .args(["--kind", case.kind.name()])
         .args(["--count", &case.actors.to_string()])
         .args(["--steps-per-segment", &case.steps_per_segment.to_string()])
+        .args(["--segment-batch-ms", &batching.0])
+        .args(["--segment-batch-kib", &batching.1])
         .env(
             "RUST_LOG",
             std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()),

@@ -118,6 +118,10 @@ pub struct BusBenchOptions {
     /// one-step expert failures; docs/speed/issue-73/capacity.md).
     #[arg(long, default_value_t = 9)]
     pub steps_per_segment: usize,
+    /// How long each actor gathers its segments into one message, in milliseconds (default: the kind's preset's
+    /// `bus.segment_batch_ms`; 0: a message a segment, as before issue 73's batching).
+    #[arg(long)]
+    pub segment_batch_ms: Option<f64>,
     /// Steps of a measured epoch, all actors together (default: 262,144 state, 8,192 camera steps).
     #[arg(long)]
     pub epoch_steps: Option<u64>,
@@ -140,6 +144,9 @@ pub struct Case {
     pub actors: usize,
     pub steps_per_segment: usize,
     pub epoch_steps: u64,
+    /// `bus.segment_batch_ms` when not the preset's.
+    #[serde(default)]
+    pub segment_batch_ms: Option<f64>,
 }
 
 /// Microseconds of CPU (or of the callback's wall, for the subscription's stages) per step absorbed.
@@ -155,6 +162,8 @@ pub struct Stages {
     pub store_us: f64,
     /// The learner's `partition` (the replay's stores, the ledger's counts, the provenance).
     pub partition_us: f64,
+    /// The committed receipts after the epoch (the real learner's, after its checkpoint): the actors forget them.
+    pub commit_us: f64,
     /// The policy's bytes, encoding and publishing them, each epoch.
     pub publish_us: f64,
     /// The learner's main thread (the gathering: the gate, the queue, store, partition, publish).
@@ -219,6 +228,9 @@ pub struct Measurement {
     pub epochs: usize,
     pub steps: u64,
     pub segments: u64,
+    /// Segments per message of `traj/*` (markers counted as messages): the actors' batches.
+    #[serde(default)]
+    pub segments_per_message: f64,
     /// Payload bytes of `traj/*` the learner took.
     pub bytes: u64,
     pub steps_per_s: f64,
@@ -267,6 +279,7 @@ impl Measurement {
             queue_us: per_step(receipts.queue_ns as f64 * 1e-9),
             store_us: per_step(window.times.store.as_secs_f64()),
             partition_us: per_step(window.times.partition.as_secs_f64()),
+            commit_us: per_step(window.times.commit.as_secs_f64()),
             publish_us: per_step(window.times.publish.as_secs_f64()),
             main_thread_us: per_step(main_s),
             other_threads_us: per_step(learner_cpu_s - main_s),
@@ -278,6 +291,7 @@ impl Measurement {
             epochs: window.published.len(),
             steps,
             segments: window.times.segments,
+            segments_per_message: window.times.segments as f64 / receipts.messages.max(1) as f64,
             bytes: receipts.bytes,
             steps_per_s: steps as f64 / seconds,
             mb_per_s: receipts.bytes as f64 / seconds / 1e6,
@@ -380,6 +394,7 @@ pub fn cases(options: &BusBenchOptions) -> Vec<Case> {
                     router,
                     actors: actors.max(1),
                     steps_per_segment: options.steps_per_segment.max(1),
+                    segment_batch_ms: options.segment_batch_ms,
                     epoch_steps: options
                         .epoch_steps
                         .unwrap_or_else(|| kind.default_epoch_steps()),
@@ -412,10 +427,13 @@ pub struct Row {
     pub learner_cpu_us_per_step: f64,
     pub learner_cores: f64,
     pub steps_per_learner_core_s: f64,
+    #[serde(default)]
+    pub segments_per_message: f64,
     pub decode_us: f64,
     pub ack_us: f64,
     pub store_us: f64,
     pub partition_us: f64,
+    pub commit_us: f64,
     pub main_thread_us: f64,
     pub other_threads_us: f64,
     pub receipt_rtt_ms_p50: Option<f64>,
@@ -450,10 +468,12 @@ impl Row {
             learner_cpu_us_per_step: m(|r| r.learner_cpu_us_per_step),
             learner_cores: m(|r| r.learner_cores),
             steps_per_learner_core_s: m(|r| r.steps_per_learner_core_s),
+            segments_per_message: m(|r| r.segments_per_message),
             decode_us: m(|r| r.stages.decode_us),
             ack_us: m(|r| r.stages.ack_us),
             store_us: m(|r| r.stages.store_us),
             partition_us: m(|r| r.stages.partition_us),
+            commit_us: m(|r| r.stages.commit_us),
             main_thread_us: m(|r| r.stages.main_thread_us),
             other_threads_us: m(|r| r.stages.other_threads_us),
             receipt_rtt_ms_p50: median_some(runs.iter().map(|r| r.receipt_rtt_ms_p50)),
@@ -487,15 +507,15 @@ impl Report {
     pub fn table(&self) -> String {
         let mut out = String::from(
             "| kind | router | N | steps/s | MB/s | learner CPU µs/step | learner cores | steps/s per learner core \
-             | decode µs | ack µs | store µs | partition µs | main thread µs | other threads µs | receipt RTT p50 / p99 \
+             | segments / message | decode µs | ack µs | store µs | partition µs | commit µs | main thread µs | other threads µs | receipt RTT p50 / p99 \
              ms | broadcast ms (median / max) | policy bytes | lost | copies |\n",
         );
-        out.push_str(&format!("|{}\n", "---|".repeat(19)));
+        out.push_str(&format!("|{}\n", "---|".repeat(21)));
         let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
         for r in &self.rows {
             out.push_str(&format!(
-                "| {} | {} | {} | {:.0} | {:.1} | {:.2} | {:.2} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} \
-                 | {} / {} | {} / {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {:.0} | {:.1} | {:.2} | {:.2} | {:.0} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} \
+                 | {:.2} | {} / {} | {} / {} | {} | {} | {} |\n",
                 r.case.kind.name(),
                 match r.case.router {
                     Router::Embedded => "embedded",
@@ -507,10 +527,12 @@ impl Report {
                 r.learner_cpu_us_per_step,
                 r.learner_cores,
                 r.steps_per_learner_core_s,
+                r.segments_per_message,
                 r.decode_us,
                 r.ack_us,
                 r.store_us,
                 r.partition_us,
+                r.commit_us,
                 r.main_thread_us,
                 r.other_threads_us,
                 ms(r.receipt_rtt_ms_p50),

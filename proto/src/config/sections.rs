@@ -545,6 +545,13 @@ pub struct BusSection {
     pub no_actor_timeout_s: f64,
     /// zenoh multicast scouting; off by default, so that a loopback run never meets strangers.
     pub multicast_scouting: bool,
+    /// How long an actor gathers the segments it cuts into one message (milliseconds; issue 73): the learner's
+    /// intake costs per message, and short segments (V-B's are 9 steps on average) would cost it most. A batch goes
+    /// when it is this old at the actor's next segment, when it reaches `segment_batch_kib`, and before every "done"
+    /// marker, so the epoch never waits for it. 0: every segment a message of its own.
+    pub segment_batch_ms: f64,
+    /// The most a batch of segments holds before it goes (KiB, as encoded, roughly).
+    pub segment_batch_kib: u64,
     /// TLS, passwords and access control (`[bus.security]`); off by default.
     pub security: SecuritySection,
 }
@@ -557,6 +564,8 @@ impl Default for BusSection {
             epoch_timeout_s: 120.0,
             no_actor_timeout_s: 300.0,
             multicast_scouting: false,
+            segment_batch_ms: 50.0,
+            segment_batch_kib: 256,
             security: SecuritySection::default(),
         }
     }

@@ -36,6 +36,20 @@ impl RunConfig {
                 );
             }
         }
+        if !(self.bus.segment_batch_ms >= 0.0 && self.bus.segment_batch_ms <= 10_000.0) {
+            return invalid(
+                "bus.segment_batch_ms",
+                self.bus.segment_batch_ms.to_string(),
+                "must be between 0 (no batching) and 10000 milliseconds",
+            );
+        }
+        if !(1..=65_536).contains(&self.bus.segment_batch_kib) {
+            return invalid(
+                "bus.segment_batch_kib",
+                self.bus.segment_batch_kib.to_string(),
+                "must be between 1 and 65536 KiB (64 MiB)",
+            );
+        }
         if !self.sim.track_is_file() && !SimSection::NAMES.contains(&self.sim.track.as_str()) {
             return invalid(
                 "sim.track",
