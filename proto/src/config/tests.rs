@@ -76,6 +76,20 @@ fn invalid_values_are_refused_by_name() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("run.name"), "{err}");
+    for (bad, key) in [
+        ("[bus]\nsegment_batch_ms = -1.0\n", "bus.segment_batch_ms"),
+        ("[bus]\nsegment_batch_ms = inf\n", "bus.segment_batch_ms"),
+        ("[bus]\nsegment_batch_kib = 0\n", "bus.segment_batch_kib"),
+        (
+            "[bus]\nsegment_batch_kib = 100000\n",
+            "bus.segment_batch_kib",
+        ),
+    ] {
+        let err = RunConfig::from_toml(bad, "t.toml").unwrap_err().to_string();
+        assert!(err.contains(key), "{bad}: {err}");
+    }
+    let batched = RunConfig::from_toml("[bus]\nsegment_batch_ms = 0.0\n", "t.toml").unwrap();
+    assert_eq!(batched.bus.segment_batch_ms, 0.0, "0: no batching, allowed");
 }
 
 #[test]
