@@ -646,12 +646,25 @@ impl SegmentSink for ZenohSegments<'_> {
     }
 }
 
+/// How long an ending actor waits for the learner's receipt of its last batch.
+const LAST_RECEIPT: Duration = Duration::from_secs(2);
+
 impl Drop for ZenohSegments<'_> {
     /// A batch still pending goes now, if a router is up (an actor ending on the learner's stop: the learner journals
-    /// what arrives after its run's end); else it is journalled unsent.
+    /// what arrives after its run's end); else it is journalled unsent. The actor then waits (at most
+    /// [`LAST_RECEIPT`]) for the learner's receipt, so that its liveliness does not leave before the batch arrives:
+    /// a learner that saw every actor leave stops listening.
     fn drop(&mut self) {
+        if self.pending.segments.is_empty() {
+            return;
+        }
         if let Err(e) = self.flush(false) {
             tracing::warn!("the last segments were not published: {e}");
+            return;
+        }
+        let until = Instant::now() + LAST_RECEIPT;
+        while self.outbox.unacknowledged() > 0 && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(10));
         }
     }
 }
