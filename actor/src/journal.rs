@@ -5,7 +5,8 @@
 use crate::run::{ActorError, ActorStats};
 use cabc_proto::messages::TrajMessage;
 use cabc_proto::ports::{PortError, SegmentSink};
-use cabc_runfolder::journal::{ActorEvent, ActorJournal, STOPPED};
+use cabc_runfolder::journal::{ActorEvent, ActorJournal, JournalError, STOPPED};
+use std::path::Path;
 use std::sync::Arc;
 
 /// A [`SegmentSink`] that journals what goes through it to the sink it wraps (with no journal, it passes through).
@@ -18,6 +19,16 @@ impl<'a> Journaled<'a> {
     pub fn new(sink: &'a mut dyn SegmentSink, journal: Option<Arc<ActorJournal>>) -> Self {
         Journaled { sink, journal }
     }
+}
+
+/// The journal of `actor`'s process `incarnation` in `dir`, when it keeps one (`actor --journal DIR`).
+pub fn begin(
+    dir: Option<&Path>,
+    actor: &str,
+    incarnation: u64,
+) -> Result<Option<Arc<ActorJournal>>, JournalError> {
+    dir.map(|dir| ActorJournal::begin(dir, actor, incarnation).map(Arc::new))
+        .transpose()
 }
 
 /// The collector's tally (`Collector::with_tally`) into `journal`.

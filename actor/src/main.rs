@@ -17,9 +17,7 @@ use cabc_models::{PolicyArch, PolicyCheck};
 use cabc_proto::config::RunConfig;
 use cabc_proto::keys::Keys;
 use cabc_proto::messages::PolicyUpdate;
-use cabc_runfolder::journal::ActorJournal;
 use clap::Parser;
-use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -113,11 +111,7 @@ fn main() -> Result<()> {
         let incarnation = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_micros() as u64);
-        let journal = cli
-            .journal
-            .as_ref()
-            .map(|dir| ActorJournal::begin(dir, &cli.id, incarnation).map(Arc::new))
-            .transpose()
+        let journal = journal::begin(cli.journal.as_deref(), &cli.id, incarnation)
             .context("beginning the actor's journal")?;
         let mut sink =
             ZenohSegments::journaled(&bus, &cli.id, &interrupt, stats.clone(), journal.clone())?

@@ -22,7 +22,9 @@ pub use choices::{
 };
 pub use security::{SecurityMode, SecuritySection};
 
+mod deployment;
 mod sections;
+pub use deployment::*;
 pub use sections::*;
 
 /// One run, as written in a TOML file.
