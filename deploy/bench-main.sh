@@ -41,8 +41,14 @@ if [ -z "${CABC_BIN:-}" ]; then
   export CABC_BIN="$root/target/release"
 fi
 cores=$(nproc)
-echo "[bench-main] MPCC step on one core: $CABC_BIN/expert-server bench --steps 1000 --repeat 3" >&2
-mpcc_json=$(taskset -c 0 "$CABC_BIN/expert-server" bench --steps 1000 --repeat 3)
+# The MPCC's own step: the run's expert.* settings apply to it (older binaries take no --set, and need none).
+expert_sets=()
+for s in ${sets[@]+"${sets[@]}"}; do
+  [[ "$s" == expert.* ]] && expert_sets+=(--set "$s")
+done
+echo "[bench-main] MPCC step on one core: $CABC_BIN/expert-server bench --steps 1000 --repeat 3 ${expert_sets[*]} $preset" >&2
+mpcc_json=$(taskset -c 0 "$CABC_BIN/expert-server" bench --steps 1000 --repeat 3 ${expert_sets[@]+"${expert_sets[@]}"} \
+  ${preset:+--config "$preset"})
 
 runs=()
 walls=()

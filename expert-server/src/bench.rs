@@ -28,6 +28,11 @@ pub struct BenchArgs {
     /// Where a step's time goes instead: Clarabel's own timers per phase and the time outside Clarabel.
     #[arg(long, conflicts_with = "candidates")]
     pub profile: bool,
+    /// How fast the KKT system of a step's QP factors instead (issue 75): QDLDL as Clarabel runs it, the same
+    /// factors from a precomputed schedule, and the smaller system with the inequality rows eliminated; --repeat
+    /// medians of 1000 factorisations each.
+    #[arg(long, conflicts_with_all = ["candidates", "profile"])]
+    pub kkt: bool,
     /// Measure the ways of cutting a step (issue 75) side by side with the reference's: step time (median of
     /// --repeat interleaved drives), iterations, QPs, laps from the fixed spawn, failures from random spawns.
     #[arg(long)]
@@ -50,6 +55,11 @@ pub fn run(mpcc: &Mpcc, args: &BenchArgs) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
     if args.profile {
         return Ok(profile(mpcc, args.steps)?);
+    }
+    if args.kkt {
+        return Ok(serde_json::to_value(
+            mpcc.layout().kkt_timings(args.repeat, 1000),
+        )?);
     }
     if args.candidates {
         let chosen = chosen(&args.only)?;
@@ -336,6 +346,85 @@ pub fn candidates() -> Vec<Candidate> {
             name: "one-qp",
             change: "one QP a step",
             config: with(&|c| c.qp_iters = 1),
+        },
+        Candidate {
+            name: "one-qp-undamped",
+            change: "one QP a step, its minimiser taken whole (damping 0)",
+            config: with(&|c| (c.qp_iters, c.damping) = (1, 0.0)),
+        },
+        Candidate {
+            name: "one-qp-damping-0.1",
+            change: "one QP a step, damping 0.1",
+            config: with(&|c| (c.qp_iters, c.damping) = (1, 0.1)),
+        },
+        Candidate {
+            name: "lead-1e-2",
+            change: "the first QP of a step at gap 1e-2, feasibility 1e-3",
+            config: with(&|c| c.lead_qp_tol = Some((1e-2, 1e-3))),
+        },
+        Candidate {
+            name: "lead-1e-3",
+            change: "the first QP of a step at gap 1e-3, feasibility 1e-4",
+            config: with(&|c| c.lead_qp_tol = Some((1e-3, 1e-4))),
+        },
+        Candidate {
+            name: "lead-1e-2-tol-1e-3",
+            change: "lead-1e-2 and the last at tol-1e-3",
+            config: with(&|c| {
+                c.lead_qp_tol = Some((1e-2, 1e-3));
+                (c.tol_gap, c.tol_feas) = (1e-3, 1e-4);
+            }),
+        },
+        Candidate {
+            name: "tol-1e-2",
+            change: "gap 1e-2, feasibility 1e-3",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (1e-2, 1e-3)),
+        },
+        Candidate {
+            name: "tol-3e-2",
+            change: "gap 3e-2, feasibility 3e-3",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (3e-2, 3e-3)),
+        },
+        Candidate {
+            name: "tol-1e-1",
+            change: "gap 1e-1, feasibility 1e-2",
+            config: with(&|c| (c.tol_gap, c.tol_feas) = (1e-1, 1e-2)),
+        },
+        Candidate {
+            name: "lazy-tol-1e-2",
+            change: "lazy-boxes and tol-1e-2",
+            config: with(&|c| {
+                c.lazy_state_boxes = true;
+                (c.tol_gap, c.tol_feas) = (1e-2, 1e-3);
+            }),
+        },
+        Candidate {
+            name: "gap-1e-2",
+            change: "gap 1e-2, feasibility 1e-6",
+            config: with(&|c| c.tol_gap = 1e-2),
+        },
+        Candidate {
+            name: "feas-1e-3",
+            change: "gap 1e-5, feasibility 1e-3",
+            config: with(&|c| c.tol_feas = 1e-3),
+        },
+        Candidate {
+            name: "gap-rel-1e-2",
+            change: "gap 1e-5 absolute, 1e-2 relative",
+            config: with(&|c| c.tol_gap_rel = Some(1e-2)),
+        },
+        Candidate {
+            name: "step-0.999",
+            change: "max step fraction 0.999",
+            config: with(&|c| c.max_step_fraction = 0.999),
+        },
+        Candidate {
+            name: "step-0.999-tol-1e-2",
+            change: "max step fraction 0.999, tol-1e-2",
+            config: with(&|c| {
+                c.max_step_fraction = 0.999;
+                (c.tol_gap, c.tol_feas) = (1e-2, 1e-3);
+            }),
         },
         Candidate {
             name: "lazy-tol-1e-3",

@@ -22,6 +22,9 @@ struct Cli {
     /// Run configuration: a preset (v-b-ref, v-b, v-a-cpu, smoke, ...) or a TOML file.
     #[arg(long, short, global = true, default_value = cabc_proto::config::DEFAULT_PRESET)]
     config: String,
+    /// A configuration value over it, `key=value` (e.g. `expert.mpcc_tol_gap=1e-2`); repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", global = true)]
+    set: Vec<String>,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -56,6 +59,7 @@ fn main() -> Result<()> {
     cabc_proto::telemetry::init();
     let cli = Cli::parse();
     let config = RunConfig::load(&cli.config)
+        .and_then(|c| c.with_overrides(&cli.set))
         .with_context(|| format!("loading configuration {}", cli.config))?;
     match cli
         .command

@@ -109,6 +109,13 @@ pub struct MpccConfig {
     pub tol_gap: f64,
     /// Clarabel feasibility tolerance.
     pub tol_feas: f64,
+    /// (gap, feasibility) tolerances of every QP of a step but its last, which only moves the point the last is
+    /// linearised around. None: every QP at `tol_gap`, `tol_feas` (the reference).
+    pub lead_qp_tol: Option<(f64, f64)>,
+    /// Clarabel's relative gap tolerance when it differs from the absolute one (None: `tol_gap`).
+    pub tol_gap_rel: Option<f64>,
+    /// Clarabel's largest step toward the cone's boundary (its default 0.99).
+    pub max_step_fraction: f64,
     /// Count Clarabel's `AlmostSolved` (reduced accuracy) as success. Off: HPIPM has no such status and stops
     /// with "max iterations" where Clarabel would fall back to reduced tolerances.
     pub accept_almost_solved: bool,
@@ -166,6 +173,9 @@ impl Default for MpccConfig {
             max_iter: 200,
             tol_gap: 1e-5,
             tol_feas: 1e-6,
+            lead_qp_tol: None,
+            tol_gap_rel: None,
+            max_step_fraction: 0.99,
             accept_almost_solved: false,
             iterative_refinement: false,
             equilibrate: false,

@@ -106,6 +106,8 @@ pub struct Mpcc {
     layout: QpLayout,
     /// The lean layout tried first under `lazy_state_boxes`.
     lean: Option<QpLayout>,
+    /// The layout of the QPs before a step's last, at `lead_qp_tol`.
+    lead: Option<QpLayout>,
 }
 
 /// Per-stream controller memory (expert.md §7): the warm start w̄_ws (N+1 rows of (a, δ, v_s)), w_prev, and the
@@ -214,6 +216,11 @@ impl Mpcc {
                 "max_spline_spacing must be a positive number".into(),
             ));
         }
+        if cfg.lead_qp_tol.is_some() && cfg.lazy_state_boxes {
+            return Err(MpccError::Config(
+                "lead_qp_tol and lazy_state_boxes both use the second QP workspace".into(),
+            ));
+        }
         if cfg.spline_points < 4 {
             return Err(MpccError::Config("spline_points must be at least 4".into()));
         }
@@ -226,6 +233,14 @@ impl Mpcc {
         let lean = cfg
             .lazy_state_boxes
             .then(|| QpLayout::lean(&cfg, track.length()));
+        let lead = cfg.lead_qp_tol.map(|(gap, feas)| {
+            let loose = MpccConfig {
+                tol_gap: gap,
+                tol_feas: feas,
+                ..cfg.clone()
+            };
+            QpLayout::new(&loose, track.length())
+        });
         let rk4 = Rk4 {
             dt: cfg.dt,
             substeps: cfg.rk4_substeps,
@@ -238,16 +253,20 @@ impl Mpcc {
             rk4,
             layout,
             lean,
+            lead,
         })
     }
 
     /// The run's expert: the reference controller ([`MpccConfig::default`]) with the run's `expert.mpcc_lazy_boxes`
-    /// (off by default) on the run's track (`sim.track`), its prediction model the simulator's vehicle. The one
+    /// (off by default) and `expert.mpcc_tol_gap`, `expert.mpcc_tol_feas` (the reference's 1e-5 and 1e-6 by
+    /// default) on the run's track (`sim.track`), its prediction model the simulator's vehicle. The one
     /// constructor of the MPCC of a run (expert server, actors, `learner run --local`, `expert-server drive` and
     /// `bench`).
     pub fn from_config(config: &RunConfig) -> Result<Self, MpccError> {
         let cfg = MpccConfig {
             lazy_state_boxes: config.expert.mpcc_lazy_boxes,
+            tol_gap: config.expert.mpcc_tol_gap,
+            tol_feas: config.expert.mpcc_tol_feas,
             ..MpccConfig::default()
         };
         let track = Track::of(&config.sim).map_err(MpccError::Track)?;
@@ -330,8 +349,8 @@ impl Mpcc {
             full_resolves: 0,
             solve_time: Duration::ZERO,
         };
-        for _ in 0..iters {
-            let (sol, resolved) = self.qp_around(&d, &slabs, w_prev, ws);
+        for i in 0..iters {
+            let (sol, resolved) = self.qp_around(&d, &slabs, w_prev, ws, i + 1 < iters);
             out.qps += 1;
             out.full_resolves += u32::from(resolved);
             out.iterations += sol.iterations;
@@ -438,7 +457,7 @@ impl Mpcc {
         let x0 = self.measure(q)?;
         let (d, slabs) = self.initial_iterate(&x0, &stream.w_ws);
         let mut ws = [QpWorkspace::default(), QpWorkspace::default()];
-        Ok(self.qp_around(&d, &slabs, stream.w_prev, &mut ws).0)
+        Ok(self.qp_around(&d, &slabs, stream.w_prev, &mut ws, false).0)
     }
 
     /// The initial iterate of a step (nonlinear rollout of w̄_ws[1..N] from x0; stage k holds w̄_ws[k]) and the
@@ -457,12 +476,14 @@ impl Mpcc {
     /// Linearise around the iterate `d` (transition k at (q̄_k, w̄_{k−1}), errors at stages 1..N) and solve: with
     /// `lazy_state_boxes` the lean QP first (workspace 0), and the full one (workspace 1) only when the lean
     /// minimiser leaves a box it left out or the lean QP failed; whether it was solved again.
+    /// A step's QPs before its last (`lead`) go to the `lead_qp_tol` layout (workspace 1) when there is one.
     fn qp_around(
         &self,
         d: &[Stage],
         slabs: &[Slab],
         w_prev: [f64; 3],
         ws: &mut [QpWorkspace; 2],
+        lead: bool,
     ) -> (QpSolution, bool) {
         let n = self.cfg.horizon;
         let lin: Vec<Linearisation> = d[..n]
@@ -485,6 +506,9 @@ impl Mpcc {
             w_prev,
         };
         let [ws, ws_full] = ws;
+        if let (true, Some(layout)) = (lead, &self.lead) {
+            return (layout.solve(&input, ws_full), false);
+        }
         let Some(lean) = &self.lean else {
             return (self.layout.solve(&input, ws), false);
         };

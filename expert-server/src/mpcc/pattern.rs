@@ -53,6 +53,13 @@ impl Pattern {
         }
     }
 
+    /// The (row, column) of every structural nonzero, column by column.
+    pub(super) fn entries(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (0..self.n).flat_map(move |c| {
+            (self.colptr[c]..self.colptr[c + 1]).map(move |k| (self.rowval[k], c))
+        })
+    }
+
     /// Number of structural nonzeros.
     pub(super) fn nnz(&self) -> usize {
         self.rowval.len()

@@ -41,6 +41,7 @@ pub use super::status::QpStatus;
 use crate::rk4::{JacQ, JacU, NQ};
 
 mod assemble;
+pub mod kkt;
 
 /// Variables per stage: x_k (7) and w_{k−1} (3).
 pub const NZ: usize = 10;
@@ -323,7 +324,8 @@ impl QpLayout {
             .verbose(false)
             .max_iter(self.cfg.max_iter)
             .tol_gap_abs(self.cfg.tol_gap)
-            .tol_gap_rel(self.cfg.tol_gap)
+            .tol_gap_rel(self.cfg.tol_gap_rel.unwrap_or(self.cfg.tol_gap))
+            .max_step_fraction(self.cfg.max_step_fraction)
             .tol_feas(self.cfg.tol_feas)
             // Presolve would drop rows and forbid the data-update interface; there are no infinite bounds anyway.
             .presolve_enable(false)

@@ -156,6 +156,62 @@ fn faer_without_its_feature_is_refused() {
     assert!(err.to_string().contains("faer"), "{err}");
 }
 
+/// A looser first QP (`lead_qp_tol`) is solved at its own tolerance and the step's last at the configuration's: the
+/// step's iterations fall and its action stays near the reference's. With the lazy boxes, which share its solver
+/// memory, it is refused.
+#[test]
+fn a_lead_qp_is_solved_at_its_own_tolerance() {
+    let lead = MpccConfig {
+        lead_qp_tol: Some((1e-2, 1e-3)),
+        ..MpccConfig::default()
+    };
+    let first_steps = |cfg: MpccConfig| {
+        let mpcc = Mpcc::new(Track::l_track_barc(), VehicleParams::default(), cfg).unwrap();
+        let q = fixed_spawn_state(mpcc.track());
+        let mut stream = mpcc.start(&q).unwrap();
+        (0..5)
+            .map(|_| mpcc.step(&mut stream, &q).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let (reference, loose) = (
+        first_steps(MpccConfig::default()),
+        first_steps(lead.clone()),
+    );
+    let iterations = |steps: &[MpccStep]| steps.iter().map(|s| s.qp_iterations).sum::<u32>();
+    assert!(loose.iter().all(|s| s.success && s.qps == 2));
+    assert!(
+        iterations(&loose) < iterations(&reference),
+        "{} {}",
+        iterations(&loose),
+        iterations(&reference)
+    );
+    for (a, b) in loose.iter().zip(&reference) {
+        assert!(
+            (a.action[0] - b.action[0]).abs() < 0.1 && (a.action[1] - b.action[1]).abs() < 0.05
+        );
+    }
+    let both = MpccConfig {
+        lazy_state_boxes: true,
+        ..lead
+    };
+    let err = Mpcc::new(Track::l_track_barc(), VehicleParams::default(), both).unwrap_err();
+    assert!(err.to_string().contains("lead_qp_tol"), "{err}");
+}
+
+/// `expert-server bench --kkt` times the three factorisations of the reference layout's KKT system: the scheduled
+/// one reproduces QDLDL's factors (checked inside), and the eliminated system keeps the variables and equalities.
+#[test]
+fn kkt_timings_cover_the_three_systems() {
+    let layout = Mpcc::reference().layout().clone();
+    let timings = layout.kkt_timings(1, 2);
+    assert_eq!(timings.len(), 3);
+    assert_eq!(timings[0].rows, layout.n() + layout.m());
+    assert_eq!(timings[0].nnz_l, timings[1].nnz_l);
+    assert_eq!(timings[2].rows, layout.n() + layout.m_eq());
+    assert!(timings[0].multiply_adds > timings[0].nnz_l);
+    assert!(timings.iter().all(|t| t.factor_us > 0.0));
+}
+
 /// A lean layout's check refuses a solution outside a box it left out, and an unsolved QP.
 #[test]
 fn a_minimiser_outside_a_lazy_box_is_refused() {
@@ -445,6 +501,7 @@ fn the_configured_mpcc_is_the_reference_construction() {
         crate::relabel::Expert::Pid(_) => panic!("v-b's expert is the MPCC"),
     }
     let lazy_config = config
+        .clone()
         .with_overrides(&["expert.mpcc_lazy_boxes=true".into()])
         .unwrap();
     let lazy = Mpcc::from_config(&lazy_config).unwrap();
@@ -454,6 +511,24 @@ fn the_configured_mpcc_is_the_reference_construction() {
         .zip(&expected)
         .all(|(x, y)| (x[0] - y[0]).abs() < 1e-4 && (x[1] - y[1]).abs() < 1e-4);
     assert!(close, "{:?} against {expected:?}", actions(&lazy));
+    let loose_config = config
+        .with_overrides(&[
+            "expert.mpcc_tol_gap=1e-2".into(),
+            "expert.mpcc_tol_feas=1e-3".into(),
+        ])
+        .unwrap();
+    let loose = Mpcc::from_config(&loose_config).unwrap();
+    assert_eq!(
+        (loose.config().tol_gap, loose.config().tol_feas),
+        (1e-2, 1e-3)
+    );
+    let loose_actions = actions(&loose);
+    assert_ne!(bits(loose_actions.clone()), bits(expected.clone()));
+    let near = loose_actions
+        .iter()
+        .zip(&expected)
+        .all(|(x, y)| (x[0] - y[0]).abs() < 0.1 && (x[1] - y[1]).abs() < 0.05);
+    assert!(near, "{loose_actions:?} against {expected:?}");
     let pid = RunConfig::load("v-a").unwrap();
     assert!(matches!(
         crate::relabel::Expert::from_config(&pid).unwrap(),

@@ -84,6 +84,9 @@ fn invalid_values_are_refused_by_name() {
             "[bus]\nsegment_batch_kib = 100000\n",
             "bus.segment_batch_kib",
         ),
+        ("[expert]\nmpcc_tol_gap = 0.0\n", "expert.mpcc_tol_gap"),
+        ("[expert]\nmpcc_tol_gap = 0.5\n", "expert.mpcc_tol_gap"),
+        ("[expert]\nmpcc_tol_feas = nan\n", "expert.mpcc_tol_feas"),
     ] {
         let err = RunConfig::from_toml(bad, "t.toml").unwrap_err().to_string();
         assert!(err.contains(key), "{bad}: {err}");

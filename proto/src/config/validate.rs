@@ -43,6 +43,18 @@ impl RunConfig {
                 "must be between 0 (no batching) and 10000 milliseconds",
             );
         }
+        for (key, value) in [
+            ("expert.mpcc_tol_gap", self.expert.mpcc_tol_gap),
+            ("expert.mpcc_tol_feas", self.expert.mpcc_tol_feas),
+        ] {
+            if !(1e-10..=0.1).contains(&value) {
+                return invalid(
+                    key,
+                    value.to_string(),
+                    "must be between 1e-10 and 0.1 (the reference's: 1e-5 and 1e-6)",
+                );
+            }
+        }
         if !(1..=65_536).contains(&self.bus.segment_batch_kib) {
             return invalid(
                 "bus.segment_batch_kib",
