@@ -54,6 +54,7 @@ fn the_plans_views_are_the_bash_campaigns() {
         "issue-65",
         "issue-65-v-a",
         "issue-75",
+        "issue-75-tolerance",
     ];
     let views: Vec<String> = plans_in(&root().join("deploy/campaign"))
         .unwrap()
@@ -112,6 +113,15 @@ fn the_plans_views_are_the_bash_campaigns() {
         .slices
         .iter()
         .all(|s| s.text().contains("--set actors.count=2")));
+    // Issue 75, later: the looser MPCC beside the default with the same two actors, both keys in every slice.
+    let loose = plan("issue-75-tolerance");
+    assert_eq!(loose.views[0].groups, ["v-b-auto", "v-b-tol-1e-2"]);
+    assert!(loose.slices.iter().all(|s| {
+        let t = s.text();
+        t.contains("--set actors.count=2")
+            && t.contains("--set expert.mpcc_tol_gap=1e-2")
+            && t.contains("--set expert.mpcc_tol_feas=1e-3")
+    }));
 }
 
 /// A slice's arguments are what bash's `eval` made of its text, and its runs are named as reproduce.sh names them.
