@@ -246,12 +246,32 @@ impl Cluster {
         let config = self.config.display().to_string();
         let serve = ["--config", &config, "serve", "--id", "0"];
         self.start_in("expert-server", servers, "expert-server", &serve)?;
+        // The evaluator first, on the bus before any actor: a short run's epochs can otherwise all pass before a
+        // slow start (a loaded machine loading libtorch) joins, and the learner does not wait for evaluations.
+        let eval = ["--config", &config, "--id", "eval", "--eval"];
+        self.start_in("eval", actors_in, "actor", &eval)?;
+        self.wait_for_log("eval", "actor started", Duration::from_secs(120))?;
         for i in 0..actors {
             let id = format!("actor-{i}");
             self.start_in(&id, actors_in, "actor", &["--config", &config, "--id", &id])?;
         }
-        let eval = ["--config", &config, "--id", "eval", "--eval"];
-        self.start_in("eval", actors_in, "actor", &eval)
+        Ok(())
+    }
+
+    /// Waits until the log of child `label` holds `needle` (`timeout` at most).
+    pub fn wait_for_log(&self, label: &str, needle: &str, timeout: Duration) -> Result<()> {
+        let path = self.dir.join(format!("{label}.log"));
+        let started = Instant::now();
+        while !std::fs::read_to_string(&path).is_ok_and(|t| t.contains(needle)) {
+            if started.elapsed() > timeout {
+                bail!(
+                    "{label}'s log has no {needle:?} after {timeout:?}:\n{}",
+                    self.log_tail(label)
+                );
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Ok(())
     }
 
     /// The learner of this run as `label`, resuming its run folder with `resume` (a fresh label for each restart,
