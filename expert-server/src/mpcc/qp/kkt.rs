@@ -107,11 +107,12 @@ fn qdldl(
     (timing, f)
 }
 
-/// The left-looking factorisation of `k` on `f`'s ordering and pattern, from a schedule computed once; returns its
-/// timing and the largest difference from `f`'s factors.
+/// The left-looking factorisation of `k` on `f`'s ordering and pattern (whose work `qdldl` counted), from a schedule
+/// computed once; returns its timing and the largest difference from `f`'s factors.
 fn scheduled(
     k: &CscMatrix<f64>,
     f: &QDLDLFactorisation<f64>,
+    qdldl: &KktTiming,
     repeats: usize,
     reps: usize,
 ) -> (KktTiming, f64) {
@@ -167,7 +168,7 @@ fn scheduled(
         rows: n,
         nnz: k.nnz(),
         nnz_l: f.nnzL(),
-        multiply_adds: 0,
+        multiply_adds: qdldl.multiply_adds,
         factor_us,
         solve_us: None,
     };
@@ -202,8 +203,7 @@ impl QpLayout {
             repeats,
             reps,
         );
-        let (mut scheduled, diff) = scheduled(&k, &f, repeats, reps);
-        scheduled.multiply_adds = clarabel.multiply_adds;
+        let (scheduled, diff) = scheduled(&k, &f, &clarabel, repeats, reps);
         assert!(diff < 1e-9, "the scheduled factors differ by {diff}");
         // The inequality rows eliminated: P + Σᵢ aᵢ aᵢᵀ / hᵢ over them, the equality rows kept.
         let mut reduced: BTreeMap<(usize, usize), f64> = full
